@@ -1,0 +1,248 @@
+"""Confusion cost matrices: load, validate, build (aggregates, sky, ML), mix, grid.
+
+A cost matrix ``C`` is (N, N) with **rows = predicted class, columns = true class** (SPEC §1).
+Matrices are float64 tensors so that YAML values and mixtures stay exact.
+
+>>> C = load_cost("egoistic")
+>>> C.shape, C[11, 2].item(), C[2, 11].item()  # person predicted on a building; and vice versa
+(torch.Size([19, 19]), 1000.0, 1.0)
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+import torch
+import yaml
+
+from costseg.classes import CLASS_NAMES
+
+COSTS_DIR = Path(__file__).resolve().parents[2] / "configs" / "costs"
+PRESETS = ("robotistic", "altruistic", "egoistic")
+
+
+def validate_cost(cost: torch.Tensor, class_names: Sequence[str] = CLASS_NAMES) -> torch.Tensor:
+    """Check that ``cost`` is a valid confusion cost matrix for ``class_names``.
+
+    Valid (SPEC §1): shape (N, N) with N = len(class_names), finite, zero diagonal, positive
+    off-diagonal entries.
+
+    Args:
+        cost: (N, N) matrix, rows = predicted class, columns = true class.
+        class_names: the model's classes, used for the shape and in error messages.
+
+    Returns:
+        ``cost`` as a float64 tensor.
+
+    Raises:
+        ValueError: naming the first offending entry.
+
+    >>> validate_cost(torch.ones(2, 2) - torch.eye(2), ["a", "b"]).dtype
+    torch.float64
+    >>> validate_cost(torch.tensor([[0.0, -1.0], [1.0, 0.0]]), ["a", "b"])  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    ValueError: cost matrix entry [0, 1] (predicted 'a', true 'b') is -1.0: off-diagonal ...
+    """
+    cost = torch.as_tensor(cost, dtype=torch.float64)
+    n = len(class_names)
+    if cost.shape != (n, n):
+        raise ValueError(
+            f"cost matrix must be {n}x{n} for {n} classes, got shape {tuple(cost.shape)}"
+        )
+    off = ~torch.eye(n, dtype=torch.bool)
+    checks = (
+        (~torch.isfinite(cost), "costs must be finite"),
+        ((cost != 0) & ~off, "the diagonal must be 0"),
+        ((cost <= 0) & off, "off-diagonal costs must be > 0"),
+    )
+    for bad, rule in checks:
+        if bad.any():
+            i, j = (int(v) for v in bad.nonzero()[0])
+            raise ValueError(
+                f"cost matrix entry [{i}, {j}] (predicted {class_names[i]!r}, true "
+                f"{class_names[j]!r}) is {cost[i, j].item()}: {rule}"
+            )
+    return cost
+
+
+def load_cost(name_or_path: str | Path, class_names: Sequence[str] = CLASS_NAMES) -> torch.Tensor:
+    """Load a preset (``robotistic``, ``altruistic``, ``egoistic``) or a YAML cost file.
+
+    Three YAML formats (see ``configs/costs/``):
+
+    * ``off_diagonal: λ`` — the symmetric matrix with every off-diagonal entry λ;
+    * ``classes: [...]`` + ``matrix: N×N`` — a full matrix over named classes (any order);
+    * ``aggregates`` + ``order`` + ``matrix`` (A×A) + ``epsilon``, ``suppressed_row_cost`` (M),
+      ``suppressed_column_cost`` (s) — expanded to N×N as in SPEC §2.
+
+    Returns:
+        (N, N) float64 matrix, validated.
+
+    Raises:
+        ValueError: unknown preset, malformed file, unknown class or aggregate name, invalid matrix.
+        FileNotFoundError: the path does not exist.
+
+    >>> load_cost("robotistic").sum().item()    # 19 * 18 ones
+    342.0
+    """
+    path = Path(name_or_path)
+    if path.suffix not in (".yaml", ".yml"):
+        if str(name_or_path) not in PRESETS:
+            raise ValueError(
+                f"unknown cost {str(name_or_path)!r}: expected one of {', '.join(PRESETS)} "
+                "or a path to a .yaml file"
+            )
+        path = COSTS_DIR / f"{name_or_path}.yaml"
+    spec = _read_yaml(path)
+    if "off_diagonal" in spec:
+        cost = float(spec["off_diagonal"]) * (1 - torch.eye(len(class_names), dtype=torch.float64))
+    elif "aggregates" in spec:
+        cost = _expand_aggregates(spec, path.parent, class_names)
+    elif "classes" in spec:
+        cost = _full_matrix(spec, class_names)
+    else:
+        raise ValueError(f"{path}: expected a key 'off_diagonal', 'aggregates' or 'classes'")
+    return validate_cost(cost, class_names)
+
+
+def save_cost(
+    path: str | Path, cost: torch.Tensor, name: str, class_names: Sequence[str] = CLASS_NAMES
+) -> None:
+    """Write ``cost`` as a full-matrix YAML file that :func:`load_cost` reads back exactly."""
+    cost = validate_cost(cost, class_names)
+    spec = {"name": name, "classes": list(class_names), "matrix": cost.tolist()}
+    Path(path).write_text(yaml.safe_dump(spec, sort_keys=False, width=1000))
+
+
+def _read_yaml(path: Path) -> dict:
+    if not path.is_file():
+        raise FileNotFoundError(f"cost file not found: {path}")
+    try:
+        spec = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as err:
+        raise ValueError(f"{path}: not valid YAML ({err.__class__.__name__})") from None
+    if not isinstance(spec, dict):
+        raise ValueError(f"{path}: expected a YAML mapping, got {type(spec).__name__}")
+    return spec
+
+
+def _as_matrix(values: object, size: int, what: str) -> torch.Tensor:
+    try:
+        matrix = torch.tensor(values, dtype=torch.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what}: 'matrix' must be a list of {size} rows of numbers") from None
+    if matrix.shape != (size, size):
+        raise ValueError(f"{what}: 'matrix' must be {size}x{size}, got {tuple(matrix.shape)}")
+    return matrix
+
+
+def _positions(names: Sequence[str], class_names: Sequence[str], what: str) -> list[int]:
+    unknown = [n for n in names if n not in class_names]
+    if unknown:
+        raise ValueError(
+            f"{what}: unknown class {unknown[0]!r}; expected one of: {', '.join(class_names)}"
+        )
+    return [list(class_names).index(n) for n in names]
+
+
+def _full_matrix(spec: dict, class_names: Sequence[str]) -> torch.Tensor:
+    names = list(spec["classes"])
+    if sorted(names) != sorted(class_names):
+        _positions(names, class_names, "cost file")
+        missing = sorted(set(class_names) - set(names))
+        raise ValueError(
+            f"cost file: 'classes' must list each of the {len(class_names)} classes once"
+            + (f"; missing {missing[0]!r}" if missing else "; a class is listed twice")
+        )
+    matrix = _as_matrix(spec.get("matrix"), len(names), "cost file")
+    order = _positions(names, class_names, "cost file")
+    cost = torch.empty_like(matrix)
+    cost[torch.tensor(order)[:, None], torch.tensor(order)[None, :]] = matrix
+    return cost
+
+
+def _expand_aggregates(spec: dict, folder: Path, class_names: Sequence[str]) -> torch.Tensor:
+    table = spec["aggregates"]
+    if isinstance(table, str):
+        table = _read_yaml(folder / table)
+    groups, suppressed = dict(table["aggregates"]), list(table.get("suppressed", []))
+    order = list(spec["order"])
+    if sorted(order) != sorted(groups):
+        raise ValueError(
+            f"cost file: 'order' {order} must name each aggregate once: {', '.join(groups)}"
+        )
+    agg_of = torch.full((len(class_names),), -1, dtype=torch.long)
+    for a, name in enumerate(order):
+        for i in _positions(groups[name], class_names, f"aggregate {name!r}"):
+            if agg_of[i] >= 0:
+                raise ValueError(f"class {class_names[i]!r} is in two aggregates")
+            agg_of[i] = a
+    sup = _positions(suppressed, class_names, "suppressed classes")
+    unassigned = [class_names[i] for i in range(len(class_names)) if agg_of[i] < 0 and i not in sup]
+    if unassigned:
+        raise ValueError(f"class {unassigned[0]!r} is in no aggregate and not suppressed")
+    matrix = _as_matrix(spec.get("matrix"), len(order), "aggregate cost file")
+    safe = agg_of.clamp(min=0)
+    cost = matrix[safe[:, None], safe[None, :]]
+    cost[agg_of[:, None] == agg_of[None, :]] = float(spec["epsilon"])
+    cost[:, sup] = float(spec["suppressed_column_cost"])  # s: sky as the true class
+    cost[sup, :] = float(spec["suppressed_row_cost"])  # M: predicting sky
+    return cost.fill_diagonal_(0.0)
+
+
+def ml_cost(priors: torch.Tensor, lam: float = 1.0) -> torch.Tensor:
+    """Maximum-likelihood cost ``C[k̂, k] = λ / π(k)`` for global priors π (N,).
+
+    ``decide(p, ml_cost(π))`` equals ``argmax p/π``. For pixel-wise priors use
+    ``decide(p, None, priors=π)`` instead: never a matrix per pixel.
+
+    >>> ml_cost(torch.tensor([0.5, 0.25]))
+    tensor([[0., 4.],
+            [2., 0.]], dtype=torch.float64)
+    """
+    priors = torch.as_tensor(priors, dtype=torch.float64)
+    if priors.ndim != 1 or not bool((priors > 0).all()):
+        raise ValueError(f"priors must be a positive 1-D vector, got shape {tuple(priors.shape)}")
+    return (lam / priors).expand(len(priors), -1).clone().fill_diagonal_(0.0)
+
+
+def rescale(cost: torch.Tensor) -> torch.Tensor:
+    """Scale ``cost`` to unit mean off-diagonal cost (same decisions, different mixtures).
+
+    >>> rescale(4 * load_cost("robotistic")).max().item()
+    1.0
+    """
+    off = ~torch.eye(cost.shape[-1], dtype=torch.bool, device=cost.device)
+    return cost / cost[..., off].mean(-1)[..., None, None]
+
+
+def mix_costs(vertices: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+    """Mixtures ``Σ_v w_v C_v``: vertices (V, N, N), weights (K, V) → (K, N, N).
+
+    >>> mix_costs(torch.stack([load_cost("robotistic")] * 2), torch.tensor([[0.5, 0.5]])).shape
+    torch.Size([1, 19, 19])
+    """
+    weights = torch.as_tensor(weights, dtype=torch.float64, device=vertices.device)
+    return torch.einsum("kv,vij->kij", weights, vertices.to(torch.float64))
+
+
+def barycentric_grid(step: float) -> torch.Tensor:
+    """All barycentric weights (α, β, γ) on a grid of the given step, α+β+γ = 1.
+
+    ``(1/h+1)(1/h+2)/2`` points, ordered by α descending, then β descending. Each weight is an
+    exact ``i / n``, so the vertices are exactly (1, 0, 0), (0, 1, 0) and (0, 0, 1).
+
+    >>> barycentric_grid(0.1).shape, barycentric_grid(0.05).shape
+    (torch.Size([66, 3]), torch.Size([231, 3]))
+    >>> barycentric_grid(0.5).tolist()[:3]
+    [[1.0, 0.0, 0.0], [0.5, 0.5, 0.0], [0.5, 0.0, 0.5]]
+    """
+    n = round(1 / step) if step > 0 else 0
+    if n < 1 or not math.isclose(n * step, 1.0, rel_tol=1e-9):
+        raise ValueError(f"grid step must be 1/n for a whole number n >= 1, got {step}")
+    points = [(n - i - j, i, j) for i in range(n + 1) for j in range(n + 1 - i)]
+    points.sort(key=lambda w: (-w[0], -w[1]))
+    return torch.tensor(points, dtype=torch.float64) / n
