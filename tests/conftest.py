@@ -1,0 +1,56 @@
+"""Shared fixtures: a small Cityscapes-layout tree written into ``tmp_path``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from torchvision.io import write_png
+
+CITYSCAPES_SIZE = (32, 64)
+"""(H, W) of every generated Cityscapes image."""
+CITYSCAPES_FILES = {
+    "val": ["frankfurt_000000_000294", "frankfurt_000000_000576", "lindau_000000_000019"],
+    "train": ["aachen_000000_000019", "aachen_000001_000019", "bochum_000000_000313"],
+}
+"""Split → item names of the generated tree, in sorted order."""
+LABEL_IDS = np.array([*range(34), 255], dtype=np.uint8)
+"""Every id a ``*_gtFine_labelIds.png`` may hold: 0-33 and license plate's -1 stored as 255."""
+
+
+def cityscapes_label_ids(item: int) -> np.ndarray:
+    """(H, W) uint8 label ids of generated item ``item``: 4x8 blocks cycling through LABEL_IDS."""
+    h, w = CITYSCAPES_SIZE
+    block = np.arange(h // 4)[:, None] * (w // 8) + np.arange(w // 8)[None, :]
+    ids = LABEL_IDS[(block + 7 * item) % len(LABEL_IDS)]
+    return np.kron(ids, np.ones((4, 8), dtype=np.uint8))
+
+
+def cityscapes_image(label_ids: np.ndarray) -> np.ndarray:
+    """(3, H, W) uint8 image whose red channel is the label id, so pixels reveal their label."""
+    return np.stack([label_ids, 255 - label_ids, np.full_like(label_ids, 100)])
+
+
+def write_cityscapes_item(root: Path, split: str, name: str, item: int) -> tuple[Path, Path]:
+    """Write one image/label pair in Cityscapes' layout; returns (image path, label path)."""
+    city = name.split("_")[0]
+    image = root / "leftImg8bit" / split / city / f"{name}_leftImg8bit.png"
+    label = root / "gtFine" / split / city / f"{name}_gtFine_labelIds.png"
+    image.parent.mkdir(parents=True, exist_ok=True)
+    label.parent.mkdir(parents=True, exist_ok=True)
+    ids = cityscapes_label_ids(item)
+    write_png(torch.from_numpy(cityscapes_image(ids)), str(image))
+    write_png(torch.from_numpy(ids)[None], str(label))
+    return image, label
+
+
+@pytest.fixture
+def cityscapes_root(tmp_path: Path) -> Path:
+    """A Cityscapes tree (``CITYSCAPES_FILES``, ``CITYSCAPES_SIZE``) under ``tmp_path``."""
+    root = tmp_path / "cityscapes"
+    for split, names in CITYSCAPES_FILES.items():
+        for item, name in enumerate(names):
+            write_cityscapes_item(root, split, name, item)
+    return root

@@ -1,0 +1,124 @@
+"""Both LightningDataModules: batches, loader settings and the labels used for priors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+from conftest import CITYSCAPES_SIZE
+
+from costseg.classes import CLASS_NAMES
+from costseg.data.cityscapes import CityscapesSegmentation
+from costseg.data.datamodule import CityscapesDataModule, StreetScenesDataModule
+
+SIZE = (64, 128)
+
+
+def _check_batch(batch: list[torch.Tensor], n: int, size: tuple[int, int]) -> None:
+    images, labels = batch
+    assert images.shape == (n, 3, *size) and images.dtype == torch.uint8
+    assert labels.shape == (n, *size) and labels.dtype == torch.int64
+    assert set(labels.unique().tolist()) <= {*range(19), 255}
+
+
+@pytest.fixture(scope="module")
+def toy() -> StreetScenesDataModule:
+    pytest.importorskip("costseg.data.toy")
+    return StreetScenesDataModule(
+        batch_size=2, num_workers=0, size=SIZE, train_length=5, val_length=3, test_length=2,
+        prior_images=4,
+    )  # fmt: skip
+
+
+def test_toy_batches(toy: StreetScenesDataModule) -> None:
+    assert toy.num_classes == 19 and toy.class_names == CLASS_NAMES and toy.label_size == SIZE
+    toy.setup("fit")
+    train = list(toy.train_dataloader())
+    assert len(train) == 2  # 5 scenes, last partial batch dropped
+    _check_batch(train[0], 2, SIZE)
+    val = list(toy.val_dataloader())
+    assert [len(b[0]) for b in val] == [2, 1]
+    _check_batch(val[0], 2, SIZE)
+    _check_batch(next(iter(toy.test_dataloader())), 2, SIZE)
+
+
+def test_toy_train_is_flipped_scenes(toy: StreetScenesDataModule) -> None:
+    plain = toy.make_dataset("train", augment=False)
+    augmented = toy.make_dataset("train", augment=True)
+    torch.manual_seed(0)
+    flips = 0
+    for _ in range(4):
+        for index in range(len(plain)):
+            (image, label), (aug_image, aug_label) = plain[index], augmented[index]
+            flipped = torch.equal(aug_label, label.flip(-1))
+            assert flipped or torch.equal(aug_label, label)
+            assert torch.equal(aug_image, image.flip(-1) if flipped else image)
+            flips += flipped and not torch.equal(label, label.flip(-1))
+    assert 0 < flips < 4 * len(plain)
+
+
+def test_toy_prior_labels(toy: StreetScenesDataModule) -> None:
+    labels = list(toy.prior_labels())
+    assert len(labels) == len(toy.prior_labels()) == 4
+    plain = toy.make_dataset("train", augment=False)
+    for index, label in enumerate(labels):
+        assert torch.equal(label, plain[index][1])
+    everything = StreetScenesDataModule(batch_size=2, size=SIZE, train_length=3, prior_images=None)
+    assert len(everything.prior_labels()) == 3
+
+
+def test_loader_settings(toy: StreetScenesDataModule) -> None:
+    train, val = toy.train_dataloader(), toy.val_dataloader()
+    assert train.drop_last and not val.drop_last
+    assert not train.persistent_workers and train.pin_memory == torch.cuda.is_available()
+    workers = StreetScenesDataModule(batch_size=2, num_workers=2, size=SIZE, train_length=4)
+    assert workers.train_dataloader().persistent_workers
+    assert workers.val_dataloader().num_workers == 2
+
+
+def test_bad_arguments() -> None:
+    with pytest.raises(ValueError, match="batch_size"):
+        StreetScenesDataModule(batch_size=0)
+    with pytest.raises(ValueError, match="num_workers"):
+        StreetScenesDataModule(num_workers=-1)
+    with pytest.raises(ValueError, match="prior_images"):
+        CityscapesDataModule(prior_images=0)
+    with pytest.raises(ValueError, match="train_length"):
+        StreetScenesDataModule(batch_size=8, train_length=4)
+    with pytest.raises(ValueError, match="crop_size"):
+        CityscapesDataModule(crop_size=0)
+
+
+def test_cityscapes_batches(cityscapes_root: Path) -> None:
+    dm = CityscapesDataModule(
+        root=str(cityscapes_root), batch_size=2, num_workers=0, crop_size=(16, 24),
+        eval_batch_size=3,
+    )  # fmt: skip
+    assert dm.num_classes == 19 and dm.label_size == CITYSCAPES_SIZE
+    dm.setup("fit")
+    train = list(dm.train_dataloader())
+    assert len(train) == 1
+    _check_batch(train[0], 2, (16, 24))
+    _check_batch(next(iter(dm.val_dataloader())), 3, CITYSCAPES_SIZE)
+    test = next(iter(dm.test_dataloader()))  # Cityscapes' test labels are withheld: val
+    val = CityscapesSegmentation(cityscapes_root, "val")
+    assert torch.equal(test[1][0], val[0][1])
+
+
+def test_cityscapes_prior_labels(cityscapes_root: Path) -> None:
+    dm = CityscapesDataModule(root=str(cityscapes_root), num_workers=0)
+    train = CityscapesSegmentation(cityscapes_root, "train")
+    labels = list(dm.prior_labels())
+    assert len(labels) == 3
+    for index, label in enumerate(labels):
+        assert torch.equal(label, train[index][1])
+    two = CityscapesDataModule(str(cityscapes_root), num_workers=1, prior_images=2)
+    labels = list(two.prior_labels())  # read in a worker process
+    assert len(labels) == 2 and torch.equal(labels[1], train[1][1])
+
+
+def test_cityscapes_missing_root(tmp_path: Path) -> None:
+    dm = CityscapesDataModule(root=str(tmp_path / "none"))
+    with pytest.raises(FileNotFoundError, match=r"cityscapes-dataset\.com"):
+        dm.setup("fit")

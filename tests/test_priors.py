@@ -1,0 +1,155 @@
+"""Pixel-wise priors against hand loops, RoI maps, resizing and the priors file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+
+from costseg.classes import CLASS_NAMES, class_index
+from costseg.data.priors import (
+    ROI_NAMES,
+    load_priors,
+    pixel_priors,
+    resize_priors,
+    roi_map,
+    save_priors,
+)
+
+
+def _brute_force(labels: list[torch.Tensor], n: int, eps: float) -> torch.Tensor:
+    """SPEC §3 with plain loops (no smoothing)."""
+    h, w = labels[0].shape
+    out = torch.zeros(n, h, w, dtype=torch.float64)
+    for y in range(h):
+        for x in range(w):
+            values = [int(label[y, x]) for label in labels if int(label[y, x]) != 255]
+            freq = [values.count(c) / len(values) if values else 1 / n for c in range(n)]
+            floored = [max(f, eps) for f in freq]
+            for c in range(n):
+                out[c, y, x] = floored[c] / sum(floored)
+    return out
+
+
+def _random_labels(count: int, size: tuple[int, int], n: int, seed: int) -> list[torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    labels = [torch.randint(0, n, size, generator=g) for _ in range(count)]
+    for label in labels:
+        label[torch.rand(size, generator=g) < 0.3] = 255
+    labels[0][0, 0] = labels[1][0, 0] = labels[2][0, 0] = 255  # never labelled → uniform
+    return labels
+
+
+def test_matches_brute_force_count() -> None:
+    labels = _random_labels(count=3, size=(4, 5), n=3, seed=0)
+    pi = pixel_priors(labels, num_classes=3, eps=1e-3, progress=False)
+    assert pi.dtype == torch.float32 and pi.shape == (3, 4, 5)
+    torch.testing.assert_close(pi.double(), _brute_force(labels, 3, 1e-3), atol=1e-6, rtol=0)
+    torch.testing.assert_close(pi[:, 0, 0], torch.full((3,), 1 / 3))
+    torch.testing.assert_close(pi.sum(dim=0), torch.ones(4, 5))
+
+
+def test_ignored_pixels_count_nowhere() -> None:
+    # Location (0, 0): class 1 twice, ignored three times → all mass on class 1 before the floor.
+    labels = [torch.tensor([[v, 0]]) for v in (1, 255, 1, 255, 255)]
+    pi = pixel_priors(labels, num_classes=2, eps=1e-5, progress=False)
+    torch.testing.assert_close(pi[:, 0, 0], torch.tensor([1e-5, 1.0]) / (1 + 1e-5))
+    torch.testing.assert_close(pi[:, 0, 1], torch.tensor([1.0, 1e-5]) / (1 + 1e-5))
+
+
+def test_eps_floor_and_iterables() -> None:
+    labels = _random_labels(count=12, size=(6, 7), n=19, seed=1)
+    eps = 1e-4
+    pi = pixel_priors(iter(labels), eps=eps, progress=True)  # an iterator without len works too
+    torch.testing.assert_close(pi.sum(dim=0), torch.ones(6, 7))
+    assert pi.min() >= eps / (1 + 19 * eps) - 1e-9
+    torch.testing.assert_close(pi.double(), _brute_force(labels, 19, eps), atol=1e-6, rtol=0)
+    uint8 = pixel_priors([label.to(torch.uint8) for label in labels], eps=eps, progress=False)
+    assert torch.equal(uint8, pi)
+
+
+def test_smoothing_keeps_distributions() -> None:
+    labels = _random_labels(count=6, size=(12, 16), n=4, seed=2)
+    raw = pixel_priors(labels, num_classes=4, progress=False)
+    smooth = pixel_priors(labels, num_classes=4, sigma=2.0, progress=False)
+    torch.testing.assert_close(smooth.sum(dim=0), torch.ones(12, 16))
+    assert smooth.std(dim=(1, 2)).max() < raw.std(dim=(1, 2)).min()  # spatially smoother
+    torch.testing.assert_close(smooth.mean(dim=(1, 2)), raw.mean(dim=(1, 2)), atol=0.02, rtol=0)
+    constant = pixel_priors([torch.full((5, 6), 2)] * 3, num_classes=4, sigma=3.0, progress=False)
+    torch.testing.assert_close(constant, pixel_priors([torch.full((5, 6), 2)], 4, progress=False))
+
+
+def test_resize_renormalises() -> None:
+    pi = pixel_priors(_random_labels(4, (8, 10), 5, seed=3), num_classes=5, progress=False)
+    for size in [(4, 5), (16, 20), (7, 13)]:
+        out = resize_priors(pi, size)
+        assert out.shape == (5, *size)
+        torch.testing.assert_close(out.sum(dim=0), torch.ones(size))
+        assert out.min() > 0
+    assert torch.equal(resize_priors(pi, (8, 10)), pi)
+    unnormalised = torch.rand(3, 6, 6) + 0.1
+    torch.testing.assert_close(resize_priors(unnormalised, (3, 3)).sum(dim=0), torch.ones(3, 3))
+
+
+def test_bad_labels_are_rejected() -> None:
+    with pytest.raises(ValueError, match=r"label 1 is \(3, 4\), label 0 is \(4, 4\)"):
+        pixel_priors([torch.zeros(4, 4, dtype=torch.long), torch.zeros(3, 4, dtype=torch.long)])
+    with pytest.raises(ValueError, match=r"label 0 holds values \[-1, 19\]"):
+        pixel_priors([torch.tensor([[0, 19, -1, 255]])])
+    with pytest.raises(ValueError, match="at least one"):
+        pixel_priors([])
+    with pytest.raises(ValueError, match="integer"):
+        pixel_priors([torch.zeros(4, 4)])
+    with pytest.raises(ValueError, match="eps"):
+        pixel_priors([torch.zeros(4, 4, dtype=torch.long)], num_classes=19, eps=0.1)
+
+
+def test_roi_map_on_hand_made_priors() -> None:
+    pi = torch.full((19, 2, 3), 0.01)
+    road, sidewalk = class_index("road"), class_index("sidewalk")
+    building, sky, person = class_index("building"), class_index("sky"), class_index("person")
+    pi[road, 0, 0] = 0.5
+    pi[sidewalk, 0, 1] = 0.3
+    pi[building, 0, 2] = 0.2
+    pi[sky, 1, 0] = 0.4
+    pi[person, 1, 1], pi[building, 1, 1] = 0.9, 0.05  # person is no RoI class
+    pi[road, 1, 2] = pi[sky, 1, 2] = 0.3  # tie → lower RoI id
+    roi = roi_map(pi)
+    assert roi.dtype == torch.int64
+    assert roi.tolist() == [[1, 2, 3], [4, 3, 1]]
+    assert [ROI_NAMES[i] for i in roi[0].tolist()] == ["street", "sidewalk", "building"]
+    with pytest.raises(ValueError, match="19 classes"):
+        roi_map(torch.zeros(5, 2, 2))
+
+
+def test_roi_map_on_toy_priors() -> None:
+    toy = pytest.importorskip("costseg.data.toy")
+    scenes = toy.StreetScenes(split="train", length=100, size=(64, 128), seed=0)
+    roi = roi_map(pixel_priors((label for _, label in scenes), progress=False))
+    h, w = roi.shape
+    street, sidewalk, building, sky = 1, 2, 3, 4
+    assert roi[h - 4 :, w // 2 - 8 : w // 2 + 8].eq(street).all()
+    assert roi[:4, w // 2 - 4 : w // 2 + 4].eq(sky).all()
+    assert roi[:, : w // 2].eq(sidewalk).any() and roi[:, w // 2 :].eq(sidewalk).any()
+    assert roi[h // 4, :8].eq(building).all() and roi[h // 4, -8:].eq(building).all()
+    assert set(roi.unique().tolist()) == {street, sidewalk, building, sky}
+
+
+def test_save_and_load(tmp_path: Path) -> None:
+    pi = pixel_priors(_random_labels(3, (4, 6), 19, seed=4), progress=False)
+    path = tmp_path / "ckpt" / "priors.pt"
+    save_priors(path, pi)
+    assert torch.equal(load_priors(path), pi)
+    assert [p.name for p in path.parent.iterdir()] == ["priors.pt"]  # no temp file left
+    with pytest.raises(FileNotFoundError, match=r"missing\.pt"):
+        load_priors(tmp_path / "missing.pt")
+    (tmp_path / "junk.pt").write_bytes(b"junk")
+    with pytest.raises(ValueError, match=r"junk\.pt"):
+        load_priors(tmp_path / "junk.pt")
+    torch.save({"priors": pi}, tmp_path / "other.pt")
+    with pytest.raises(ValueError, match="not a pixel-priors file"):
+        load_priors(tmp_path / "other.pt")
+    renamed = ("street", *CLASS_NAMES[1:])
+    with pytest.raises(ValueError, match="expected"):
+        load_priors(path, class_names=renamed)
