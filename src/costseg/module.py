@@ -1,0 +1,158 @@
+"""The LightningModule: DeepLabv3+ trained with cross-entropy, validated under cost rules.
+
+Training is ordinary cross-entropy (ignore index 255). Validation takes the softmax and swaps
+``argmax`` for the configured decision rules (robotistic by default, i.e. argmax), all rules
+in one pass, and logs mIoU, per-class IoU and person/building recall in the street RoI per rule.
+The pixel-wise priors (and so the RoI map) travel inside the checkpoint.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+import lightning as L
+import torch
+import torch.nn.functional as F
+
+from costseg.classes import CLASS_NAMES, IGNORE_INDEX, class_index
+from costseg.data.priors import resize_priors, roi_map
+from costseg.metrics import RoIPrecisionRecall
+from costseg.models.deeplabv3plus import DeepLabV3Plus
+from costseg.report.tensorboard import log_masks
+from costseg.rules import apply_rules, parse_rules
+
+IMAGENET_MEAN = (0.485, 0.456, 0.406)
+IMAGENET_STD = (0.229, 0.224, 0.225)
+CHECKPOINT_KEY = "costseg"
+
+
+class SegmentationModule(L.LightningModule):
+    """DeepLabv3+ for semantic segmentation with cost-based validation.
+
+    Args:
+        num_classes: output classes (19 Cityscapes train classes).
+        backbone: a torchvision backbone name (see ``costseg.models.deeplabv3plus.BACKBONES``).
+        output_stride: 16 or 8.
+        decoder_channels: width of ASPP and decoder (256 in the paper's model).
+        backbone_weights: optional local file with ImageNet weights for the backbone.
+        optimizer: ``sgd`` (momentum, Nesterov off) or ``adamw``.
+        lr: peak learning rate, decayed by the poly schedule ``(1 - step/total) ** poly_power``.
+        momentum: SGD momentum.
+        weight_decay: L2 / decoupled weight decay.
+        poly_power: exponent of the poly schedule.
+        val_costs: decision rules applied in validation (names as for ``evaluate.py --cost``).
+        prior_sigma: Gaussian smoothing (pixels) of the pixel-wise priors.
+        log_images: validation images logged to TensorBoard with ground truth and predictions.
+    """
+
+    def __init__(
+        self,
+        num_classes: int = 19,
+        backbone: str = "resnet50",
+        output_stride: int = 16,
+        decoder_channels: int = 256,
+        backbone_weights: str | None = None,
+        optimizer: Literal["sgd", "adamw"] = "sgd",
+        lr: float = 0.01,
+        momentum: float = 0.9,
+        weight_decay: float = 1e-4,
+        poly_power: float = 0.9,
+        val_costs: tuple[str, ...] = ("robotistic",),
+        prior_sigma: float = 0.0,
+        log_images: int = 2,
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        self.net = DeepLabV3Plus(
+            num_classes, backbone, output_stride, backbone_weights, decoder_channels
+        )
+        self.rules = parse_rules(val_costs, CLASS_NAMES[:num_classes])
+        self.val_metrics = RoIPrecisionRecall(num_classes, num_rules=len(self.rules), num_rois=4)
+        self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), False)
+        self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), False)
+        self.priors: torch.Tensor | None = None  # (N, H, W) at label resolution, set before fit
+        self.data_config: dict[str, Any] | None = None  # how to rebuild the data, for evaluation
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        """(B, 3, H, W) uint8 RGB → (B, N, H, W) logits."""
+        x = (images.float() / 255 - self.mean) / self.std
+        return self.net(x)
+
+    def priors_at(self, size: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """Pixel-wise priors (N, H, W) and RoI map (H, W) at ``size``, on this module's device."""
+        if self.priors is None:
+            return None
+        priors = self.priors.to(self.device)
+        if tuple(priors.shape[1:]) != tuple(size):
+            priors = resize_priors(priors, size)
+        return priors, roi_map(priors, CLASS_NAMES[: self.hparams.num_classes])
+
+    def training_step(self, batch: tuple[torch.Tensor, torch.Tensor], batch_idx: int):
+        images, labels = batch
+        loss = F.cross_entropy(self(images), labels, ignore_index=IGNORE_INDEX)
+        self.log("train/loss", loss, prog_bar=True)
+        return loss
+
+    def validation_step(self, batch: tuple[torch.Tensor, torch.Tensor], batch_idx: int) -> None:
+        images, labels = batch
+        logits = self(images)
+        loss = F.cross_entropy(logits, labels, ignore_index=IGNORE_INDEX)
+        self.log("val/loss", loss, sync_dist=True)
+        priors, roi = self.priors_at(labels.shape[-2:]) or (None, None)
+        preds = apply_rules(logits.float().softmax(1), self.rules, priors)
+        self.val_metrics.update(preds, labels, roi)
+        if batch_idx == 0 and self.hparams.log_images:
+            self._log_examples(images, labels, preds)
+
+    def on_validation_epoch_end(self) -> None:
+        out = self.val_metrics.compute()
+        self.val_metrics.reset()
+        self.log("val/miou", out["miou"][0].float(), prog_bar=True)
+        names = CLASS_NAMES[: self.hparams.num_classes]
+        person, building = class_index("person", names), class_index("building", names)
+        for k, rule in enumerate(self.rules):
+            self.log(f"val/miou/{rule.name}", out["miou"][k].float())
+            for c, name in enumerate(names):
+                self.log(f"val/iou/{rule.name}/{name}", out["iou"][k, c].float())
+            for c, name in ((person, "person"), (building, "building")):
+                self.log(f"val/recall_street/{rule.name}/{name}", out["recall"][k, 1, c].float())
+
+    def _log_examples(self, images, labels, preds) -> None:
+        writer = getattr(self.logger, "experiment", None)
+        if writer is None or not hasattr(writer, "add_image"):
+            return
+        for i in range(min(self.hparams.log_images, len(images))):
+            log_masks(
+                writer,
+                f"val/masks/{i}",
+                images[i].permute(1, 2, 0).cpu().numpy(),
+                labels[i].cpu().numpy(),
+                {r.name: preds[i, k].cpu().numpy() for k, r in enumerate(self.rules)},
+                step=self.global_step,
+            )
+
+    def configure_optimizers(self):
+        h = self.hparams
+        if h.optimizer == "sgd":
+            opt = torch.optim.SGD(
+                self.parameters(), lr=h.lr, momentum=h.momentum, weight_decay=h.weight_decay
+            )
+        else:
+            opt = torch.optim.AdamW(self.parameters(), lr=h.lr, weight_decay=h.weight_decay)
+        total = max(1, int(self.trainer.estimated_stepping_batches))
+        poly = torch.optim.lr_scheduler.LambdaLR(
+            opt, lambda step: max(0.0, 1 - step / total) ** h.poly_power
+        )
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": poly, "interval": "step"}}
+
+    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        checkpoint[CHECKPOINT_KEY] = {
+            "class_names": list(CLASS_NAMES[: self.hparams.num_classes]),
+            "priors": None if self.priors is None else self.priors.cpu(),
+            "data": self.data_config,
+        }
+
+    def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        extra = checkpoint.get(CHECKPOINT_KEY, {})
+        self.priors = extra.get("priors")
+        self.data_config = extra.get("data")
