@@ -54,3 +54,32 @@ def cityscapes_root(tmp_path: Path) -> Path:
         for item, name in enumerate(names):
             write_cityscapes_item(root, split, name, item)
     return root
+
+
+TINY_TRAIN = [
+    "--model.backbone=resnet18",
+    "--model.decoder_channels=16",
+    "--model.val_costs=[robotistic, ml]",
+    "--data.init_args.size=[64, 128]",
+    "--data.init_args.batch_size=2",
+    "--data.init_args.train_length=8",
+    "--data.init_args.val_length=3",
+    "--data.init_args.test_length=2",
+    "--data.init_args.prior_images=4",
+    "--data.init_args.num_workers=0",
+    "--trainer.max_steps=2",
+    "--trainer.val_check_interval=2",
+    "--trainer.enable_progress_bar=false",
+    "--trainer.enable_model_summary=false",
+]
+"""Arguments of `python train.py` for a model that trains in seconds (tests only)."""
+
+
+@pytest.fixture(scope="session")
+def tiny_run(tmp_path_factory: pytest.TempPathFactory):
+    """A tiny model trained through `train_main` (2 steps); returns (module, trainer, runs dir)."""
+    from costseg.cli import train_main
+
+    runs = tmp_path_factory.mktemp("runs")
+    module, trainer = train_main([*TINY_TRAIN, f"--trainer.logger.init_args.save_dir={runs}"])
+    return module, trainer, runs

@@ -14,7 +14,7 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import torch
-from lightning.pytorch import LightningDataModule
+from lightning.pytorch import LightningDataModule, Trainer
 from lightning.pytorch.cli import LightningCLI
 
 from costseg.checkpoints import check_classes, find_checkpoint
@@ -53,8 +53,12 @@ class TrainCLI(LightningCLI):
         )
 
 
-def train_main(args: Sequence[str] | None = None) -> None:
-    """``python train.py [--config configs/toy.yaml] [--trainer.max_steps 100] ...``."""
+def train_main(args: Sequence[str] | None = None) -> tuple[SegmentationModule, Trainer]:
+    """``python train.py [--config configs/toy.yaml] [--trainer.max_steps 100] ...``.
+
+    Returns:
+        the trained module and its trainer (for scripts and tests).
+    """
     args = list(sys.argv[1:] if args is None else args)
     if not any(a == "--config" or a.startswith("--config=") for a in args):
         args = ["--config", str(CONFIG_DIR / "toy.yaml"), *args]
@@ -82,7 +86,9 @@ def train_main(args: Sequence[str] | None = None) -> None:
         else:
             model.priors = _compute_priors(model, data, trainer)
         trainer.fit(model, data, ckpt_path=ckpt_path)
-        print(f"checkpoints: {trainer.checkpoint_callback.dirpath}")
+        if trainer.checkpoint_callback is not None:
+            print(f"checkpoints: {trainer.checkpoint_callback.dirpath}")
+        return model, trainer
 
 
 def _data_config(cli: LightningCLI) -> dict:

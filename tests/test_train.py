@@ -1,0 +1,88 @@
+"""`python train.py` end to end: fit, checkpoint, reload, resume, and refusal of foreign checkpoints."""
+
+from pathlib import Path
+
+import pytest
+import torch
+from conftest import TINY_TRAIN
+
+from costseg.checkpoints import find_checkpoint
+from costseg.cli import train_main
+from costseg.data.toy import StreetScenes
+from costseg.module import SegmentationModule
+
+
+def _last(runs: Path) -> Path:
+    return find_checkpoint(None, runs_dir=runs)
+
+
+def test_fast_dev_run_through_the_entry_point(tmp_path):
+    module, trainer = train_main(
+        [
+            *TINY_TRAIN,
+            "--trainer.fast_dev_run=true",
+            f"--trainer.logger.init_args.save_dir={tmp_path}",
+        ]
+    )
+    assert trainer.global_step == 1
+    assert module.priors.shape == (19, 64, 128)
+    assert torch.allclose(module.priors.sum(0), torch.ones(64, 128))
+
+
+def test_run_folder_holds_checkpoints_priors_and_figures(tiny_run):
+    _, trainer, runs = tiny_run
+    run = Path(trainer.log_dir)
+    for name in ("priors.pt", "priors.png", "roi_map.png", "config.yaml", "checkpoints/last.ckpt"):
+        assert (run / name).is_file(), name
+    assert _last(runs).parent == run / "checkpoints"
+
+
+def test_checkpoint_reload_gives_identical_predictions(tiny_run):
+    module, _, runs = tiny_run
+    loaded = SegmentationModule.load_from_checkpoint(_last(runs), map_location="cpu")
+    images = torch.stack([StreetScenes("val", 2, (64, 128))[i][0] for i in range(2)])
+    module.eval(), loaded.eval()
+    with torch.no_grad():
+        assert torch.equal(module(images), loaded(images))
+    assert torch.equal(module.priors, loaded.priors)
+    assert loaded.data_config["class_path"].endswith("StreetScenesDataModule")
+
+
+def test_resume_continues_the_step_count(tiny_run, tmp_path):
+    _, _, runs = tiny_run
+    _, trainer = train_main(
+        [
+            *TINY_TRAIN,
+            "--trainer.max_steps=4",
+            f"--trainer.logger.init_args.save_dir={tmp_path}",
+            f"--ckpt_path={_last(runs)}",
+        ]
+    )
+    assert trainer.global_step == 4
+
+
+def test_checkpoint_of_another_class_set_is_refused(tiny_run, tmp_path, capsys):
+    _, _, runs = tiny_run
+    checkpoint = torch.load(_last(runs), map_location="cpu", weights_only=False)
+    checkpoint["costseg"]["class_names"] = ["road", "car", "person"]
+    foreign = tmp_path / "foreign.ckpt"
+    torch.save(checkpoint, foreign)
+    with pytest.raises(SystemExit) as exit_info:
+        train_main(
+            [
+                *TINY_TRAIN,
+                f"--trainer.logger.init_args.save_dir={tmp_path}",
+                f"--ckpt_path={foreign}",
+            ]
+        )
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert "trained on 3 classes" in err[0] and "19 classes are expected" in err[0]
+
+
+def test_missing_resume_checkpoint(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        train_main([*TINY_TRAIN, f"--ckpt_path={tmp_path / 'nope.ckpt'}"])
+    assert exit_info.value.code == 2
+    assert "checkpoint not found" in capsys.readouterr().err
