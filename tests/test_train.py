@@ -21,6 +21,7 @@ def test_fast_dev_run_through_the_entry_point(tmp_path):
         [
             *TINY_TRAIN,
             "--trainer.fast_dev_run=true",
+            f"--trainer.default_root_dir={tmp_path}",
             f"--trainer.logger.init_args.save_dir={tmp_path}",
         ]
     )
