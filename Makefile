@@ -27,6 +27,7 @@ test: lint
 
 bench: setup
 	$(BIN)/python scripts/bench.py
+	$(BIN)/python scripts/bench_data.py
 
 clean:
 	rm -rf $(VENV) runs eval .pytest_cache .ruff_cache .hypothesis

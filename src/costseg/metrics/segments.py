@@ -1,0 +1,227 @@
+"""SegmentErrors: segment-wise false positives / negatives per rule, class and RoI (SPEC §4)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from functools import wraps
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from scipy import ndimage
+from torch import Tensor
+from torchmetrics import Metric
+
+from costseg.classes import IGNORE_INDEX
+from costseg.metrics.functional import (
+    as_rules,
+    check_batch,
+    label_segments,
+    missed_segments,
+    restore_ndims,
+    roi_totals,
+)
+
+_COUNTS = ("fp", "fn", "n_pred", "n_gt")
+_NDIMS = dict.fromkeys((*_COUNTS, "fp_rate", "fn_rate"), 3) | {"fp_map": 4, "fn_map": 4}
+
+
+def _distinct(masks: np.ndarray) -> tuple[list[int], np.ndarray]:
+    """Distinct masks of a (K, H, W) bool stack: index of each one's first copy, (K,) inverse."""
+    # Exact bytes as dict keys: hashing K packed rows is far cheaper than sorting them.
+    first: dict[bytes, int] = {}
+    reps: list[int] = []
+    inverse = np.empty(len(masks), dtype=np.int64)
+    for k, row in enumerate(np.packbits(masks.reshape(len(masks), -1), axis=1)):
+        inverse[k] = first.setdefault(row.tobytes(), len(reps))
+        if inverse[k] == len(reps):
+            reps.append(k)
+    return reps, inverse
+
+
+def _rule_errors(
+    pred_masks: np.ndarray, gt_mask: np.ndarray, roi: np.ndarray | None, num_rois: int, maps: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Segment errors of one class in one image under K rules, computed once per distinct mask.
+
+    Args:
+        pred_masks: (K, H, W) bool, ``pred == cls`` on non-ignored pixels, one per rule.
+        gt_mask: (H, W) bool, ``target == cls``.
+        roi: None or (H, W) RoI ids.
+        num_rois: R.
+        maps: whether to return the FP / FN masks.
+
+    Returns:
+        (K,) index of each rule's distinct mask; (U, 4, R+1) int64 counts in the order of
+        ``_COUNTS`` and (U, H, W) FP and FN masks (or None) of the U distinct masks.
+    """
+    # No segment reaches outside the box around all foreground: cropping to it changes nothing.
+    boxes = ndimage.find_objects((pred_masks.any(0) | gt_mask).view(np.uint8))
+    box = boxes[0] if boxes else (slice(0, 0), slice(0, 0))
+    crops = pred_masks[:, box[0], box[1]]
+    reps, inverse = _distinct(crops)
+    counts, fp, fn = _distinct_errors(
+        crops[reps], gt_mask[box], None if roi is None else roi[box], num_rois, maps
+    )
+    if fp is None or fn is None:
+        return inverse, counts, None, None
+    fp_full, fn_full = np.zeros((2, len(reps), *gt_mask.shape), dtype=bool)
+    fp_full[:, box[0], box[1]], fn_full[:, box[0], box[1]] = fp, fn
+    return inverse, counts, fp_full, fn_full
+
+
+def _distinct_errors(
+    pred_masks: np.ndarray, gt_mask: np.ndarray, roi: np.ndarray | None, num_rois: int, maps: bool
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Counts (U, 4, R+1) and, if ``maps``, FP / FN masks (U, H, W) of U masks; see above."""
+    gt = label_segments(gt_mask, roi, num_rois)  # does not depend on the rule
+    n_gt = roi_totals(gt.owner[1:], num_rois)
+    counts, fp_maps, fn_maps = [], [], []
+    for mask in pred_masks:
+        pred = label_segments(mask, roi, num_rois)
+        # Ground-truth pixels are never ignored, so ``mask`` equals pred == cls on them.
+        fp_seg, fn_seg = missed_segments(pred, gt_mask), missed_segments(gt, mask)
+        fp, fn = roi_totals(pred.owner[fp_seg], num_rois), roi_totals(gt.owner[fn_seg], num_rois)
+        counts.append(np.stack([fp, fn, roi_totals(pred.owner[1:], num_rois), n_gt]))
+        if maps:
+            fp_maps.append(fp_seg[pred.labels])
+            fn_maps.append(fn_seg[gt.labels])
+    if not maps:
+        return np.stack(counts), None, None
+    return np.stack(counts), np.stack(fp_maps), np.stack(fn_maps)
+
+
+class SegmentErrors(Metric):
+    """Counts of false-positive / false-negative 8-connected segments and their location maps.
+
+    Per decision rule k, class c and RoI r (r = 0: whole image) the states sum the numbers of FP
+    and FN segments and of predicted and ground-truth segments (definitions: SPEC §4 and
+    :func:`~costseg.metrics.functional.segment_errors`), plus per location the number of images
+    in which it lies in an FP (resp. FN) segment. All states are sums, so the metric is the same
+    in one batch, many batches or across processes.
+
+    Args:
+        classes: the C class ids to evaluate.
+        num_rules: K, the number of decision rules in each ``preds``.
+        num_rois: R.
+        ignore_index: target value that is ignored.
+        heatmap_size: (h, w) of the FP / FN maps: each mask is area-resampled to it. None keeps
+            the label size of the first update (all later labels must share it, and under DDP
+            every process must update before ``compute()``); (0, 0) turns the maps off (for
+            sweeps over many rules).
+        kwargs: passed to ``torchmetrics.Metric``.
+
+    ``compute()`` returns int64 (K, C, R+1) "fp", "fn", "n_pred", "n_gt"; float64 "fp_rate" =
+    fp / n_pred and "fn_rate" = fn / n_gt (NaN for 0/0); float64 (K, C, h, w) "fp_map" and
+    "fn_map": the fraction of images in which each location lies in an FP (FN) segment.
+
+    >>> m = SegmentErrors(classes=(1,), num_rois=0)
+    >>> m.update(torch.tensor([[[1, 0, 0], [0, 0, 1]]]), torch.tensor([[[1, 1, 0], [0, 0, 0]]]))
+    >>> out = m.compute()
+    >>> out["fp"].tolist(), out["n_pred"].tolist(), out["fp_map"][0, 0].tolist()
+    ([[[1]]], [[[2]]], [[0.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    """
+
+    is_differentiable = False
+    higher_is_better = None  # error counts fall, segment totals are neutral
+    full_state_update = False
+
+    def __init__(
+        self,
+        classes: Sequence[int] = (11, 2),
+        num_rules: int = 1,
+        num_rois: int = 4,
+        ignore_index: int = IGNORE_INDEX,
+        heatmap_size: tuple[int, int] | None = None,
+        **kwargs: Any,
+    ) -> None:
+        super().__init__(**kwargs)
+        classes = tuple(int(c) for c in classes)
+        if not classes or len(set(classes)) != len(classes) or ignore_index in classes:
+            raise ValueError(
+                f"expected distinct class ids other than {ignore_index}, got {classes}"
+            )
+        if num_rules < 1 or num_rois < 0:
+            raise ValueError(f"expected num_rules >= 1, num_rois >= 0, got {num_rules}, {num_rois}")
+        if heatmap_size is not None:
+            heatmap_size = tuple(heatmap_size)
+            if not (heatmap_size == (0, 0) or (len(heatmap_size) == 2 and min(heatmap_size) > 0)):
+                raise ValueError(
+                    f"expected heatmap_size None, (0, 0) or (h, w) > 0, got {heatmap_size}"
+                )
+        self.classes, self.num_rules, self.num_rois = classes, num_rules, num_rois
+        self.ignore_index, self.heatmap_size = ignore_index, heatmap_size
+        for name in _COUNTS:
+            default = torch.zeros(num_rules, len(classes), num_rois + 1, dtype=torch.long)
+            self.add_state(name, default, dist_reduce_fx="sum")
+        # With heatmap_size None the (1, 1) zero default broadcasts against the first label size,
+        # which keeps forward() and merge_state() (both add states) working.
+        size = (1, 1) if heatmap_size is None else heatmap_size
+        for name in ("fp_map", "fn_map"):
+            default = torch.zeros(num_rules, len(classes), *size, dtype=torch.float64)
+            self.add_state(name, default, dist_reduce_fx="sum")
+        self.add_state("n_images", torch.zeros((), dtype=torch.long), dist_reduce_fx="sum")
+
+    @property
+    def _maps_on(self) -> bool:
+        return self.heatmap_size != (0, 0)
+
+    def update(self, preds: Tensor, target: Tensor, roi: Tensor | None = None) -> None:
+        """Add a batch: preds (B, K, H, W) (or (B, H, W) when K = 1), target (B, H, W), roi
+        None, (H, W) or (B, H, W)."""
+        rules = as_rules(preds, self.num_rules)
+        check_batch(rules, target, roi, self.num_rois)
+        rois = None if roi is None else roi.expand_as(target).cpu().numpy()
+        fp_map, fn_map = self._map_states(tuple(target.shape[-2:]))
+        valid = target != self.ignore_index
+        for ci, cls in enumerate(self.classes):
+            pred_masks = (rules == cls).logical_and_(valid.unsqueeze(1)).cpu().numpy()
+            gt_masks = (target == cls).cpu().numpy()
+            for b in range(len(target)):
+                r = None if rois is None else rois[b]
+                inverse, counts, fp, fn = _rule_errors(
+                    pred_masks[b], gt_masks[b], r, self.num_rois, self._maps_on
+                )
+                inverse = torch.from_numpy(inverse).to(self.device)
+                counts = torch.from_numpy(counts).to(self.device)[inverse]
+                for i, name in enumerate(_COUNTS):
+                    getattr(self, name)[:, ci] += counts[:, i]
+                if fp is not None:
+                    fp_map[:, ci] += self._resample(fp)[inverse]
+                    fn_map[:, ci] += self._resample(fn)[inverse]
+        self.n_images += len(target)
+
+    def _map_states(self, label_size: tuple[int, int]) -> tuple[Tensor, Tensor]:
+        """The map states, grown from the (1, 1) default to the label size when it is unset."""
+        if self.heatmap_size is None and self.fp_map.shape[-2:] != label_size:
+            if self.fp_map.shape[-2:] != (1, 1):
+                raise ValueError(
+                    f"expected labels of size {tuple(self.fp_map.shape[-2:])} as in the first "
+                    f"update (or pass heatmap_size), got {label_size}"
+                )
+            self.fp_map = self.fp_map.new_zeros(*self.fp_map.shape[:2], *label_size)
+            self.fn_map = self.fn_map.new_zeros(*self.fn_map.shape[:2], *label_size)
+        return self.fp_map, self.fn_map
+
+    def _resample(self, masks: np.ndarray) -> Tensor:
+        """(U, H, W) bool masks → (U, h, w) area fractions on the metric's device."""
+        maps = torch.from_numpy(masks).to(self.device)
+        size = self.fp_map.shape[-2:]
+        if maps.shape[-2:] == size:
+            return maps  # bool: adding it to the float64 state needs no large float copy
+        return F.adaptive_avg_pool2d(maps.unsqueeze(1).float(), size).squeeze(1)
+
+    def compute(self) -> dict[str, Tensor]:
+        """Counts, rates and maps of everything seen so far (shapes in the class docstring)."""
+        out = {name: getattr(self, name) for name in _COUNTS}
+        out["fp_rate"] = self.fp.double() / self.n_pred
+        out["fn_rate"] = self.fn.double() / self.n_gt
+        out["fp_map"] = self.fp_map / self.n_images
+        out["fn_map"] = self.fn_map / self.n_images
+        return out
+
+    def _wrap_compute(self, compute: Callable) -> Callable:
+        # torchmetrics squeezes one-element results to 0-d; keep the documented shapes.
+        wrapped = super()._wrap_compute(compute)
+        return wraps(compute)(lambda: restore_ndims(wrapped(), _NDIMS))
