@@ -46,7 +46,7 @@ def decide(
     """
     shifted = _shift(_costs(cost, probs))
     # min(dim).indices: first minimum like argmin, but much faster over a non-inner dim.
-    return _run(probs, shifted, priors, lambda e: e.min(0).indices).squeeze(1)
+    return _run(probs, shifted, priors, lambda e, out: out[0].copy_(e.min(0).indices))[:, 0]
 
 
 def decide_mixtures(
@@ -81,7 +81,7 @@ def decide_mixtures(
         )
     shifted = _shift(torch.stack([_costs(c, probs) for c in vertices]))
     mix = weights.to(device=probs.device, dtype=torch.float64)
-    return _run(probs, shifted, priors, lambda e: _mixed_argmin(e, mix))
+    return _run(probs, shifted, priors, lambda e, out: _mixed_argmin(e, mix, out), len(mix))
 
 
 class DecisionLayer(nn.Module):
@@ -127,20 +127,20 @@ def _shift(costs: torch.Tensor) -> torch.Tensor:
     return costs - costs.amax(dim=-2, keepdim=True)
 
 
-def _run(probs, shifted, priors, pick) -> torch.Tensor:
-    """Expected costs (N, P) or (V, N, P) chunk by chunk, reduced by ``pick`` to labels."""
+def _run(probs, shifted, priors, pick, k: int = 1) -> torch.Tensor:
+    """Expected costs (N, P) or (V, N, P) chunk by chunk; ``pick`` writes (K, P) labels."""
     b, n, h, w = probs.shape
     flat = probs.reshape(b, n, h * w)
     scale = _flat_priors(priors, n, h, w, probs.device)
     chunk = CPU_CHUNK if probs.device.type == "cpu" else h * w
-    parts = []
+    out = torch.empty(b, k, h * w, dtype=torch.long, device=probs.device)
     for i in range(b):
         for s in range(0, h * w, chunk):
             q = flat[i, :, s : s + chunk].to(torch.float64)
             if scale is not None:
                 q = q / (scale if scale.shape[1] == 1 else scale[:, s : s + chunk])
-            parts.append(pick(shifted @ q))
-    return torch.cat(parts, dim=-1).view(-1, b, h, w).transpose(0, 1)
+            pick(shifted @ q, out[i, :, s : s + chunk])
+    return out.view(b, k, h, w)
 
 
 def _flat_priors(priors, n: int, h: int, w: int, device) -> torch.Tensor | None:
@@ -157,29 +157,41 @@ def _flat_priors(priors, n: int, h: int, w: int, device) -> torch.Tensor | None:
     return priors.reshape(n, -1)
 
 
-def _mixed_argmin(costs: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
-    """Argmin over classes of ``Σ_v w_kv costs[v]``: costs (V, N, P), weights (K, V) → (K, P).
+def _mixed_argmin(costs: torch.Tensor, weights: torch.Tensor, labels: torch.Tensor) -> None:
+    """Argmin over classes of ``Σ_v w_kv costs[v]``: (V, N, P), weights (K, V) → labels (K, P).
 
-    A class whose smallest vertex cost exceeds the smallest largest vertex cost of any class
-    can win at no point of the simplex; the margin covers float64 rounding of the mixing.
-    Pixels with one such candidate are decided without mixing, the others mix only candidates.
+    Where every vertex picks the same class, so does every mixture. Elsewhere only classes
+    that no vertex winner beats in every vertex can win; those few are mixed for each k.
     """
-    low, high = costs.amin(0), costs.amax(0)  # (N, P)
-    margin = 1e-9 * costs.abs().amax((0, 1)) + 1e-300
-    candidate = low <= high.amin(0) + margin
-    count = candidate.sum(0)
-    k, n = weights.shape[0], costs.shape[1]
-    labels = candidate.to(torch.uint8).max(0).indices.expand(k, -1).clone()
-    contested = (count > 1).nonzero().squeeze(1)
+    k = weights.shape[0]
+    winners = costs.min(1).indices  # (V, P)
+    labels.copy_(winners[0].expand(k, -1))
+    contested = (winners != winners[:1]).any(0).nonzero().squeeze(1)
     if contested.numel() == 0:
-        return labels
-    m = int(count[contested].max())
-    block = max(1, MIX_BLOCK // (k * m))
-    descending = torch.arange(n, 0, -1, device=costs.device).unsqueeze(1)
-    for pixels in contested.split(block):
-        # Candidates first, in ascending class order, so ties go to the lowest class index.
-        index = (candidate[:, pixels] * descending).topk(m, dim=0).indices  # (m, P')
-        picked = costs[:, :, pixels].gather(1, index.expand(costs.shape[0], -1, -1))
-        mixed = (weights @ picked.flatten(1)).view(k, m, len(pixels))
-        labels[:, pixels] = index.gather(0, mixed.min(1).indices)
-    return labels
+        return
+    costs, winners = costs[:, :, contested], winners[:, contested]
+    candidate = _undominated(costs, winners)
+    count = candidate.sum(0)
+    descending = torch.arange(costs.shape[1], 0, -1, device=costs.device).unsqueeze(1)
+    for m in count.unique().tolist():  # pixels with m candidates each, in blocks
+        same = (count == m).nonzero().squeeze(1)
+        for part in same.split(max(1, MIX_BLOCK // (k * m))):
+            # Candidates first, in ascending class order, so ties go to the lowest index.
+            index = (candidate[:, part] * descending).topk(m, dim=0).indices  # (m, P')
+            picked = costs[:, :, part].gather(1, index.expand(costs.shape[0], -1, -1))
+            mixed = (weights @ picked.flatten(1)).view(k, m, -1)
+            labels[:, contested[part]] = index.gather(0, mixed.min(1).indices)
+
+
+def _undominated(costs: torch.Tensor, winners: torch.Tensor) -> torch.Tensor:
+    """(N, P) bool: classes that no vertex winner beats in every vertex by more than rounding.
+
+    A class beaten in every vertex by the same class is beaten at every mixture, so it can
+    never be the argmin; vertex winners themselves always remain.
+    """
+    margin = 1e-9 * costs.abs().amax((0, 1)) + 1e-300
+    candidate = torch.ones(costs.shape[1:], dtype=torch.bool, device=costs.device)
+    for winner in winners:
+        beaten_by = costs.gather(1, winner.expand(costs.shape[0], 1, -1))  # (V, 1, P)
+        candidate &= ~(beaten_by + margin < costs).all(0)
+    return candidate
