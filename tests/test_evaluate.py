@@ -1,7 +1,6 @@
-"""`python evaluate.py` end to end on a tiny checkpoint: files, TensorBoard, PNGs, sweeps, errors."""
+"""`python evaluate.py` end to end on a tiny checkpoint: files, TensorBoard, PNGs, sweeps."""
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest

@@ -1,4 +1,4 @@
-"""`python train.py` end to end: fit, checkpoint, reload, resume, and refusal of foreign checkpoints."""
+"""`python train.py` end to end: fit, checkpoint, reload, resume, foreign checkpoints."""
 
 from pathlib import Path
 
