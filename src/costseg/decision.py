@@ -67,7 +67,7 @@ def decide_mixtures(
         priors: as in :func:`decide`.
 
     Returns:
-        (B, K, H, W) int64 class indices.
+        (B, K, H, W) class indices, uint8 when N <= 256 (K label maps are large), else int64.
 
     >>> from costseg.costs import barycentric_grid, load_cost
     >>> V = torch.stack([load_cost(n) for n in ("robotistic", "altruistic", "egoistic")])
@@ -81,7 +81,8 @@ def decide_mixtures(
         )
     shifted = _shift(torch.stack([_costs(c, probs) for c in vertices]))
     mix = weights.to(device=probs.device, dtype=torch.float64)
-    return _run(probs, shifted, priors, lambda e, out: _mixed_argmin(e, mix, out), len(mix))
+    dtype = torch.uint8 if probs.shape[1] <= 256 else torch.long  # K label maps add up
+    return _run(probs, shifted, priors, lambda e, out: _mixed_argmin(e, mix, out), len(mix), dtype)
 
 
 class DecisionLayer(nn.Module):
@@ -127,13 +128,13 @@ def _shift(costs: torch.Tensor) -> torch.Tensor:
     return costs - costs.amax(dim=-2, keepdim=True)
 
 
-def _run(probs, shifted, priors, pick, k: int = 1) -> torch.Tensor:
+def _run(probs, shifted, priors, pick, k: int = 1, dtype=torch.long) -> torch.Tensor:
     """Expected costs (N, P) or (V, N, P) chunk by chunk; ``pick`` writes (K, P) labels."""
     b, n, h, w = probs.shape
     flat = probs.reshape(b, n, h * w)
     scale = _flat_priors(priors, n, h, w, probs.device)
     chunk = CPU_CHUNK if probs.device.type == "cpu" else h * w
-    out = torch.empty(b, k, h * w, dtype=torch.long, device=probs.device)
+    out = torch.empty(b, k, h * w, dtype=dtype, device=probs.device)
     for i in range(b):
         for s in range(0, h * w, chunk):
             q = flat[i, :, s : s + chunk].to(torch.float64)
@@ -180,7 +181,7 @@ def _mixed_argmin(costs: torch.Tensor, weights: torch.Tensor, labels: torch.Tens
             index = (candidate[:, part] * descending).topk(m, dim=0).indices  # (m, P')
             picked = costs[:, :, part].gather(1, index.expand(costs.shape[0], -1, -1))
             mixed = (weights @ picked.flatten(1)).view(k, m, -1)
-            labels[:, contested[part]] = index.gather(0, mixed.min(1).indices)
+            labels[:, contested[part]] = index.gather(0, mixed.min(1).indices).to(labels.dtype)
 
 
 def _undominated(costs: torch.Tensor, winners: torch.Tensor) -> torch.Tensor:
