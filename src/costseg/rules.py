@@ -85,7 +85,7 @@ def apply_rules(
     if plain:
         vertices = torch.stack([_matrix(rules[k], probs.shape[1]) for k in plain])
         weights = torch.eye(len(plain), dtype=torch.float64)
-        out[:, plain] = decide_mixtures(probs, vertices, weights)
+        out[:, plain] = decide_mixtures(probs, vertices, weights).long()
     for k, rule in enumerate(rules):
         if rule.priors_alpha:
             if priors is None:
