@@ -79,9 +79,35 @@ class RoIPrecisionRecall(Metric):
         """Add a batch: preds (B, K, H, W) (or (B, H, W) when K = 1), target (B, H, W), roi
         None, (H, W) or (B, H, W)."""
         rules = as_rules(preds, self.num_rules)
+        if self.num_rules > 1:
+            rules, target, roi = self._count_agreeing_once(rules, target, roi)
         self.confmat += roi_confusion(
             rules, target, roi, self.num_classes, self.num_rois, self.ignore_index
         )
+
+    def _count_agreeing_once(
+        self, rules: Tensor, target: Tensor, roi: Tensor | None
+    ) -> tuple[Tensor, Tensor, Tensor | None]:
+        """Count pixels on which all K rules agree once, for every rule; return the others.
+
+        In a sweep most pixels get the same class from every rule, so this saves most of the
+        K-fold counting. The rest come back as one (1, K, 1, P') batch.
+        """
+        agree = (rules == rules[:, :1]).all(1)  # (B, H, W)
+        roi = None if roi is None else roi.expand_as(target)
+        shared = roi_confusion(
+            rules[:, 0][agree].view(1, 1, -1),
+            target[agree].view(1, 1, -1),
+            None if roi is None else roi[agree].view(1, 1, -1),
+            self.num_classes,
+            self.num_rois,
+            self.ignore_index,
+        )
+        self.confmat += shared
+        other = ~agree
+        rest = rules.transpose(0, 1)[:, other].view(1, self.num_rules, 1, -1)
+        rest_roi = None if roi is None else roi[other].view(1, 1, -1)
+        return rest, target[other].view(1, 1, -1), rest_roi
 
     def compute(self) -> dict[str, Tensor]:
         """Confusion counts, precision, recall, IoU and mIoU (shapes in the class docstring)."""
