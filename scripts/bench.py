@@ -11,7 +11,8 @@ repeats), so a loaded machine shifts both alike. Sections:
    on a GPU, if there is one, the same at (1, 19, 1024, 2048) with effective GB/s;
 2. a 231-point sweep (step 0.05) ÷ a single-rule evaluation over the same toy validation set,
    network included, with the newest checkpoint under runs/ (or an untrained model);
-3. training throughput (images/s) of the default config ``configs/toy.yaml``.
+3. training throughput (images/s) of the default config ``configs/toy.yaml``; on a GPU also of
+   ``configs/cityscapes.yaml``'s network (crop 768, batch 8, bf16 autocast, channels-last).
 """
 
 from __future__ import annotations
@@ -113,9 +114,12 @@ def bench_training(steps: int = 5) -> None:
     data = StreetScenesDataModule(**{**config["data"]["init_args"], "num_workers": 0})
     images, labels = next(iter(_batches(data)))
     optimizer = torch.optim.AdamW(module.parameters(), lr=1e-3)
+    precision = str(config["trainer"]["precision"])
 
     def step() -> None:
-        loss = torch.nn.functional.cross_entropy(module(images), labels, ignore_index=255)
+        with torch.autocast("cpu", torch.bfloat16, enabled=precision.startswith("bf16")):
+            logits = module(images)
+        loss = torch.nn.functional.cross_entropy(logits.float(), labels, ignore_index=255)
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
@@ -124,8 +128,39 @@ def bench_training(steps: int = 5) -> None:
     t_step = best_time(step, repeats=steps)
     size = tuple(images.shape[-2:])
     print(
-        f"training, default config ({config['model']['backbone']}, {size}, batch "
-        f"{len(images)}, {torch.get_num_threads()} threads): {len(images) / t_step:.1f} images/s"
+        f"training, default config on the CPU ({config['model']['backbone']}, {size}, batch "
+        f"{len(images)}, {precision}, {torch.get_num_threads()} threads): "
+        f"{len(images) / t_step:.1f} images/s"
+    )
+
+
+def bench_training_cuda(steps: int = 10) -> None:
+    from costseg.module import SegmentationModule
+
+    config = yaml.safe_load((ROOT / "configs" / "cityscapes.yaml").read_text())
+    model, data = config["model"], config["data"]["init_args"]
+    torch.backends.cudnn.benchmark = True
+    module = SegmentationModule(**{**model, "backbone_weights": None}).cuda().train()
+    batch, crop = data["batch_size"], data["crop_size"]
+    images = torch.randint(0, 256, (batch, 3, crop, crop), dtype=torch.uint8, device="cuda")
+    labels = torch.randint(0, model["num_classes"], (batch, crop, crop), device="cuda")
+    optimizer = torch.optim.SGD(
+        module.parameters(), model["lr"], model["momentum"], weight_decay=model["weight_decay"]
+    )
+
+    def step() -> None:
+        with torch.autocast("cuda", dtype=torch.bfloat16):
+            loss = torch.nn.functional.cross_entropy(module(images), labels, ignore_index=255)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+
+    t_step = best_time(lambda: [step() for _ in range(steps)], 3, torch.cuda.synchronize) / steps
+    print(
+        f"training, Cityscapes config on {torch.cuda.get_device_name()} ({model['backbone']} "
+        f"OS{model['output_stride']}, crop {crop}, batch {batch}, bf16): "
+        f"{batch / t_step:.1f} images/s, peak memory "
+        f"{torch.cuda.max_memory_allocated() / 2**30:.1f} GiB"
     )
 
 
@@ -146,6 +181,8 @@ def main() -> None:
         bench_sweep()
     if not args.skip_train:
         bench_training()
+        if torch.cuda.is_available():
+            bench_training_cuda()
 
 
 if __name__ == "__main__":
