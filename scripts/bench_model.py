@@ -1,8 +1,9 @@
 """CPU training-step throughput of DeepLabv3+ configurations, in images/s.
 
-One step = forward, cross-entropy, backward, SGD update. Every configuration is warmed up once,
-then the timed steps go round-robin over the configurations so that a change in the load of a
-shared machine hits all of them alike; the median step time is reported.
+One step = forward (fp32 or bf16 autocast, channels-last as in training), cross-entropy,
+backward, SGD update. Every configuration is warmed up once, then the timed steps go round-robin
+over the configurations so that a change in the load of a shared machine hits all of them
+alike; the median step time is reported.
 
     python scripts/bench_model.py [--threads 2] [--steps 3] [--batch 8]
 """
@@ -30,16 +31,22 @@ class Config:
     output_stride: int
     decoder_channels: int
     size: tuple[int, int]
+    bf16: bool = False
 
     def __str__(self) -> str:
         h, w = self.size
-        return f"{self.backbone:<18} os{self.output_stride} dc{self.decoder_channels:<3} {h}x{w}"
+        dtype = "bf16" if self.bf16 else "fp32"
+        return (
+            f"{self.backbone:<18} os{self.output_stride} dc{self.decoder_channels:<3} {h}x{w} "
+            f"{dtype}"
+        )
 
 
 CONFIGS = (
     Config("resnet18", 16, 256, (128, 256)),
     Config("resnet18", 16, 256, (256, 512)),
     Config("resnet18", 16, 128, (128, 256)),
+    Config("resnet18", 16, 128, (128, 256), bf16=True),
     Config("mobilenet_v3_large", 16, 256, (128, 256)),
 )
 
@@ -48,11 +55,13 @@ class Trainer:
     """A model, its optimiser and one fixed random batch."""
 
     def __init__(self, config: Config, batch: int) -> None:
+        self.bf16 = config.bf16
         self.net = DeepLabV3Plus(
             NUM_CLASSES, config.backbone, config.output_stride, None, config.decoder_channels
-        )
+        ).to(memory_format=torch.channels_last)
         self.optimizer = torch.optim.SGD(self.net.parameters(), lr=0.01, momentum=0.9)
-        self.images = torch.randn(batch, 3, *config.size)
+        images = torch.randn(batch, 3, *config.size)
+        self.images = images.contiguous(memory_format=torch.channels_last)
         self.labels = torch.randint(0, NUM_CLASSES, (batch, *config.size))
         self.labels[:, :8] = IGNORE_INDEX  # some ignored pixels, as in real labels
 
@@ -60,7 +69,9 @@ class Trainer:
         """Run one training step; return its wall time in seconds."""
         start = time.perf_counter()
         self.optimizer.zero_grad(set_to_none=True)
-        loss = F.cross_entropy(self.net(self.images), self.labels, ignore_index=IGNORE_INDEX)
+        with torch.autocast("cpu", torch.bfloat16, enabled=self.bf16):
+            logits = self.net(self.images)
+        loss = F.cross_entropy(logits.float(), self.labels, ignore_index=IGNORE_INDEX)
         loss.backward()
         self.optimizer.step()
         return time.perf_counter() - start
