@@ -7,9 +7,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from costseg.classes import CLASS_NAMES, class_index
+from costseg.classes import CLASS_NAMES, ROI_NAMES, class_index
 from costseg.data.priors import (
-    ROI_NAMES,
     load_priors,
     pixel_priors,
     resize_priors,

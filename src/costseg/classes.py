@@ -44,6 +44,9 @@ VALID_LABEL_IDS = frozenset(c.id % 256 for c in Cityscapes.classes)
 TRAIN_ID_TO_LABEL_ID = np.array([c.id for c in _TRAIN], dtype=np.uint8)
 """(19,) uint8: train id → Cityscapes label id, for files the official evaluator reads."""
 
+ROI_NAMES: tuple[str, ...] = ("image", "street", "sidewalk", "building", "sky")
+"""Names of the RoI ids 0 (whole image) … 4 (SPEC §3)."""
+
 
 def class_index(name: str, names: Sequence[str] = CLASS_NAMES) -> int:
     """Index of a class name, or a ValueError that lists the valid names.

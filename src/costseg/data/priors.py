@@ -22,8 +22,6 @@ from tqdm.auto import tqdm
 
 from costseg.classes import CLASS_NAMES, IGNORE_INDEX, NUM_CLASSES, class_indices
 
-ROI_NAMES = ("image", "street", "sidewalk", "building", "sky")
-"""RoI names by id; 0 is the whole image."""
 ROI_CLASSES = ("road", "sidewalk", "building", "sky")
 """The class that defines RoI id 1, 2, 3, 4."""
 _FORMAT = "costseg-pixel-priors-v1"
@@ -112,7 +110,7 @@ def roi_map(pi: Tensor, class_names: Sequence[str] = CLASS_NAMES) -> Tensor:
 
     Returns:
         (H, W) int64 RoI ids: 1 street (road), 2 sidewalk, 3 building, 4 sky (see
-        ``ROI_NAMES``); ties go to the lower id.
+        ``costseg.classes.ROI_NAMES``); ties go to the lower id.
 
     >>> pi = torch.zeros(19, 1, 3)
     >>> pi[10, 0, 0], pi[0, 0, 1], pi[1, 0, 2] = 1, 1, 1    # sky, road, sidewalk

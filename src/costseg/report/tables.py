@@ -13,12 +13,10 @@ import numbers
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from costseg.classes import CLASS_NAMES
+from costseg.classes import CLASS_NAMES, ROI_NAMES
 
 Row = Mapping[str, Any]
 
-ROI_NAMES: tuple[str, ...] = ("image", "street", "sidewalk", "building", "sky")
-"""Names of the RoI ids 0 (whole image) … 4 (SPEC §3)."""
 
 PERCENT = ("precision", "recall", "miou")
 EXTRA_COLUMNS = ("fp_segments", "fn_segments", "n_pred_segments", "n_gt_segments", "miou")
