@@ -115,16 +115,7 @@ def bench_training(steps: int = 5) -> None:
     images, labels = next(iter(_batches(data)))
     optimizer = torch.optim.AdamW(module.parameters(), lr=1e-3)
     precision = str(config["trainer"]["precision"])
-
-    def step() -> None:
-        with torch.autocast("cpu", torch.bfloat16, enabled=precision.startswith("bf16")):
-            logits = module(images)
-        loss = torch.nn.functional.cross_entropy(logits.float(), labels, ignore_index=255)
-        optimizer.zero_grad()
-        loss.backward()
-        optimizer.step()
-
-    module.train()
+    step = _training_step(module.train(), images, labels, optimizer, precision.startswith("bf16"))
     t_step = best_time(step, repeats=steps)
     size = tuple(images.shape[-2:])
     print(
@@ -147,14 +138,7 @@ def bench_training_cuda(steps: int = 10) -> None:
     optimizer = torch.optim.SGD(
         module.parameters(), model["lr"], model["momentum"], weight_decay=model["weight_decay"]
     )
-
-    def step() -> None:
-        with torch.autocast("cuda", dtype=torch.bfloat16):
-            loss = torch.nn.functional.cross_entropy(module(images), labels, ignore_index=255)
-        optimizer.zero_grad()
-        loss.backward()
-        optimizer.step()
-
+    step = _training_step(module, images, labels, optimizer, bf16=True)
     t_step = best_time(lambda: [step() for _ in range(steps)], 3, torch.cuda.synchronize) / steps
     print(
         f"training, Cityscapes config on {torch.cuda.get_device_name()} ({model['backbone']} "
@@ -162,6 +146,20 @@ def bench_training_cuda(steps: int = 10) -> None:
         f"{batch / t_step:.1f} images/s, peak memory "
         f"{torch.cuda.max_memory_allocated() / 2**30:.1f} GiB"
     )
+
+
+def _training_step(module, images, labels, optimizer, bf16: bool) -> Callable[[], None]:
+    """One forward (bf16 autocast or not), cross-entropy, backward and update, as a closure."""
+
+    def step() -> None:
+        with torch.autocast(images.device.type, torch.bfloat16, enabled=bf16):
+            logits = module(images)
+        loss = torch.nn.functional.cross_entropy(logits.float(), labels, ignore_index=255)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+
+    return step
 
 
 def _batches(data):

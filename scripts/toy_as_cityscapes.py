@@ -21,25 +21,23 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from costseg.classes import IGNORE_INDEX, TRAIN_ID_TO_LABEL_ID
+from costseg.classes import TRAIN_ID_TO_LABEL_ID
 from costseg.data.cityscapes import IMAGE_SUFFIX, LABEL_SUFFIX
-from costseg.data.toy import SPLITS, render_scene
+from costseg.data.toy import StreetScenes
 
 _TO_LABEL_ID = np.zeros(256, dtype=np.uint8)  # everything else, incl. 255, is "unlabeled" (0)
 _TO_LABEL_ID[: len(TRAIN_ID_TO_LABEL_ID)] = TRAIN_ID_TO_LABEL_ID
-assert _TO_LABEL_ID[IGNORE_INDEX] == 0
 
 
-def write_item(root: Path, split: str, size: tuple[int, int], seed: int, index: int) -> None:
-    """Render scene ``index`` of ``split`` and write its image and label-id PNGs."""
-    rng = np.random.default_rng([seed, SPLITS[split], index])
-    image, train_ids = render_scene(rng, size)
+def write_item(scenes: StreetScenes, root: Path, index: int) -> None:
+    """Write scene ``index`` of ``scenes`` as an image and a label-id PNG."""
+    image, train_ids = scenes[index]
     name = f"toy_000000_{index:06d}"
     for folder, suffix, array in (
-        ("leftImg8bit", IMAGE_SUFFIX, image),
-        ("gtFine", LABEL_SUFFIX, _TO_LABEL_ID[train_ids]),
+        ("leftImg8bit", IMAGE_SUFFIX, image.permute(1, 2, 0).numpy()),
+        ("gtFine", LABEL_SUFFIX, _TO_LABEL_ID[train_ids.numpy()]),
     ):
-        path = root / folder / split / "toy" / f"{name}{suffix}"
+        path = root / folder / scenes.split / "toy" / f"{name}{suffix}"
         path.parent.mkdir(parents=True, exist_ok=True)
         Image.fromarray(array).save(path, compress_level=1)
 
@@ -55,8 +53,8 @@ def main() -> None:
     args = parser.parse_args()
     with ProcessPoolExecutor(args.workers) as pool:
         for split, count in (("train", args.train), ("val", args.val)):
-            job = partial(write_item, args.root, split, tuple(args.size), args.seed)
-            list(pool.map(job, range(count), chunksize=4))
+            scenes = StreetScenes(split, count, tuple(args.size), args.seed)
+            list(pool.map(partial(write_item, scenes, args.root), range(count), chunksize=4))
     print(f"wrote {args.train} train and {args.val} val scenes of {args.size} to {args.root}")
 
 
