@@ -20,9 +20,9 @@ LABEL_IDS = np.array([*range(34), 255], dtype=np.uint8)
 """Every id a ``*_gtFine_labelIds.png`` may hold: 0-33 and license plate's -1 stored as 255."""
 
 
-def cityscapes_label_ids(item: int) -> np.ndarray:
+def cityscapes_label_ids(item: int, size: tuple[int, int] = CITYSCAPES_SIZE) -> np.ndarray:
     """(H, W) uint8 label ids of generated item ``item``: 4x8 blocks cycling through LABEL_IDS."""
-    h, w = CITYSCAPES_SIZE
+    h, w = size
     block = np.arange(h // 4)[:, None] * (w // 8) + np.arange(w // 8)[None, :]
     ids = LABEL_IDS[(block + 7 * item) % len(LABEL_IDS)]
     return np.kron(ids, np.ones((4, 8), dtype=np.uint8))
@@ -33,14 +33,17 @@ def cityscapes_image(label_ids: np.ndarray) -> np.ndarray:
     return np.stack([label_ids, 255 - label_ids, np.full_like(label_ids, 100)])
 
 
-def write_cityscapes_item(root: Path, split: str, name: str, item: int) -> tuple[Path, Path]:
-    """Write one image/label pair in Cityscapes' layout; returns (image path, label path)."""
+def write_cityscapes_item(
+    root: Path, split: str, name: str, item: int, size: tuple[int, int] = CITYSCAPES_SIZE
+) -> tuple[Path, Path]:
+    """Write one (H, W) = ``size`` image/label pair in Cityscapes' layout (sizes divisible by
+    (4, 8)); returns (image path, label path)."""
     city = name.split("_")[0]
     image = root / "leftImg8bit" / split / city / f"{name}_leftImg8bit.png"
     label = root / "gtFine" / split / city / f"{name}_gtFine_labelIds.png"
     image.parent.mkdir(parents=True, exist_ok=True)
     label.parent.mkdir(parents=True, exist_ok=True)
-    ids = cityscapes_label_ids(item)
+    ids = cityscapes_label_ids(item, size)
     write_png(torch.from_numpy(cityscapes_image(ids)), str(image))
     write_png(torch.from_numpy(ids)[None], str(label))
     return image, label

@@ -173,8 +173,19 @@ def test_metrics_reject_bad_input() -> None:
         SegmentErrors(heatmap_size=(0, 5))
     with pytest.raises(ValueError, match="class ids"):
         SegmentErrors(classes=(255,))
-    metric = SegmentErrors(num_rules=4)
-    metric.update(preds, target, roi)
-    with pytest.raises(ValueError, match="size"):
-        metric.update(preds[..., :8], target[..., :8], roi[:, :8])
     assert roi_confusion(preds, target, roi).shape == (4, 5, 19, 19)
+
+
+def test_images_of_another_size_land_on_the_same_canvas() -> None:
+    """A 2x nearest-upsampled copy of a batch adds exactly the same FP/FN maps (area pooling)."""
+    preds, target, roi = make_batch(6)
+    big = [t.repeat_interleave(2, -1).repeat_interleave(2, -2) for t in (preds, target, roi)]
+    once = SegmentErrors(num_rules=4)
+    once.update(preds, target, roi)
+    both = SegmentErrors(num_rules=4)
+    both.update(preds, target, roi)
+    both.update(*big)
+    expected, got = once.compute(), both.compute()
+    assert got["fp_map"].shape == expected["fp_map"].shape
+    assert torch.allclose(got["fp_map"], expected["fp_map"])
+    assert torch.allclose(got["fn_map"], expected["fn_map"])

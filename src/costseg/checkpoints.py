@@ -24,6 +24,8 @@ def find_checkpoint(path: str | Path | None, runs_dir: Path = RUNS_DIR) -> Path:
         FileNotFoundError: no such file, or no checkpoint under ``runs_dir`` (says how to train).
     """
     if path is not None and str(path) != "last":
+        if Path(path).is_dir():
+            raise FileNotFoundError(f"checkpoint {path} is a directory; expected a .ckpt file")
         if not Path(path).is_file():
             raise FileNotFoundError(f"checkpoint not found: {path}")
         return Path(path)

@@ -1,7 +1,8 @@
 """Command lines: ``python train.py`` and ``python evaluate.py``. Only this module parses arguments.
 
 A user mistake ends with one line on stderr and exit status 2 (set ``COSTSEG_DEBUG=1`` for the
-traceback).
+traceback). Heavy libraries (torch, Lightning) are imported only once they are needed, so
+``--help`` answers at once.
 """
 
 from __future__ import annotations
@@ -12,48 +13,34 @@ import os
 import sys
 from collections.abc import Iterator, Sequence
 from pathlib import Path
+from typing import Any, NoReturn
 
-import torch
-from lightning.pytorch import LightningDataModule, Trainer
-from lightning.pytorch.cli import LightningCLI
-
-from costseg.checkpoints import check_classes, find_checkpoint
-from costseg.data.priors import pixel_priors, roi_map, save_priors
-from costseg.eval_job import EvalOptions
-from costseg.eval_job import run as run_evaluation
-from costseg.module import SegmentationModule
-from costseg.rules import RULE_NAMES
+from costseg.options import EvalOptions
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
+COST_CHOICES = "robotistic, altruistic, egoistic, ml or a .yaml cost file"
+
+
+def fail(message: str) -> NoReturn:
+    """Print one line ``error: message`` on stderr and exit with status 2."""
+    lines = str(message).strip().splitlines() or ["unknown error"]
+    print(f"error: {lines[-1]}", file=sys.stderr)
+    sys.exit(2)
 
 
 @contextlib.contextmanager
-def user_errors() -> Iterator[None]:
-    """Turn a user mistake (ValueError, FileNotFoundError) into one line and exit status 2."""
+def user_errors(*extra: type[BaseException]) -> Iterator[None]:
+    """Turn a user mistake (ValueError, OSError and ``extra``) into one line and exit status 2."""
     try:
         yield
-    except (ValueError, FileNotFoundError) as err:
+    except (ValueError, OSError, *extra) as err:
         if os.environ.get("COSTSEG_DEBUG"):
             raise
         # Errors raised in a DataLoader worker carry its traceback: keep the original last line.
-        lines = str(err).strip().splitlines() or [err.__class__.__name__]
-        print(f"error: {lines[-1]}", file=sys.stderr)
-        sys.exit(2)
+        fail(str(err) or err.__class__.__name__)
 
 
-class TrainCLI(LightningCLI):
-    """LightningCLI with ``--ckpt_path`` to resume (``last`` = the newest ``runs/**/last.ckpt``)."""
-
-    def add_arguments_to_parser(self, parser) -> None:
-        parser.add_argument(
-            "--ckpt_path",
-            type=str | None,
-            default=None,
-            help="resume training from this checkpoint ('last': newest runs/**/last.ckpt)",
-        )
-
-
-def train_main(args: Sequence[str] | None = None) -> tuple[SegmentationModule, Trainer]:
+def train_main(args: Sequence[str] | None = None) -> tuple[Any, Any]:
     """``python train.py [--config configs/toy.yaml] [--trainer.max_steps 100] ...``.
 
     Returns:
@@ -62,116 +49,103 @@ def train_main(args: Sequence[str] | None = None) -> tuple[SegmentationModule, T
     args = list(sys.argv[1:] if args is None else args)
     if not any(a == "--config" or a.startswith("--config=") for a in args):
         args = ["--config", str(CONFIG_DIR / "toy.yaml"), *args]
-    with user_errors():
-        cli = TrainCLI(
-            SegmentationModule,
-            LightningDataModule,
-            subclass_mode_data=True,
-            run=False,
-            args=args,
-            save_config_kwargs={"overwrite": True},
-        )
-        model, data, trainer = cli.model, cli.datamodule, cli.trainer
-        if model.hparams.num_classes != data.num_classes:
-            raise ValueError(
-                f"model.num_classes is {model.hparams.num_classes} but the dataset has "
-                f"{data.num_classes} classes"
-            )
-        model.data_config = _data_config(cli)
-        ckpt_path = cli.config.get("ckpt_path")
-        if ckpt_path:
-            ckpt_path = str(find_checkpoint(ckpt_path))
-            check_classes(ckpt_path, data.class_names)
-            print(f"resuming from {ckpt_path}")
-        else:
-            model.priors = _compute_priors(model, data, trainer)
-        trainer.fit(model, data, ckpt_path=ckpt_path)
-        if trainer.checkpoint_callback is not None:
-            print(f"checkpoints: {trainer.checkpoint_callback.dirpath}")
-        return model, trainer
+    from jsonargparse import ArgumentError
+    from lightning.fabric.utilities.exceptions import MisconfigurationException
+
+    from costseg.training import run_training
+
+    with user_errors(ArgumentError, MisconfigurationException):
+        return run_training(args)
 
 
-def _data_config(cli: LightningCLI) -> dict:
-    data = cli.config["data"]
-    return {"class_path": data["class_path"], "init_args": dict(data.get("init_args", {}))}
+class OneLineParser(argparse.ArgumentParser):
+    """argparse, with every parsing error as one line on stderr (exit status 2)."""
+
+    def error(self, message: str) -> NoReturn:
+        fail(f"{self.prog}: {message}")
 
 
-def _compute_priors(model: SegmentationModule, data, trainer) -> torch.Tensor:
-    """Pixel-wise priors from the training labels, saved (with figures) in the run folder."""
-    from costseg.report.figures import plot_priors, plot_roi_map
-    from costseg.report.files import save_figure
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {value}")
+    return value
 
-    priors = pixel_priors(
-        data.prior_labels(), data.num_classes, sigma=model.hparams.prior_sigma, progress=True
-    )
-    if trainer.is_global_zero and trainer.log_dir:
-        run = Path(trainer.log_dir)
-        save_priors(run / "priors.pt", priors, data.class_names)
-        save_figure(plot_priors(priors, data.class_names), run / "priors.png")
-        save_figure(plot_roi_map(roi_map(priors, data.class_names)), run / "roi_map.png")
-    return priors
+
+def nonnegative_int(text: str) -> int:
+    """argparse type: an integer >= 0."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {value}")
+    return value
+
+
+def step_size(text: str) -> float:
+    """argparse type: a grid step 1/n in (0, 1]."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a step such as 0.1, got {text!r}") from None
+    n = round(1 / value) if 0 < value <= 1 else 0
+    if n < 1 or abs(n * value - 1) > 1e-9:
+        raise argparse.ArgumentTypeError(f"expected a step 1/n in (0, 1], e.g. 0.1, got {text}")
+    return value
 
 
 def evaluate_parser() -> argparse.ArgumentParser:
     """The options of ``evaluate.py``; defaults are those of :class:`EvalOptions`."""
     d = EvalOptions()
-    p = argparse.ArgumentParser(
+    p = OneLineParser(
         prog="evaluate.py",
-        description="Evaluate a checkpoint under cost-based decision rules: per-class precision "
+        description="Evaluate a network under cost-based decision rules: per-class precision "
         "and recall in regions of interest, FP/FN segments, mIoU; tables, figures, JSON, "
-        "TensorBoard; optionally a sweep over the value-space triangle.",
+        "TensorBoard; optionally sweeps over the value-space triangle and the α path.",
     )
     add = p.add_argument
-    add("--cost", nargs="+", default=d.cost, help=f"rules: {', '.join(RULE_NAMES)} or a .yaml")
-    add("--ckpt_path", default=None, help="checkpoint (default: newest runs/**/last.ckpt)")
-    add("--classes", nargs="+", default=d.classes, help="classes of the table and segment maps")
-    add("--output_dir", default=None, help="default: <run folder>/evaluation")
+    add("--cost", nargs="+", default=d.cost, help=f"rules: {COST_CHOICES}")
+    src = p.add_argument_group("probability source (one of; default: newest runs/**/last.ckpt)")
+    src.add_argument("--ckpt_path", help="a costseg checkpoint")
+    src.add_argument("--network", help="costseg:PATH, vainf:PATH, hf:DIR (alias segformer:DIR)")
+    src.add_argument("--probs", help="folder of saved probabilities (<image>.npz or .pt)")
+    add("--data_root", help="Cityscapes root (needed for --network/--probs of other networks)")
     add("--split", default=d.split, choices=("train", "val", "test"))
-    add("--data_root", default=None, help="Cityscapes root, if not the one trained with")
-    add("--limit", type=int, default=None, help="evaluate only the first N images")
-    add("--batch_size", type=int, default=None)
+    add("--classes", nargs="+", default=d.classes, help="classes of the table and segment maps")
+    add("--output_dir", help="default: a new <run>/evaluation/version_<n>")
+    add("--overwrite", action="store_true", help="allow an --output_dir that holds results")
+    add("--limit", type=positive_int, help="evaluate only the first N images")
+    add("--batch_size", type=positive_int)
     add("--device", default=d.device, help="auto, cpu, cuda, cuda:1, ...")
-    add(
-        "--save-predictions",
-        dest="save_predictions",
-        action="store_true",
-        help="write Cityscapes label-id PNGs per image and rule",
-    )
-    add("--num_examples", type=int, default=d.num_examples, help="images in the mask figures")
-    add(
-        "--sweep",
-        type=float,
-        default=None,
-        metavar="STEP",
-        help="also sweep the barycentric grid of this step over the three --vertices",
-    )
+    add("--save-predictions", dest="save_predictions", action="store_true",
+        help="write Cityscapes label-id PNGs per image and rule")  # fmt: skip
+    add("--save-probs", dest="save_probs", action="store_true",
+        help="write each image's probabilities (float16 .npz) for later --probs runs")  # fmt: skip
+    add("--num_examples", type=nonnegative_int, default=d.num_examples,
+        help="images in the mask figures")  # fmt: skip
+    add("--sweep", type=step_size, metavar="STEP",
+        help="also sweep the barycentric grid of this step over the three --vertices")  # fmt: skip
     add("--vertices", nargs=3, default=d.vertices, help="the triangle's corners")
-    add(
-        "--vertex_scaling",
-        default=d.vertex_scaling,
-        choices=("none", "mean"),
-        help="'mean': rescale each vertex to unit mean off-diagonal cost before mixing",
-    )
-    add("--target", default=None, help="constraint on the sweep, e.g. 'person:roi1:recall>=0.99'")
-    add(
-        "--maximize",
-        default=None,
-        help="what to maximise under --target, e.g. person:roi1:precision",
-    )
-    add(
-        "--alpha_sweep",
-        type=float,
-        default=None,
-        metavar="STEP",
-        help="also sweep the prior-adapted rule from Bayes (α=0) to ML (α=1)",
-    )
-    add("--alpha_cost", default=None, help="cost matrix of the α sweep (default: symmetric)")
+    add("--vertex_scaling", default=d.vertex_scaling, choices=("none", "mean"),
+        help="'mean': rescale each vertex to unit mean off-diagonal cost before mixing")  # fmt: skip
+    add("--target", help="constraint on the sweep, e.g. 'person:roi1:recall>=0.99'")
+    add("--maximize", help="what to maximise under --target, e.g. person:roi1:precision")
+    add("--alpha_sweep", type=step_size, metavar="STEP",
+        help="also sweep the prior-adapted rule from Bayes (α=0) to ML (α=1)")  # fmt: skip
+    add("--alpha_cost", help="cost matrix of the α sweep (default: symmetric)")
     add("--no-progress", dest="progress", action="store_false")
     return p
 
 
-def evaluate_main(args: Sequence[str] | None = None) -> None:
-    """``python evaluate.py --cost egoistic`` (see ``--help``)."""
+def evaluate_main(args: Sequence[str] | None = None) -> Any:
+    """``python evaluate.py --cost egoistic`` (see ``--help``); returns the results."""
     opts = EvalOptions(**vars(evaluate_parser().parse_args(args)))
     with user_errors():
-        run_evaluation(opts)
+        from costseg.evaluation import evaluate
+
+        return evaluate(opts)

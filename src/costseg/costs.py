@@ -209,6 +209,17 @@ def ml_cost(priors: torch.Tensor, lam: float = 1.0) -> torch.Tensor:
     return (lam / priors).expand(len(priors), -1).clone().fill_diagonal_(0.0)
 
 
+def symmetric_cost(
+    n: int, dtype: torch.dtype = torch.float64, device: torch.device | str | None = None
+) -> torch.Tensor:
+    """The robotistic matrix ``1 - I`` (N, N): every confusion costs 1, so the rule is argmax.
+
+    >>> symmetric_cost(3).tolist()
+    [[0.0, 1.0, 1.0], [1.0, 0.0, 1.0], [1.0, 1.0, 0.0]]
+    """
+    return 1 - torch.eye(n, dtype=dtype, device=device)
+
+
 def rescale(cost: torch.Tensor) -> torch.Tensor:
     """Scale ``cost`` to unit mean off-diagonal cost (same decisions, different mixtures).
 

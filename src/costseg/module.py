@@ -2,8 +2,10 @@
 
 Training is ordinary cross-entropy (ignore index 255). Validation takes the softmax and swaps
 ``argmax`` for the configured decision rules (robotistic by default, i.e. argmax), all rules
-in one pass, and logs mIoU, per-class IoU and person/building recall in the street RoI per rule.
-The pixel-wise priors (and so the RoI map) travel inside the checkpoint.
+in one pass (the step of :mod:`costseg.scoring`, shared with evaluation), and logs mIoU,
+per-class IoU and person/building recall in the street RoI per rule. The pixel-wise priors (and
+so the RoI map) travel inside the checkpoint. Side outputs (masks in TensorBoard) are callbacks
+(:mod:`costseg.callbacks`).
 """
 
 from __future__ import annotations
@@ -15,11 +17,10 @@ import torch
 import torch.nn.functional as F
 
 from costseg.classes import CLASS_NAMES, IGNORE_INDEX, class_index
-from costseg.data.priors import resize_priors, roi_map
-from costseg.metrics import RoIPrecisionRecall
+from costseg.data.prior_maps import PriorMaps
 from costseg.models.deeplabv3plus import DeepLabV3Plus
-from costseg.report.tensorboard import log_masks
-from costseg.rules import apply_rules, parse_rules
+from costseg.rules import parse_rules, rules_group
+from costseg.scoring import GroupMetrics, score_batch
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
@@ -41,8 +42,8 @@ class SegmentationModule(L.LightningModule):
         weight_decay: L2 / decoupled weight decay.
         poly_power: exponent of the poly schedule.
         val_costs: decision rules applied in validation (names as for ``evaluate.py --cost``).
-        prior_sigma: Gaussian smoothing (pixels) of the pixel-wise priors.
-        log_images: validation images logged to TensorBoard with ground truth and predictions.
+        prior_sigma: Gaussian smoothing (pixels) of the pixel-wise priors; None = the
+            SPEC's default 80 · H / 1024 for labels of height H.
         channels_last: run the network in channels-last memory format (faster convolutions
             on CPUs and on GPUs with tensor cores).
     """
@@ -60,8 +61,7 @@ class SegmentationModule(L.LightningModule):
         weight_decay: float = 1e-4,
         poly_power: float = 0.9,
         val_costs: tuple[str, ...] = ("robotistic",),
-        prior_sigma: float = 0.0,
-        log_images: int = 2,
+        prior_sigma: float | None = None,
         channels_last: bool = True,
     ) -> None:
         super().__init__()
@@ -71,11 +71,11 @@ class SegmentationModule(L.LightningModule):
         )
         if channels_last:
             self.net = self.net.to(memory_format=torch.channels_last)
-        self.rules = parse_rules(val_costs, CLASS_NAMES[:num_classes])
-        self.val_metrics = RoIPrecisionRecall(num_classes, num_rules=len(self.rules), num_rois=4)
+        self.rules = rules_group(parse_rules(val_costs, CLASS_NAMES[:num_classes]))
+        self.val_metrics = GroupMetrics(self.rules, num_classes)
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), False)
         self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), False)
-        self.priors: torch.Tensor | None = None  # (N, H, W) at label resolution, set before fit
+        self._priors = PriorMaps(None)  # (N, H, W) at label resolution, set before fit
         self.data_config: dict[str, Any] | None = None  # how to rebuild the data, for evaluation
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
@@ -85,14 +85,14 @@ class SegmentationModule(L.LightningModule):
             x = x.contiguous(memory_format=torch.channels_last)
         return self.net(x)
 
-    def priors_at(self, size: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor] | None:
-        """Pixel-wise priors (N, H, W) and RoI map (H, W) at ``size``, on this module's device."""
-        if self.priors is None:
-            return None
-        priors = self.priors.to(self.device)
-        if tuple(priors.shape[1:]) != tuple(size):
-            priors = resize_priors(priors, size)
-        return priors, roi_map(priors, CLASS_NAMES[: self.hparams.num_classes])
+    @property
+    def priors(self) -> torch.Tensor | None:
+        """(N, H, W) pixel-wise priors at label resolution (None before they are computed)."""
+        return self._priors.priors
+
+    @priors.setter
+    def priors(self, value: torch.Tensor | None) -> None:
+        self._priors = PriorMaps(value, CLASS_NAMES[: self.hparams.num_classes])
 
     def training_step(self, batch: tuple[torch.Tensor, torch.Tensor], batch_idx: int):
         images, labels = batch
@@ -100,43 +100,30 @@ class SegmentationModule(L.LightningModule):
         self.log("train/loss", loss, prog_bar=True)
         return loss
 
-    def validation_step(self, batch: tuple[torch.Tensor, torch.Tensor], batch_idx: int) -> None:
+    def validation_step(self, batch: tuple[torch.Tensor, torch.Tensor], batch_idx: int) -> dict:
         images, labels = batch
         logits = self(images)
         loss = F.cross_entropy(logits, labels, ignore_index=IGNORE_INDEX)
         self.log("val/loss", loss, sync_dist=True)
-        priors, roi = self.priors_at(labels.shape[-2:]) or (None, None)
-        preds = apply_rules(logits.float().softmax(1), self.rules, priors)
-        self.val_metrics.update(preds, labels, roi)
-        if batch_idx == 0 and self.hparams.log_images:
-            self._log_examples(images, labels, preds)
+        priors, roi = self._priors.at(tuple(labels.shape[-2:]))
+        if priors is not None:
+            priors, roi = priors.to(self.device), roi.to(self.device)
+        probs = logits.float().softmax(1)
+        (preds,) = score_batch([self.rules], [self.val_metrics], probs, labels, priors, roi)
+        return {"preds": preds, "names": self.rules.names}
 
     def on_validation_epoch_end(self) -> None:
-        out = self.val_metrics.compute()
+        out = self.val_metrics.compute()["pixels"]
         self.val_metrics.reset()
         self.log("val/miou", out["miou"][0].float(), prog_bar=True)
         names = CLASS_NAMES[: self.hparams.num_classes]
         person, building = class_index("person", names), class_index("building", names)
-        for k, rule in enumerate(self.rules):
-            self.log(f"val/miou/{rule.name}", out["miou"][k].float())
+        for k, rule in enumerate(self.rules.names):
+            self.log(f"val/miou/{rule}", out["miou"][k].float())
             for c, name in enumerate(names):
-                self.log(f"val/iou/{rule.name}/{name}", out["iou"][k, c].float())
+                self.log(f"val/iou/{rule}/{name}", out["iou"][k, c].float())
             for c, name in ((person, "person"), (building, "building")):
-                self.log(f"val/recall_street/{rule.name}/{name}", out["recall"][k, 1, c].float())
-
-    def _log_examples(self, images, labels, preds) -> None:
-        writer = getattr(self.logger, "experiment", None)
-        if writer is None or not hasattr(writer, "add_image"):
-            return
-        for i in range(min(self.hparams.log_images, len(images))):
-            log_masks(
-                writer,
-                f"val/masks/{i}",
-                images[i].permute(1, 2, 0).cpu().numpy(),
-                labels[i].cpu().numpy(),
-                {r.name: preds[i, k].cpu().numpy() for k, r in enumerate(self.rules)},
-                step=self.global_step,
-            )
+                self.log(f"val/recall_street/{rule}/{name}", out["recall"][k, 1, c].float())
 
     def configure_optimizers(self):
         h = self.hparams

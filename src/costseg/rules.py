@@ -1,26 +1,32 @@
-"""Named decision rules: what ``--cost robotistic altruistic ml my.yaml`` means.
+"""Decision rules and rule groups: what ``--cost``, ``--sweep`` and ``--alpha_sweep`` decide.
 
-A rule is a cost matrix (``None`` = the symmetric one) and whether it acts on ``p / π`` with the
-pixel-wise priors π (``ml`` is the symmetric matrix on ``p / π``). :func:`apply_rules` evaluates
-all rules of a batch in one pass over the probabilities where it can.
+A :class:`Rule` is a cost matrix (``None`` = the symmetric one) and whether it acts on ``p / π``
+with the pixel-wise priors π (``ml`` is the symmetric matrix on ``p / π``). A
+:class:`RuleGroup` is K rules decided together from one softmax: ``probs → (B, K, H, W)``. The
+named rules, the value-space triangle and the prior-adapted α path are each one group; the
+evaluation loop and validation feed every group's label maps to the metrics.
 
 >>> [r.name for r in parse_rules(["robotistic", "ml"])]
 ['robotistic', 'ml']
+>>> grid_group(["robotistic", "altruistic", "egoistic"], 0.5).names[:2]
+['w=1.00/0.00/0.00', 'w=0.50/0.50/0.00']
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
 
 from costseg.classes import CLASS_NAMES
-from costseg.costs import PRESETS, load_cost
+from costseg.costs import PRESETS, barycentric_grid, load_cost, rescale, symmetric_cost
 from costseg.decision import decide, decide_mixtures
 
 RULE_NAMES = (*PRESETS, "ml")
+Decider = Callable[[torch.Tensor, torch.Tensor | None], torch.Tensor]
 
 
 @dataclass(frozen=True)
@@ -37,6 +43,32 @@ class Rule:
     name: str
     cost: torch.Tensor | None
     priors_alpha: float = 0.0
+
+
+@dataclass
+class RuleGroup:
+    """K rules decided together: ``decide(probs (B,N,H,W), priors) → (B, K, H, W)``.
+
+    Attributes:
+        kind: ``"rules"`` (named rules), ``"grid"`` (value-space triangle) or ``"alpha"``.
+        names: the K rule names.
+        decide: the decision function.
+        columns: per rule, the columns that identify it in result rows.
+        heatmaps: whether FP/FN location maps are kept (off for sweeps of many rules).
+        rules: the named rules (kind "rules").
+        vertices: (3, N, N) vertex matrices and ``weights`` (K, 3) (kind "grid").
+        note: how the group was built, for every output that shows it.
+    """
+
+    kind: str
+    names: list[str]
+    decide: Decider
+    columns: list[dict[str, object]]
+    heatmaps: bool = False
+    rules: list[Rule] = field(default_factory=list)
+    vertices: torch.Tensor | None = None
+    weights: torch.Tensor | None = None
+    note: str = ""
 
 
 def parse_rules(names: Sequence[str], class_names: Sequence[str] = CLASS_NAMES) -> list[Rule]:
@@ -78,12 +110,12 @@ def apply_rules(
     Rules without priors share one pass (:func:`decide_mixtures` with identity weights); each
     rule with priors needs ``priors`` ((N,) or (N, H, W)) and one pass of its own.
     """
-    out = torch.empty(
-        probs.shape[0], len(rules), *probs.shape[2:], dtype=torch.long, device=probs.device
-    )
+    n = probs.shape[1]
+    out = torch.empty(probs.shape[0], len(rules), *probs.shape[2:], dtype=torch.long)
+    out = out.to(probs.device)
     plain = [k for k, r in enumerate(rules) if not r.priors_alpha]
     if plain:
-        vertices = torch.stack([_matrix(rules[k], probs.shape[1]) for k in plain])
+        vertices = torch.stack([_matrix(rules[k].cost, n) for k in plain])
         weights = torch.eye(len(plain), dtype=torch.float64)
         out[:, plain] = decide_mixtures(probs, vertices, weights).long()
     for k, rule in enumerate(rules):
@@ -94,7 +126,94 @@ def apply_rules(
     return out
 
 
-def _matrix(rule: Rule, num_classes: int) -> torch.Tensor:
-    if rule.cost is None:
-        return 1 - torch.eye(num_classes, dtype=torch.float64)
-    return rule.cost
+def _matrix(cost: torch.Tensor | None, n: int) -> torch.Tensor:
+    return symmetric_cost(n) if cost is None else cost
+
+
+def rules_group(rules: Sequence[Rule]) -> RuleGroup:
+    """The named rules of ``--cost`` as one group (with FP/FN location maps)."""
+    rules = list(rules)
+    return RuleGroup(
+        "rules",
+        [r.name for r in rules],
+        lambda probs, priors: apply_rules(probs, rules, priors),
+        [{"matrix": r.name} for r in rules],
+        heatmaps=True,
+        rules=rules,
+    )
+
+
+def vertex_matrices(
+    names: Sequence[str], scaling: str = "none", class_names: Sequence[str] = CLASS_NAMES
+) -> torch.Tensor:
+    """The three vertex cost matrices (3, N, N), optionally rescaled to unit mean cost."""
+    if len(names) != 3:
+        raise ValueError(f"a sweep needs exactly 3 vertex costs, got {len(names)}: {list(names)}")
+    if scaling not in ("none", "mean"):
+        raise ValueError(f"vertex scaling must be 'none' or 'mean', got {scaling!r}")
+    rules = parse_rules(names, class_names)
+    if any(r.priors_alpha for r in rules):
+        raise ValueError("'ml' uses pixel-wise priors and is no matrix: it cannot be a vertex")
+    vertices = torch.stack([_matrix(r.cost, len(class_names)) for r in rules])
+    return rescale(vertices) if scaling == "mean" else vertices
+
+
+def point_name(weights: Sequence[float]) -> str:
+    """``w=0.70/0.20/0.10`` for the grid point (α, β, γ)."""
+    return "w=" + "/".join(f"{w:.2f}" for w in weights)
+
+
+def grid_group(
+    vertex_names: Sequence[str],
+    step: float,
+    scaling: str = "none",
+    class_names: Sequence[str] = CLASS_NAMES,
+) -> RuleGroup:
+    """Every point of the barycentric grid of ``step`` as one group, by mixing vertex costs."""
+    vertices = vertex_matrices(vertex_names, scaling, class_names)
+    weights = barycentric_grid(step)
+    return RuleGroup(
+        "grid",
+        [point_name(w) for w in weights.tolist()],
+        lambda probs, priors: decide_mixtures(probs, vertices, weights),
+        [dict(zip(("alpha", "beta", "gamma"), w, strict=True)) for w in weights.tolist()],
+        vertices=vertices,
+        weights=weights,
+        note=f"vertices: {', '.join(vertex_names)}; vertex scaling: {scaling}",
+    )
+
+
+def alpha_grid(step: float) -> list[float]:
+    """α = 0, step, …, 1.
+
+    >>> alpha_grid(0.25)
+    [0.0, 0.25, 0.5, 0.75, 1.0]
+    """
+    n = round(1 / step) if step > 0 else 0
+    if n < 1 or not math.isclose(n * step, 1.0, rel_tol=1e-9):
+        raise ValueError(f"alpha step must be 1/n for a whole number n >= 1, got {step}")
+    return [i / n for i in range(n + 1)]
+
+
+def alpha_group(
+    step: float, cost_name: str | None = None, class_names: Sequence[str] = CLASS_NAMES
+) -> RuleGroup:
+    """The prior-adapted rule on ``p / π_α`` for α = 0, step, …, 1 (0 = Bayes, 1 = ML)."""
+    base = parse_rules([cost_name], class_names)[0] if cost_name else None
+    if base is not None and base.priors_alpha:
+        raise ValueError("--alpha_cost must be a cost matrix, not 'ml'")
+    cost, label = (base.cost, base.name) if base else (None, "robotistic")
+    alphas = alpha_grid(step)
+
+    def decide_all(probs: torch.Tensor, priors: torch.Tensor | None) -> torch.Tensor:
+        if priors is None:
+            raise ValueError("the α sweep needs pixel-wise priors")
+        return torch.stack([decide(probs, cost, adapted_priors(priors, a)) for a in alphas], 1)
+
+    return RuleGroup(
+        "alpha",
+        [f"{label}@alpha={a:.2f}" for a in alphas],
+        decide_all,
+        [{"prior_alpha": a} for a in alphas],
+        note=f"{label} on p/π_α, π_α = (1-α) + απ",
+    )

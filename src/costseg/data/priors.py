@@ -1,18 +1,26 @@
 """Pixel-wise class priors from training labels and the regions of interest (RoI) they define.
 
 SPEC §3: per image location, the fraction of training labels holding each class (label 255 is
-counted in neither numerator nor denominator; a location never labelled gets the uniform
-distribution), optionally Gaussian-smoothed, floored at ``eps`` and renormalised to sum 1.
-The RoI map gives each location the class among road, sidewalk, building and sky with the
-highest prior there.
+counted in neither numerator nor denominator), Gaussian-smoothed, floored at ``eps`` and
+renormalised to sum 1. As in the paper's authors' code, the per-class *counts* are smoothed
+(σ = 80 px at Cityscapes' 1024 rows, so ``80 · H / 1024`` by default) and then divided by the
+smoothed total, so locations that are often ignored weigh less; a location with no labelled
+pixel within reach of the kernel gets the uniform distribution. The RoI map gives each location
+the class among road, sidewalk, building and sky with the highest prior there.
+
+:func:`cached_priors` computes priors once (for a network costseg did not train) and reuses
+the file while the settings it was made with stay the same.
 """
 
 from __future__ import annotations
 
+import itertools
+import json
 import os
 import tempfile
-from collections.abc import Iterable, Sequence, Sized
+from collections.abc import Callable, Iterable, Mapping, Sequence, Sized
 from pathlib import Path
+from typing import Any, NamedTuple
 
 import torch
 import torch.nn.functional as F
@@ -28,49 +36,83 @@ _FORMAT = "costseg-pixel-priors-v1"
 _HANDFUL = 10  # no progress bar for a few labels (doctests, tests)
 
 
+def default_sigma(height: int) -> float:
+    """The default smoothing in pixels for labels of ``height`` rows: ``80 · height / 1024``.
+
+    >>> default_sigma(1024), default_sigma(128)
+    (80.0, 10.0)
+    """
+    return 80.0 * height / 1024
+
+
 def pixel_priors(
     labels: Iterable[Tensor],
     num_classes: int = NUM_CLASSES,
-    sigma: float = 0.0,
+    sigma: float | None = None,
     eps: float = 1e-5,
     progress: bool = True,
+    max_labels: int | None = None,
 ) -> Tensor:
     """Per-location class frequencies of a set of label maps (SPEC §3).
 
     Args:
         labels: Iterable of (H, W) integer label maps of one size; values in
-            ``[0, num_classes)`` or 255 (ignored).
+            ``[0, num_classes)`` or 255 (ignored). Read one at a time (streamed).
         num_classes: Number of classes N.
-        sigma: Standard deviation in pixels of the Gaussian smoothing of each class map
-            (0 = none); borders repeat the nearest value.
+        sigma: Standard deviation in pixels of the Gaussian smoothing of each class's counts;
+            None means :func:`default_sigma` of H, 0 means no smoothing. Borders repeat the
+            nearest value.
         eps: Floor applied before the final renormalisation, ``0 < eps < 1 / N``.
         progress: Show a tqdm bar when there are more than a handful of labels.
+        max_labels: Use only the first ``max_labels`` labels (None = all).
 
     Returns:
         (N, H, W) float32 on the CPU; every location sums to 1 and is at least about ``eps``.
 
-    >>> pi = pixel_priors([torch.tensor([[0, 255]]), torch.tensor([[1, 255]])], num_classes=2)
+    >>> labels = [torch.tensor([[0, 255]]), torch.tensor([[1, 255]])]
+    >>> pi = pixel_priors(labels, num_classes=2, sigma=0)
     >>> pi[:, 0, 0].tolist(), pi[:, 0, 1].tolist()
     ([0.5, 0.5], [0.5, 0.5])
     """
-    if num_classes < 1 or sigma < 0 or not 0 < eps < 1 / num_classes:
+    return _pixel_priors(labels, num_classes, sigma, eps, progress, max_labels)[0]
+
+
+def _pixel_priors(
+    labels: Iterable[Tensor],
+    num_classes: int,
+    sigma: float | None,
+    eps: float,
+    progress: bool,
+    max_labels: int | None,
+) -> tuple[Tensor, int, float]:
+    """Priors, the number of labels counted and the σ used."""
+    if num_classes < 1 or (sigma is not None and sigma < 0) or not 0 < eps < 1 / num_classes:
         raise ValueError(
-            f"expected num_classes >= 1, sigma >= 0 and 0 < eps < 1/num_classes; got "
+            f"expected num_classes >= 1, sigma None or >= 0 and 0 < eps < 1/num_classes; got "
             f"num_classes={num_classes}, sigma={sigma}, eps={eps}"
         )
-    counts = _count(labels, num_classes, progress)
-    total = counts.sum(dim=0, keepdim=True)
-    freq = torch.where(total > 0, counts / total.clamp(min=1), 1.0 / num_classes)
+    if max_labels is not None and (not isinstance(max_labels, int) or max_labels < 1):
+        raise ValueError(f"max_labels must be None or an integer >= 1; got {max_labels!r}")
+    counts, count = _count(labels, num_classes, progress, max_labels)
+    sigma = default_sigma(counts.shape[1]) if sigma is None else float(sigma)
     if sigma > 0:
-        smoothed = gaussian_filter(freq.numpy(), sigma=(0.0, sigma, sigma), mode="nearest")
-        freq = torch.from_numpy(smoothed)
+        counts = torch.from_numpy(
+            gaussian_filter(counts.numpy(), sigma=(0.0, sigma, sigma), mode="nearest")
+        )
+    total = counts.sum(dim=0, keepdim=True)  # exactly 0 beyond the kernel's reach (truncate 4σ)
+    freq = torch.where(total > 0, counts / total.clamp(min=1e-300), 1.0 / num_classes)
     freq = freq.clamp(min=eps)
-    return (freq / freq.sum(dim=0, keepdim=True)).float()
+    return (freq / freq.sum(dim=0, keepdim=True)).float(), count, sigma
 
 
-def _count(labels: Iterable[Tensor], num_classes: int, progress: bool) -> Tensor:
-    """(N, H, W) float32 count of each class per location, 255 excluded."""
+def _count(
+    labels: Iterable[Tensor], num_classes: int, progress: bool, max_labels: int | None
+) -> tuple[Tensor, int]:
+    """(N, H, W) float64 count of each class per location (255 excluded), labels counted."""
     total = len(labels) if isinstance(labels, Sized) else None
+    if max_labels is not None:
+        total = max_labels if total is None else min(total, max_labels)
+        labels = itertools.islice(labels, max_labels)
     show = progress and (total is None or total > _HANDFUL)
     bins = num_classes + 1  # the extra bin collects 255, so no masking is needed
     counts = position = ones = None
@@ -98,7 +140,7 @@ def _count(labels: Iterable[Tensor], num_classes: int, progress: bool) -> Tensor
     if counts is None:
         raise ValueError("pixel_priors needs at least one label map; got none")
     per_location = counts.view(size[0], size[1], bins)[..., :num_classes]
-    return per_location.permute(2, 0, 1).float().contiguous()
+    return per_location.permute(2, 0, 1).double().contiguous(), i + 1
 
 
 def roi_map(pi: Tensor, class_names: Sequence[str] = CLASS_NAMES) -> Tensor:
@@ -147,11 +189,24 @@ def resize_priors(pi: Tensor, size: tuple[int, int]) -> Tensor:
     return resized / resized.sum(dim=0, keepdim=True)
 
 
-def save_priors(path: str | Path, pi: Tensor, class_names: Sequence[str] = CLASS_NAMES) -> None:
-    """Write priors and their class names to a ``.pt`` file atomically (temp file + rename)."""
+def save_priors(
+    path: str | Path,
+    pi: Tensor,
+    class_names: Sequence[str] = CLASS_NAMES,
+    settings: Mapping[str, Any] | None = None,
+) -> None:
+    """Write priors, their class names and optional settings to a ``.pt`` file atomically.
+
+    ``settings`` (JSON-like: how the priors were made) are stored for :func:`cached_priors`.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    payload = {"format": _FORMAT, "class_names": list(class_names), "priors": pi.float().cpu()}
+    payload = {
+        "format": _FORMAT,
+        "class_names": list(class_names),
+        "priors": pi.float().cpu(),
+        "settings": None if settings is None else _normalise(settings),
+    }
     with tempfile.NamedTemporaryFile(dir=path.parent, suffix=".tmp", delete=False) as tmp:
         torch.save(payload, tmp)
     os.replace(tmp.name, path)
@@ -167,6 +222,11 @@ def load_priors(path: str | Path, class_names: Sequence[str] = CLASS_NAMES) -> T
         FileNotFoundError: No file at ``path``.
         ValueError: The file is not a priors file, or its classes differ from ``class_names``.
     """
+    return _read(path, class_names)["priors"]
+
+
+def _read(path: str | Path, class_names: Sequence[str]) -> dict[str, Any]:
+    """The checked payload of a priors file (see :func:`load_priors` for the errors)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"priors file '{path}' does not exist; create it with save_priors")
@@ -181,4 +241,77 @@ def load_priors(path: str | Path, class_names: Sequence[str] = CLASS_NAMES) -> T
             f"priors in '{path}' are for classes {payload['class_names']}; "
             f"expected {list(class_names)}"
         )
-    return payload["priors"]
+    return payload
+
+
+def _normalise(settings: Mapping[str, Any]) -> dict[str, Any]:
+    """A JSON round trip: tuples become lists and paths strings, so equal settings compare equal."""
+    return json.loads(json.dumps(dict(settings), default=str, sort_keys=True))
+
+
+class CachedPriors(NamedTuple):
+    """What :func:`cached_priors` returns: the priors and how they were obtained."""
+
+    priors: Tensor
+    """(N, H, W) float32 priors."""
+    num_labels: int
+    """Training labels counted."""
+    sigma: float
+    """Smoothing σ in pixels actually used."""
+    reused: bool
+    """True when read from the cache file, False when computed now."""
+
+
+def cached_priors(
+    labels: Callable[[], Iterable[Tensor]],
+    cache_file: str | Path,
+    settings: Mapping[str, Any],
+    num_classes: int = NUM_CLASSES,
+    sigma: float | None = None,
+    eps: float = 1e-5,
+    class_names: Sequence[str] = CLASS_NAMES,
+    max_labels: int | None = None,
+    progress: bool = True,
+) -> CachedPriors:
+    """Priors from ``cache_file`` when it was made with the same settings, else computed and saved.
+
+    For a network costseg did not train: the priors come from the dataset's training labels
+    (SPEC §3, §8), computed once with a progress bar. The file records ``settings`` (say the
+    dataset root, split and label size) together with ``num_classes``, ``sigma``, ``eps`` and
+    ``max_labels``; any difference, an unreadable file or other classes mean a recomputation.
+
+    Args:
+        labels: Called only when computing; returns the (H, W) label maps (see
+            :func:`pixel_priors`).
+        cache_file: The ``.pt`` file (written atomically).
+        settings: JSON-like description of the label source; tuples and lists compare equal,
+            other objects by ``str``.
+        num_classes, sigma, eps, max_labels, progress: As for :func:`pixel_priors`.
+        class_names: Class name per channel, stored and checked.
+
+    Returns:
+        :class:`CachedPriors`.
+
+    >>> import tempfile
+    >>> folder = tempfile.mkdtemp()
+    >>> make = lambda: [torch.tensor([[0, 1]])]
+    >>> first = cached_priors(make, f"{folder}/p.pt", {"split": "train"}, num_classes=2)
+    >>> again = cached_priors(make, f"{folder}/p.pt", {"split": "train"}, num_classes=2)
+    >>> first.reused, again.reused, torch.equal(first.priors, again.priors), again.num_labels
+    (False, True, True, 1)
+    """
+    wanted = _normalise(
+        {**settings, "costseg": {"num_classes": num_classes, "sigma": sigma, "eps": eps,
+                                 "max_labels": max_labels}}
+    )  # fmt: skip
+    try:
+        payload = _read(cache_file, class_names)
+    except (FileNotFoundError, ValueError):
+        payload = None  # no usable cache: compute below
+    if payload is not None and (payload.get("settings") or {}).get("request") == wanted:
+        info = payload["settings"]
+        return CachedPriors(payload["priors"], info["num_labels"], info["sigma_px"], True)
+    pi, count, used_sigma = _pixel_priors(labels(), num_classes, sigma, eps, progress, max_labels)
+    record = {"request": wanted, "num_labels": count, "sigma_px": used_sigma}
+    save_priors(cache_file, pi, class_names, settings=record)
+    return CachedPriors(pi, count, used_sigma, False)

@@ -246,26 +246,54 @@ def segment_errors(
         raise ValueError(f"expected cls >= 0 and != ignore_index {ignore_index}, got {cls}")
     p, t = pred.cpu().numpy(), target.cpu().numpy()
     r = None if roi is None else roi.cpu().numpy()
-    gt_mask, pred_mask = t == cls, (p == cls) & (t != ignore_index)
-    gt, pr = label_segments(gt_mask, r, num_rois), label_segments(pred_mask, r, num_rois)
-    # Ground-truth pixels are never ignored, so pred_mask equals pred == cls on them.
-    fp_seg, fn_seg = missed_segments(pr, gt_mask), missed_segments(gt, pred_mask)
-    out: dict[str, Any] = {
-        "fp": int(fp_seg.sum()),
-        "fn": int(fn_seg.sum()),
-        "n_pred": pr.count,
-        "n_gt": gt.count,
-        "fp_mask": torch.from_numpy(fp_seg[pr.labels]).to(pred.device),
-        "fn_mask": torch.from_numpy(fn_seg[gt.labels]).to(pred.device),
-    }
+    gt_mask = t == cls
+    errors = mask_segment_errors((p == cls) & (t != ignore_index), gt_mask, r, num_rois)
+    fp, fn, n_pred, n_gt = (int(v) for v in errors.counts[:, 0])
+    out: dict[str, Any] = {"fp": fp, "fn": fn, "n_pred": n_pred, "n_gt": n_gt}
+    out["fp_mask"] = torch.from_numpy(errors.fp_mask).to(pred.device)
+    out["fn_mask"] = torch.from_numpy(errors.fn_mask).to(pred.device)
     if roi is not None:
-        per_roi = {
-            "fp_roi": pr.owner[fp_seg],
-            "fn_roi": gt.owner[fn_seg],
-            "n_pred_roi": pr.owner[1:],
-            "n_gt_roi": gt.owner[1:],
-        }
-        out |= {
-            k: torch.from_numpy(roi_totals(v, num_rois)).to(pred.device) for k, v in per_roi.items()
-        }
+        for i, key in enumerate(("fp_roi", "fn_roi", "n_pred_roi", "n_gt_roi")):
+            out[key] = torch.from_numpy(errors.counts[i]).to(pred.device)
     return out
+
+
+class MaskErrors(NamedTuple):
+    """Segment errors of one class's predicted mask against its ground truth."""
+
+    counts: np.ndarray  # (4, R+1) int64: fp, fn, n_pred, n_gt; column 0 = whole image
+    fp_mask: np.ndarray  # (H, W) bool, pixels of false-positive segments
+    fn_mask: np.ndarray  # (H, W) bool, pixels of false-negative segments
+
+
+def mask_segment_errors(
+    pred_mask: np.ndarray,
+    gt_mask: np.ndarray,
+    roi: np.ndarray | None,
+    num_rois: int,
+    gt: Segments | None = None,
+) -> MaskErrors:
+    """The core of SPEC §4's segment errors, shared by :func:`segment_errors` and
+    :class:`~costseg.metrics.SegmentErrors`.
+
+    Args:
+        pred_mask: (H, W) bool, ``pred == cls`` on non-ignored pixels.
+        gt_mask: (H, W) bool, ``target == cls`` (never ignored pixels).
+        roi: None or (H, W) RoI ids in 0..num_rois.
+        num_rois: R.
+        gt: ``label_segments(gt_mask, roi, num_rois)`` when already known (it does not depend
+            on the rule, so K rules label it once).
+    """
+    gt = label_segments(gt_mask, roi, num_rois) if gt is None else gt
+    pred = label_segments(pred_mask, roi, num_rois)
+    # Ground-truth pixels are never ignored, so pred_mask equals pred == cls on them.
+    fp_seg, fn_seg = missed_segments(pred, gt_mask), missed_segments(gt, pred_mask)
+    counts = np.stack(
+        [
+            roi_totals(pred.owner[fp_seg], num_rois),
+            roi_totals(gt.owner[fn_seg], num_rois),
+            roi_totals(pred.owner[1:], num_rois),
+            roi_totals(gt.owner[1:], num_rois),
+        ]
+    )
+    return MaskErrors(counts, fp_seg[pred.labels], fn_seg[gt.labels])

@@ -18,9 +18,8 @@ from costseg.metrics.functional import (
     as_rules,
     check_batch,
     label_segments,
-    missed_segments,
+    mask_segment_errors,
     restore_ndims,
-    roi_totals,
 )
 
 _COUNTS = ("fp", "fn", "n_pred", "n_gt")
@@ -76,20 +75,11 @@ def _distinct_errors(
 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """Counts (U, 4, R+1) and, if ``maps``, FP / FN masks (U, H, W) of U masks; see above."""
     gt = label_segments(gt_mask, roi, num_rois)  # does not depend on the rule
-    n_gt = roi_totals(gt.owner[1:], num_rois)
-    counts, fp_maps, fn_maps = [], [], []
-    for mask in pred_masks:
-        pred = label_segments(mask, roi, num_rois)
-        # Ground-truth pixels are never ignored, so ``mask`` equals pred == cls on them.
-        fp_seg, fn_seg = missed_segments(pred, gt_mask), missed_segments(gt, mask)
-        fp, fn = roi_totals(pred.owner[fp_seg], num_rois), roi_totals(gt.owner[fn_seg], num_rois)
-        counts.append(np.stack([fp, fn, roi_totals(pred.owner[1:], num_rois), n_gt]))
-        if maps:
-            fp_maps.append(fp_seg[pred.labels])
-            fn_maps.append(fn_seg[gt.labels])
+    errors = [mask_segment_errors(m, gt_mask, roi, num_rois, gt) for m in pred_masks]
+    counts = np.stack([e.counts for e in errors])
     if not maps:
-        return np.stack(counts), None, None
-    return np.stack(counts), np.stack(fp_maps), np.stack(fn_maps)
+        return counts, None, None
+    return counts, np.stack([e.fp_mask for e in errors]), np.stack([e.fn_mask for e in errors])
 
 
 class SegmentErrors(Metric):
@@ -106,10 +96,10 @@ class SegmentErrors(Metric):
         num_rules: K, the number of decision rules in each ``preds``.
         num_rois: R.
         ignore_index: target value that is ignored.
-        heatmap_size: (h, w) of the FP / FN maps: each mask is area-resampled to it. None keeps
-            the label size of the first update (all later labels must share it, and under DDP
-            every process must update before ``compute()``); (0, 0) turns the maps off (for
-            sweeps over many rules).
+        heatmap_size: (h, w) canvas of the FP / FN maps: each image's masks are resampled to
+            it, so images of any size accumulate into one map. None takes the label size of
+            the first update (under DDP pass it explicitly, so every process agrees); (0, 0)
+            turns the maps off (for sweeps over many rules).
         kwargs: passed to ``torchmetrics.Metric``.
 
     ``compute()`` returns int64 (K, C, R+1) "fp", "fn", "n_pred", "n_gt"; float64 "fp_rate" =
@@ -193,24 +183,23 @@ class SegmentErrors(Metric):
         self.n_images += len(target)
 
     def _map_states(self, label_size: tuple[int, int]) -> tuple[Tensor, Tensor]:
-        """The map states, grown from the (1, 1) default to the label size when it is unset."""
-        if self.heatmap_size is None and self.fp_map.shape[-2:] != label_size:
-            if self.fp_map.shape[-2:] != (1, 1):
-                raise ValueError(
-                    f"expected labels of size {tuple(self.fp_map.shape[-2:])} as in the first "
-                    f"update (or pass heatmap_size), got {label_size}"
-                )
+        """The map states; with ``heatmap_size`` None the first label size becomes the canvas."""
+        if self.heatmap_size is None and self.fp_map.shape[-2:] == (1, 1) and self.n_images == 0:
             self.fp_map = self.fp_map.new_zeros(*self.fp_map.shape[:2], *label_size)
             self.fn_map = self.fn_map.new_zeros(*self.fn_map.shape[:2], *label_size)
         return self.fp_map, self.fn_map
 
     def _resample(self, masks: np.ndarray) -> Tensor:
-        """(U, H, W) bool masks → (U, h, w) area fractions on the metric's device."""
+        """(U, H, W) bool masks → (U, h, w) on the canvas: area fractions (smaller canvas) or
+        bilinear values (larger), on the metric's device."""
         maps = torch.from_numpy(masks).to(self.device)
-        size = self.fp_map.shape[-2:]
+        size = tuple(self.fp_map.shape[-2:])
         if maps.shape[-2:] == size:
             return maps  # bool: adding it to the float64 state needs no large float copy
-        return F.adaptive_avg_pool2d(maps.unsqueeze(1).float(), size).squeeze(1)
+        if size[0] <= maps.shape[-2] and size[1] <= maps.shape[-1]:
+            return F.adaptive_avg_pool2d(maps.unsqueeze(1).float(), size).squeeze(1)
+        resized = F.interpolate(maps.unsqueeze(1).float(), size, mode="bilinear", antialias=True)
+        return resized.squeeze(1)
 
     def compute(self) -> dict[str, Tensor]:
         """Counts, rates and maps of everything seen so far (shapes in the class docstring)."""

@@ -96,12 +96,13 @@ def _conv_bn_relu(in_channels: int, out_channels: int, kernel_size: int) -> nn.S
 
 
 class DeepLabV3PlusDecoder(nn.Module):
-    """Merge the ASPP output with projected stride-4 features, then refine with two 3x3 convs.
+    """Merge the ASPP output with projected stride-4 features, then refine with 3x3 convs.
 
     Args:
         low_channels: channels of the stride-4 backbone features.
         aspp_channels: channels of the ASPP output.
-        channels: width of the two 3x3 conv-BN-ReLU blocks (256 in the paper).
+        channels: width of the 3x3 conv-BN-ReLU blocks (256 in the paper).
+        num_convs: number of 3x3 blocks: 2 in the paper, 1 in VainF/DeepLabV3Plus-Pytorch.
 
     Example:
         >>> dec = DeepLabV3PlusDecoder(low_channels=24, aspp_channels=64, channels=32)
@@ -109,12 +110,14 @@ class DeepLabV3PlusDecoder(nn.Module):
         torch.Size([2, 32, 16, 32])
     """
 
-    def __init__(self, low_channels: int, aspp_channels: int, channels: int) -> None:
+    def __init__(
+        self, low_channels: int, aspp_channels: int, channels: int, num_convs: int = 2
+    ) -> None:
         super().__init__()
         self.project = _conv_bn_relu(low_channels, LOW_LEVEL_CHANNELS, 1)
         self.fuse = nn.Sequential(
             _conv_bn_relu(aspp_channels + LOW_LEVEL_CHANNELS, channels, 3),
-            _conv_bn_relu(channels, channels, 3),
+            *(_conv_bn_relu(channels, channels, 3) for _ in range(num_convs - 1)),
         )
 
     def forward(self, high: torch.Tensor, low: torch.Tensor) -> torch.Tensor:
@@ -134,6 +137,8 @@ class DeepLabV3Plus(nn.Module):
             backbone (its ``fc.*`` / ``classifier.*`` head is ignored); nothing is downloaded.
         decoder_channels: width of the ASPP output and of the decoder convs (256 in the paper);
             smaller values make a cheaper head for CPU training.
+        decoder_convs: 3x3 conv blocks after the merge: 2 (the paper), or 1 (the layout of
+            VainF/DeepLabV3Plus-Pytorch checkpoints, see ``costseg.networks``).
 
     Raises:
         ValueError: unknown backbone, unsupported stride, bad sizes, or weights that do not match.
@@ -152,15 +157,20 @@ class DeepLabV3Plus(nn.Module):
         output_stride: int = 16,
         backbone_weights: str | Path | None = None,
         decoder_channels: int = 256,
+        decoder_convs: int = 2,
     ) -> None:
         super().__init__()
         spec = _validated_spec(num_classes, backbone, output_stride, decoder_channels)
+        if decoder_convs < 1:
+            raise ValueError(f"decoder_convs must be a positive integer; got {decoder_convs!r}")
         self.output_stride = output_stride
         self.backbone = create_feature_extractor(
             spec.build(output_stride), {spec.low_node: "low", spec.high_node: "out"}
         )
         self.aspp = ASPP(spec.high_channels, ATROUS_RATES[output_stride], decoder_channels)
-        self.decoder = DeepLabV3PlusDecoder(spec.low_channels, decoder_channels, decoder_channels)
+        self.decoder = DeepLabV3PlusDecoder(
+            spec.low_channels, decoder_channels, decoder_channels, decoder_convs
+        )
         self.classifier = nn.Conv2d(decoder_channels, num_classes, 1)
         for head in (self.aspp, self.decoder, self.classifier):
             _init_head(head)

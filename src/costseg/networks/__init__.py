@@ -1,0 +1,104 @@
+"""Networks that map uint8 images to Cityscapes logits, whoever trained them.
+
+Specs understood by `load_network`:
+
+* ``costseg:PATH`` — a checkpoint written by ``train.py`` (read without importing Lightning);
+* ``vainf:PATH`` — a VainF/DeepLabV3Plus-Pytorch checkpoint (ResNet-50/101), rebuilt as
+  costseg's own `DeepLabV3Plus`. The backbone is read from the weights; the output stride
+  (invisible in the weights) from ``?os=8`` / ``?os=16`` after the path, else from ``os8`` /
+  ``os16`` in the file name, else 16; ``?backbone=resnet50`` overrides the detected backbone
+  (options join with ``&``). Example: ``vainf:best_deeplabv3plus_resnet101_cityscapes_os16.pth``;
+* ``hf:DIR`` (alias ``segformer:DIR``) — a ``transformers`` semantic-segmentation model saved
+  with ``save_pretrained`` (SegFormer, ...), normalised as its ``preprocessor_config.json`` says
+  (no resizing). Needs the ``hf`` extra.
+
+Every loader returns an `ImageNetwork` in eval mode: (B, 3, H, W) uint8 RGB → (B, 19, H, W)
+float logits at the input resolution. Nothing is ever downloaded.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+import torch
+
+from costseg.classes import CLASS_NAMES, NUM_CLASSES
+from costseg.networks.base import IMAGENET_MEAN, IMAGENET_STD, ImageNetwork, read_torch_file
+from costseg.networks.costseg import CostsegCheckpoint, load_costseg_checkpoint
+from costseg.networks.hf import load_hf
+from costseg.networks.vainf import VAINF_DEPTHS, export_vainf_state, load_vainf
+
+__all__ = [
+    "IMAGENET_MEAN",
+    "IMAGENET_STD",
+    "PREFIXES",
+    "CostsegCheckpoint",
+    "ImageNetwork",
+    "export_vainf_state",
+    "load_costseg_checkpoint",
+    "load_hf",
+    "load_network",
+    "load_vainf",
+    "read_torch_file",
+]
+
+PREFIXES = ("costseg", "vainf", "hf", "segformer")
+_USAGE = "costseg:PATH, vainf:PATH[?os=8|16&backbone=resnet50|resnet101], hf:DIR or segformer:DIR"
+_OPTIONS = re.compile(r"\?(\w+=[^&?=]+(?:&\w+=[^&?=]+)*)$")
+
+
+def load_network(spec: str, device: str | torch.device = "cpu") -> ImageNetwork:
+    """The network a spec names (see the module docstring), on ``device``, in eval mode.
+
+    Args:
+        spec: ``costseg:PATH``, ``vainf:PATH[?os=8]``, ``hf:DIR`` or ``segformer:DIR``.
+        device: where the network runs.
+
+    Returns:
+        a module mapping (B, 3, H, W) uint8 RGB to (B, 19, H, W) float logits.
+
+    Raises:
+        ValueError: unknown prefix or option, a file of the wrong kind or class count.
+        FileNotFoundError: the file or folder does not exist.
+
+    Example:
+        >>> load_network("onnx:model.onnx")  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        ValueError: unknown network spec 'onnx:model.onnx': expected costseg:PATH, ...
+    """
+    prefix, location, options = _parse_spec(spec)
+    if prefix == "costseg":
+        checkpoint = load_costseg_checkpoint(location)
+        if checkpoint.class_names != CLASS_NAMES:
+            raise ValueError(
+                f"{location} was trained on {len(checkpoint.class_names)} classes "
+                f"({', '.join(checkpoint.class_names[:3])}, ...), not the {NUM_CLASSES} "
+                "Cityscapes train classes"
+            )
+        net = checkpoint.network
+    elif prefix == "vainf":
+        net = load_vainf(location, **options)
+    else:
+        net = load_hf(location)
+    return net.to(torch.device(device)).eval()
+
+
+def _parse_spec(spec: str) -> tuple[str, str, dict[str, Any]]:
+    prefix, sep, location = spec.partition(":")
+    if not sep or prefix not in PREFIXES or not location:
+        raise ValueError(f"unknown network spec {spec!r}: expected {_USAGE}")
+    match = _OPTIONS.search(location) if prefix == "vainf" else None
+    if match is None:
+        return prefix, location, {}
+    options: dict[str, Any] = {}
+    for item in match.group(1).split("&"):
+        key, value = item.split("=")
+        if key == "os" and value in ("8", "16"):
+            options["output_stride"] = int(value)
+        elif key == "backbone" and value in VAINF_DEPTHS.values():
+            options["backbone"] = value
+        else:
+            raise ValueError(f"bad option {item!r} in {spec!r}: expected {_USAGE}")
+    return prefix, location[: match.start()], options

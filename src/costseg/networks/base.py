@@ -1,0 +1,133 @@
+"""What every network source shares: the uint8-image wrapper and safe checkpoint reading."""
+
+from __future__ import annotations
+
+import pickle
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+from torch.nn import functional as F
+
+__all__ = ["IMAGENET_MEAN", "IMAGENET_STD", "ImageNetwork", "check_state_keys", "read_torch_file"]
+
+IMAGENET_MEAN = (0.485, 0.456, 0.406)
+IMAGENET_STD = (0.229, 0.224, 0.225)
+
+
+class ImageNetwork(nn.Module):
+    """A network behind its input normalisation, with logits resized to the input size.
+
+    Args:
+        net: maps (B, 3, H, W) normalised images to (B, N, h, w) logits.
+        mean, std: per-channel normalisation, applied after the rescaling.
+        rescale: factor taking uint8 values to the network's range (1/255: [0, 1]).
+        channels_last: run the network on channels-last tensors (as costseg trains).
+
+    Example:
+        >>> net = ImageNetwork(nn.Conv2d(3, 19, 4, stride=4))
+        >>> net(torch.zeros(2, 3, 32, 48, dtype=torch.uint8)).shape
+        torch.Size([2, 19, 32, 48])
+    """
+
+    def __init__(
+        self,
+        net: nn.Module,
+        mean: tuple[float, ...] = IMAGENET_MEAN,
+        std: tuple[float, ...] = IMAGENET_STD,
+        rescale: float = 1 / 255,
+        channels_last: bool = False,
+    ) -> None:
+        super().__init__()
+        # costseg trains channels-last; the same layout gives the same convolution kernels.
+        self.net = net.to(memory_format=torch.channels_last) if channels_last else net
+        self.register_buffer("mean", torch.tensor(mean).view(1, 3, 1, 1), persistent=False)
+        self.register_buffer("std", torch.tensor(std).view(1, 3, 1, 1), persistent=False)
+        # Dividing by 255 (not multiplying by 1/255) reproduces costseg's training inputs bit
+        # for bit; 1 / (1/255) rounds back to exactly 255 in float32.
+        self.divisor = 1.0 / rescale
+        self.channels_last = channels_last
+        self.eval()
+
+    def forward(self, images: Tensor) -> Tensor:
+        """(B, 3, H, W) uint8 RGB → (B, N, H, W) float logits."""
+        if images.dtype != torch.uint8 or images.ndim != 4 or images.shape[1] != 3:
+            raise ValueError(
+                "expected (B, 3, H, W) uint8 RGB images; "
+                f"got {tuple(images.shape)} {str(images.dtype).removeprefix('torch.')}"
+            )
+        x = (images.float() / self.divisor - self.mean) / self.std
+        if self.channels_last:
+            x = x.contiguous(memory_format=torch.channels_last)
+        logits = self.net(x)
+        if logits.shape[-2:] != images.shape[-2:]:
+            logits = F.interpolate(
+                logits, size=images.shape[-2:], mode="bilinear", align_corners=False
+            )
+        return logits
+
+
+def check_state_keys(expected: dict[str, Tensor], state: dict[str, Any], what: str) -> None:
+    """ValueError naming the first missing / unexpected keys, then the first wrong shape."""
+    missing = [k for k in expected if k not in state and not k.endswith("num_batches_tracked")]
+    unexpected = [k for k in state if k not in expected]
+    if missing or unexpected:
+        raise ValueError(
+            f"{what}: {len(missing)} missing keys (first: {', '.join(missing[:3]) or '-'}), "
+            f"{len(unexpected)} unexpected keys (first: {', '.join(unexpected[:3]) or '-'})"
+        )
+    for key, value in expected.items():
+        got = getattr(state.get(key, value), "shape", None)
+        if got != value.shape:
+            raise ValueError(
+                f"{what}: {key} has shape {tuple(got or ())}, expected {tuple(value.shape)}"
+            )
+
+
+def _numpy_scalar_globals() -> list[Any]:
+    """What a pickled numpy scalar needs (VainF stores ``best_score`` as one), under the module
+    names of numpy 2 and of numpy 1 (which wrote most published checkpoints)."""
+    core = getattr(np, "_core", None) or np.core
+    scalar = core.multiarray.scalar
+    dtypes = {type(np.dtype(code)) for code in "?bhilqBHILQefdg"}
+    return [
+        np.dtype,
+        *dtypes,
+        (scalar, "numpy.core.multiarray.scalar"),
+        (scalar, "numpy._core.multiarray.scalar"),
+    ]
+
+
+def read_torch_file(path: str | Path, mmap: bool = False) -> Any:
+    """``torch.load`` of weights and plain data only (``weights_only=True``), on the CPU.
+
+    Numpy scalars are allowed too; ``mmap`` suits large zip-format files (not legacy ones).
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: unreadable, or holds other objects (one line naming the file).
+
+    >>> read_torch_file("no/such.pth")
+    Traceback (most recent call last):
+    ...
+    FileNotFoundError: file not found: no/such.pth
+    """
+    if not Path(path).is_file():
+        raise FileNotFoundError(f"file not found: {path}")
+    allow = getattr(torch.serialization, "safe_globals", None)  # torch >= 2.5
+    try:
+        if allow is None:
+            return torch.load(path, map_location="cpu", weights_only=True, mmap=mmap)
+        with allow(_numpy_scalar_globals()):
+            return torch.load(path, map_location="cpu", weights_only=True, mmap=mmap)
+    except pickle.UnpicklingError as err:
+        # torch's message spans many lines and suggests weights_only=False: keep the cause.
+        cause = next((line for line in str(err).splitlines() if "got" in line), "")
+        raise ValueError(
+            f"{path} holds objects other than weights and plain data: {cause}"
+        ) from None
+    except Exception as err:  # torch raises several types for a truncated or foreign file
+        first = (str(err).strip().splitlines() or [type(err).__name__])[0]
+        raise ValueError(f"{path} is not a readable torch file: {first}") from None

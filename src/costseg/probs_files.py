@@ -1,0 +1,156 @@
+"""Precomputed probabilities (SPEC §8), so that networks of any framework can be evaluated.
+
+One file per image, named after the image (``<city>_<seq>_<frame>.npz`` or ``.pt``, directly in
+the folder or in a ``<city>/`` subfolder), holding ``probs`` or ``logits`` of shape (N, H, W) at
+the label resolution, in any floating dtype (float16 halves the size). A ``.npz`` file is
+written by ``numpy.savez(path, probs=array)``, a ``.pt`` file by
+``torch.save({"probs": tensor}, path)``.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from costseg.classes import NUM_CLASSES
+
+__all__ = ["PROBS_SUFFIXES", "find_probs_file", "load_probs", "save_probs"]
+
+PROBS_SUFFIXES = (".npz", ".pt")
+_KEYS = ("probs", "logits")
+_SUM_TOLERANCE = 1e-2  # float16 rounding moves a sum of probabilities by < 1e-3
+
+
+def save_probs(path: str | Path, probs: Tensor, compress: bool = False) -> Path:
+    """Write (N, H, W) probabilities as float16 ``probs``, atomically (temp file + rename).
+
+    Args:
+        path: the file to write, ending in ``.npz`` or ``.pt``.
+        probs: (N, H, W) floating probabilities, on any device.
+        compress: zip-compress a ``.npz`` file (smaller, several times slower to write).
+
+    Returns:
+        ``path``.
+
+    Example:
+        >>> import tempfile
+        >>> with tempfile.TemporaryDirectory() as tmp:
+        ...     path = save_probs(f"{tmp}/lindau_000000_000019.npz", torch.full((19, 4, 6), 1 / 19))
+        ...     load_probs(path, size=(4, 6)).shape
+        torch.Size([19, 4, 6])
+    """
+    path = Path(path)
+    if path.suffix not in PROBS_SUFFIXES:
+        raise ValueError(f"probability files end in .npz or .pt; got {path}")
+    if probs.ndim != 3 or not probs.is_floating_point():
+        raise ValueError(f"expected (N, H, W) floating probabilities; got {tuple(probs.shape)}")
+    half = probs.detach().to("cpu", torch.float16)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "wb") as f:
+            if path.suffix == ".pt":
+                torch.save({"probs": half}, f)
+            else:
+                (np.savez_compressed if compress else np.savez)(f, probs=half.numpy())
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+def find_probs_file(folder: str | Path, stem: str) -> Path:
+    """The file holding image ``stem``'s probabilities: ``folder/[city/]stem.{npz,pt}``.
+
+    Raises:
+        FileNotFoundError: no such file (names the image).
+        ValueError: more than one candidate.
+
+    >>> find_probs_file(".", "aachen_000000_000019")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    FileNotFoundError: no probabilities for image aachen_000000_000019 in . (expected ...)
+    """
+    folder = Path(folder)
+    city = stem.split("_")[0]
+    found = [
+        d / f"{stem}{suffix}"
+        for d in (folder, folder / city)
+        for suffix in PROBS_SUFFIXES
+        if (d / f"{stem}{suffix}").is_file()
+    ]
+    if not found:
+        raise FileNotFoundError(
+            f"no probabilities for image {stem} in {folder} (expected {stem}.npz or .pt)"
+        )
+    if len(found) > 1:
+        raise ValueError(
+            f"image {stem} has several probability files: {', '.join(map(str, found))}"
+        )
+    return found[0]
+
+
+def load_probs(
+    path: str | Path, num_classes: int = NUM_CLASSES, size: tuple[int, int] | None = None
+) -> Tensor:
+    """(N, H, W) float32 probabilities from a file (softmax over N when it holds logits).
+
+    Args:
+        path: a ``.npz`` or ``.pt`` file holding ``probs`` or ``logits``.
+        num_classes: the expected N.
+        size: the expected (H, W) (the label size), or None for any.
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: not a probability file, or a wrong key, dtype, shape, class count or size,
+            or ``probs`` that do not sum to 1 (one line naming the file).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"probability file not found: {path}")
+    key, scores = _read(path)
+    if not scores.is_floating_point():
+        dtype = str(scores.dtype).removeprefix("torch.")
+        raise ValueError(f"{path}: {key} has dtype {dtype}; expected floating point (e.g. float16)")
+    if scores.ndim != 3:
+        raise ValueError(f"{path}: {key} has shape {tuple(scores.shape)}; expected (N, H, W)")
+    if scores.shape[0] != num_classes:
+        raise ValueError(f"{path}: {key} holds {scores.shape[0]} classes; expected {num_classes}")
+    if size is not None and tuple(scores.shape[1:]) != tuple(size):
+        raise ValueError(
+            f"{path}: {key} is {scores.shape[1]}x{scores.shape[2]}; the image's labels are "
+            f"{size[0]}x{size[1]}"
+        )
+    scores = scores.float()
+    if key == "logits":
+        return scores.softmax(0)
+    deviation = (scores.sum(0) - 1).abs().max().item()
+    if not deviation <= _SUM_TOLERANCE:  # written this way round so NaN fails too
+        raise ValueError(
+            f"{path}: probs do not sum to 1 over classes (off by up to {deviation:.3g}); "
+            "store unnormalised scores as 'logits'"
+        )
+    return scores
+
+
+def _read(path: Path) -> tuple[str, Tensor]:
+    """The (key, tensor) a probability file holds; ValueError naming the file otherwise."""
+    if path.suffix not in PROBS_SUFFIXES:
+        raise ValueError(f"{path}: probability files end in .npz or .pt")
+    try:
+        if path.suffix == ".npz":
+            with np.load(path, allow_pickle=False) as data:
+                content = {k: torch.from_numpy(data[k]) for k in data.files if k in _KEYS}
+        else:
+            content = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # numpy and torch raise many types for a foreign or truncated file
+        first = (str(err).strip().splitlines() or [type(err).__name__])[0]
+        raise ValueError(f"{path} is not a readable {path.suffix} file: {first}") from None
+    keys = [k for k in _KEYS if isinstance(content, dict) and isinstance(content.get(k), Tensor)]
+    if len(keys) != 1:
+        raise ValueError(f"{path} should hold exactly one tensor named 'probs' or 'logits'")
+    return keys[0], content[keys[0]]

@@ -1,0 +1,100 @@
+"""The output folder of an evaluation, and the per-image files written during the loop.
+
+Nothing is lost: without ``--output_dir`` each evaluation gets a new
+``<base>/version_<n>``; an explicit folder that already holds files is refused unless the user
+says ``--overwrite``.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import torch
+from PIL import Image
+
+from costseg.classes import TRAIN_ID_TO_LABEL_ID
+
+
+def claim_output_dir(output_dir: str | None, overwrite: bool, default_base: Path) -> Path:
+    """Create and return the folder this evaluation writes into.
+
+    Args:
+        output_dir: the user's ``--output_dir``, or None for ``default_base/version_<n>``.
+        overwrite: allow an ``output_dir`` that already holds files.
+        default_base: where the numbered versions go.
+
+    Raises:
+        ValueError: the folder is a file, holds results (without ``overwrite``) or is not
+            writable.
+
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     [claim_output_dir(None, False, Path(d)).name for _ in range(2)]
+    ['version_0', 'version_1']
+    """
+    if output_dir is None:
+        return _next_version(default_base)
+    out = Path(output_dir)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--output_dir {out} is a file, not a folder")
+    if out.is_dir() and any(out.iterdir()) and not overwrite:
+        raise ValueError(
+            f"--output_dir {out} already holds results: pass --overwrite to replace them, "
+            "or choose another folder"
+        )
+    _make_writable(out)
+    return out
+
+
+def _next_version(base: Path) -> Path:
+    _make_writable(base)
+    n = 1 + max(
+        (int(p.name[8:]) for p in base.glob("version_*") if p.name[8:].isdigit()), default=-1
+    )
+    while True:
+        try:
+            (base / f"version_{n}").mkdir()  # fails if another run took it meanwhile
+            return base / f"version_{n}"
+        except FileExistsError:
+            n += 1
+
+
+def _make_writable(folder: Path) -> None:
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        tempfile.TemporaryFile(dir=folder).close()
+    except OSError as err:
+        raise ValueError(f"cannot write into {folder}: {err.strerror or err}") from None
+
+
+class BatchWriter:
+    """Writes per-image outputs during the loop: label-id PNGs per named rule, probabilities.
+
+    Args:
+        output_dir: the evaluation folder.
+        rule_names: names of the named rules, in the order of their label maps.
+        predictions: write ``predictions/<rule>/<image>.png`` (Cityscapes label ids).
+    """
+
+    def __init__(self, output_dir: Path, rule_names: list[str], predictions: bool) -> None:
+        self.output_dir, self.rule_names, self.predictions = output_dir, rule_names, predictions
+
+    def save_predictions(self, stems: list[str], preds: torch.Tensor) -> None:
+        """(B, K, H, W) train-id maps of the named rules → one PNG per image and rule."""
+        if not self.predictions:
+            return
+        for k, name in enumerate(self.rule_names):
+            folder = self.output_dir / "predictions" / name
+            folder.mkdir(parents=True, exist_ok=True)
+            for stem, pred in zip(stems, preds[:, k].cpu().numpy(), strict=True):
+                tmp = folder / f".{stem}.png.tmp"
+                Image.fromarray(TRAIN_ID_TO_LABEL_ID[pred]).save(tmp, format="PNG")
+                os.replace(tmp, folder / f"{stem}.png")
+
+    def save_probs(self, stems: list[str], probs: torch.Tensor) -> None:
+        """(B, N, H, W) probabilities → ``probs/<image>.npz`` (float16, SPEC §8)."""
+        from costseg.probs_files import save_probs
+
+        for stem, p in zip(stems, probs, strict=True):
+            save_probs(self.output_dir / "probs" / f"{stem}.npz", p)

@@ -1,0 +1,146 @@
+"""Choosing among evaluated rules: targets such as ``person:roi1:recall>=0.99`` and best points.
+
+Pure functions on results; nothing here runs a network.
+
+>>> parse_target("person:roi1:recall>=0.99")
+Target(cls=11, roi=1, metric='recall', op='>=', value=0.99)
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import torch
+
+from costseg.classes import CLASS_NAMES, class_index
+
+METRICS = ("precision", "recall", "fp_rate", "fn_rate")
+ROI_IDS = {"roi0": 0, "image": 0, "roi1": 1, "street": 1, "roi2": 2, "sidewalk": 2}
+ROI_IDS |= {"roi3": 3, "building": 3, "roi4": 4, "sky": 4}
+_OPS = {">=": float.__ge__, "<=": float.__le__, ">": float.__gt__, "<": float.__lt__}
+
+
+class Metric(NamedTuple):
+    cls: int
+    roi: int
+    metric: str
+
+
+class Target(NamedTuple):
+    cls: int
+    roi: int
+    metric: str
+    op: str
+    value: float
+
+
+def parse_metric(text: str, class_names: Sequence[str] = CLASS_NAMES) -> Metric:
+    """``class:roi:metric`` (e.g. ``person:roi1:precision``) → Metric; ValueError if malformed."""
+    parts = text.split(":")
+    if len(parts) != 3:
+        raise ValueError(
+            f"cannot parse {text!r}: expected class:roi:metric, e.g. person:roi1:recall"
+        )
+    name, roi, metric = (p.strip() for p in parts)
+    if roi not in ROI_IDS:
+        raise ValueError(f"unknown RoI {roi!r} in {text!r}: expected one of {', '.join(ROI_IDS)}")
+    if metric not in METRICS:
+        raise ValueError(
+            f"unknown metric {metric!r} in {text!r}: expected one of {', '.join(METRICS)}"
+        )
+    return Metric(class_index(name, class_names), ROI_IDS[roi], metric)
+
+
+def parse_target(text: str, class_names: Sequence[str] = CLASS_NAMES) -> Target:
+    """``class:roi:metric OP value`` with OP in >=, <=, >, < → Target; ValueError if malformed."""
+    match = re.fullmatch(r"\s*(.+?)\s*(>=|<=|>|<)\s*([-+0-9.eE]+)\s*", text)
+    if match is None:
+        raise ValueError(
+            f"cannot parse target {text!r}: expected class:roi:metric>=value, "
+            "e.g. person:roi1:recall>=0.99"
+        )
+    try:
+        value = float(match.group(3))
+    except ValueError:
+        raise ValueError(f"cannot parse the number in target {text!r}") from None
+    return Target(*parse_metric(match.group(1), class_names), match.group(2), value)
+
+
+def metric_values(
+    pixels: dict[str, torch.Tensor],
+    segments: dict[str, torch.Tensor],
+    metric: Metric | Target,
+    class_ids: Sequence[int],
+) -> torch.Tensor:
+    """(K,) values of ``metric`` for every rule of a group (NaN where undefined)."""
+    if metric.metric in ("precision", "recall"):
+        return pixels[metric.metric][:, metric.roi, metric.cls]
+    if metric.cls not in class_ids:
+        name = CLASS_NAMES[metric.cls]
+        raise ValueError(f"{metric.metric} needs {name!r} in --classes (a segment metric)")
+    return segments[metric.metric][:, list(class_ids).index(metric.cls), metric.roi]
+
+
+def meets(values: torch.Tensor, target: Target) -> torch.Tensor:
+    """(K,) bool: which values meet ``target`` (NaN never does).
+
+    >>> meets(torch.tensor([0.5, float("nan"), 0.99]), parse_target("person:roi1:recall>=0.9"))
+    tensor([False, False,  True])
+    """
+    op = _OPS[target.op]
+    return torch.tensor([not math.isnan(v) and op(v, target.value) for v in values.tolist()])
+
+
+def best_points(values: torch.Tensor, allowed: torch.Tensor) -> list[int]:
+    """Indices of the allowed points with the largest value (NaN values never qualify).
+
+    >>> best_points(torch.tensor([0.3, 0.9, 0.9, 1.0]), torch.tensor([True, True, True, False]))
+    [1, 2]
+    """
+    ok = allowed & ~values.isnan()
+    if not ok.any():
+        return []
+    best = values[ok].max()
+    return [int(i) for i in (ok & (values == best)).nonzero().squeeze(1)]
+
+
+@dataclass
+class Choice:
+    """The answer to ``--target T --maximize M`` over a group of rules.
+
+    Attributes:
+        target, maximize: the texts asked.
+        points: indices of the rules that meet the target with the best value (may be empty).
+        value: the best value of ``maximize`` among them (NaN if none).
+        best_reached: the best value of the target's metric on any rule (to say how close).
+    """
+
+    target: str
+    maximize: str
+    points: list[int]
+    value: float
+    best_reached: float
+
+
+def choose(
+    pixels: dict[str, torch.Tensor],
+    segments: dict[str, torch.Tensor],
+    target: str,
+    maximize: str,
+    class_ids: Sequence[int],
+) -> Choice:
+    """The rules meeting ``target`` with the largest ``maximize`` (measured on these images)."""
+    t, goal = parse_target(target), parse_metric(maximize)
+    target_values = metric_values(pixels, segments, t, class_ids)
+    values = metric_values(pixels, segments, goal, class_ids)
+    points = best_points(values, meets(target_values, t))
+    reached = target_values[~target_values.isnan()]
+    best = math.nan
+    if len(reached):
+        best = (reached.max() if t.op in (">=", ">") else reached.min()).item()
+    value = values[points[0]].item() if points else math.nan
+    return Choice(target, maximize, points, value, best)

@@ -1,0 +1,117 @@
+"""Every bad input of `evaluate.py` and `train.py` ends with one line on stderr and status 2."""
+
+import pytest
+import torch
+import yaml
+from conftest import TINY_TRAIN
+
+from costseg.checkpoints import find_checkpoint
+from costseg.classes import CLASS_NAMES
+from costseg.cli import evaluate_main, train_main
+
+
+def _one_line(main, args, capsys, *needles):
+    with pytest.raises(SystemExit) as exit_info:
+        main(args)
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert all(n in err[0] for n in needles), err[0]
+
+
+@pytest.fixture(scope="module")
+def ckpt(tiny_run):
+    return str(find_checkpoint(None, runs_dir=tiny_run[2]))
+
+
+def _bad_entry(tmp_path):
+    matrix = (1 - torch.eye(19)).tolist()
+    matrix[11][2] = -5
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump({"classes": list(CLASS_NAMES), "matrix": matrix}))
+    return str(path)
+
+
+def _target(text):
+    return ["--sweep", "0.5", "--target", text, "--maximize", "person:roi1:precision"]
+
+
+EVALUATE_CASES = {
+    "unknown cost": (["--cost", "selfish"], ["unknown cost 'selfish'", "ml"]),
+    "aggregate table as cost": (["--cost", "configs/costs/aggregates.yaml"], ["aggregates.yaml"]),
+    "zero batch": (["--batch_size", "0"], ["--batch_size", ">= 1"]),
+    "zero limit": (["--limit", "0"], ["--limit", ">= 1"]),
+    "negative limit": (["--limit", "-3"], ["--limit", ">= 1"]),
+    "word as limit": (["--limit", "ten"], ["--limit", "'ten'"]),
+    "negative examples": (["--num_examples", "-1"], ["--num_examples", ">= 0"]),
+    "zero sweep": (["--sweep", "0"], ["--sweep", "1/n"]),
+    "negative sweep": (["--sweep", "-0.1"], ["--sweep"]),
+    "sweep not 1/n": (["--sweep", "0.3"], ["--sweep", "1/n"]),
+    "zero alpha sweep": (["--alpha_sweep", "0"], ["--alpha_sweep"]),
+    "two vertices": (["--sweep", "0.5", "--vertices", "robotistic"], ["--vertices"]),
+    "ml vertex": (["--sweep", "0.5", "--vertices", "robotistic", "altruistic", "ml"], ["vertex"]),
+    "ml alpha cost": (["--alpha_sweep", "0.5", "--alpha_cost", "ml"], ["--alpha_cost"]),
+    "target without sweep": (
+        ["--target", "person:roi1:recall>=0.9", "--maximize", "person:roi1:precision"],
+        ["--sweep"],
+    ),
+    "unknown RoI": (_target("person:roi9:recall>=1"), ["unknown RoI 'roi9'"]),
+    "unparsable target": (_target("person:roi1:recall about 1"), ["cannot parse"]),
+    "unknown metric": (_target("person:roi1:sharpness>=1"), ["unknown metric 'sharpness'"]),
+    "unknown split": (["--split", "holdout"], ["--split", "holdout"]),
+    "unknown scaling": (["--vertex_scaling", "max"], ["--vertex_scaling"]),
+    "unknown option": (["--costs", "egoistic"], ["unrecognized arguments"]),
+    "unknown class": (["--classes", "unicorn"], ["unknown class 'unicorn'"]),
+    "missing cuda": (["--device", "cuda"], ["cuda", "not available"]),
+    "unknown device": (["--device", "tpu"], ["device 'tpu'"]),
+    "two sources": (["--network", "hf:x", "--probs", "y"], ["at most one"]),
+    "probs without data": (["--probs", "somewhere"], ["--probs needs --data_root"]),
+    "missing data root": (["--data_root", "no/such/cityscapes"], ["no/such/cityscapes"]),
+}
+
+
+@pytest.mark.parametrize("case", sorted(EVALUATE_CASES))
+def test_evaluate_bad_option(case, ckpt, capsys):
+    args, needles = EVALUATE_CASES[case]
+    if case == "missing cuda" and torch.cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    _one_line(evaluate_main, ["--ckpt_path", ckpt, *args, "--no-progress"], capsys, *needles)
+
+
+def test_evaluate_bad_files(ckpt, tmp_path, capsys):
+    run = ["--no-progress", "--ckpt_path"]
+    _one_line(evaluate_main, [*run, ckpt, "--cost", _bad_entry(tmp_path)], capsys, "[11, 2]")
+    _one_line(evaluate_main, [*run, str(tmp_path)], capsys, "is a directory")
+    text = tmp_path / "notes.ckpt"
+    text.write_text("not a checkpoint")
+    _one_line(evaluate_main, [*run, str(text)], capsys, "cannot read checkpoint")
+    _one_line(evaluate_main, [*run, str(tmp_path / "none.ckpt")], capsys, "not found")
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    _one_line(evaluate_main, [*run, ckpt, "--output_dir", str(afile)], capsys, "is a file")
+    inside = str(afile / "sub")
+    _one_line(evaluate_main, [*run, ckpt, "--output_dir", inside], capsys, "cannot write")
+
+
+def test_evaluate_without_any_checkpoint(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    _one_line(evaluate_main, ["--no-progress"], capsys, "no last.ckpt found", "python train.py")
+
+
+TRAIN_CASES = {
+    "negative steps": (["--trainer.max_steps=-5"], ["max_steps"]),
+    "zero batch": (["--data.init_args.batch_size=0"], ["batch_size"]),
+    "unknown backbone": (["--model.backbone=resnet7"], ["resnet7"]),
+    "unknown rule": (["--model.val_costs=[selfish]"], ["unknown cost 'selfish'"]),
+    "unknown option": (["--model.colour=blue"], ["colour"]),
+    "missing config": (["--config=no/such.yaml"], ["no/such.yaml"]),
+    "missing accelerator": (["--trainer.accelerator=tpu"], ["tpu"]),
+    "missing checkpoint": (["--ckpt_path=no/such.ckpt"], ["checkpoint not found"]),
+}
+
+
+@pytest.mark.parametrize("case", sorted(TRAIN_CASES))
+def test_train_bad_option(case, tmp_path, capsys):
+    args, needles = TRAIN_CASES[case]
+    logs = f"--trainer.logger.init_args.save_dir={tmp_path}"
+    _one_line(train_main, [*TINY_TRAIN, logs, *args], capsys, *needles)
