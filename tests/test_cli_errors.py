@@ -105,7 +105,8 @@ TRAIN_CASES = {
     "unknown rule": (["--model.val_costs=[selfish]"], ["unknown cost 'selfish'"]),
     "unknown option": (["--model.colour=blue"], ["colour"]),
     "missing config": (["--config=no/such.yaml"], ["no/such.yaml"]),
-    "missing accelerator": (["--trainer.accelerator=tpu"], ["tpu"]),
+    "missing accelerator": (["--trainer.accelerator=tpu"], ["torch_xla"]),
+    "missing gpu": (["--trainer.accelerator=gpu"], ["gpu"]),
     "missing checkpoint": (["--ckpt_path=no/such.ckpt"], ["checkpoint not found"]),
 }
 
@@ -114,4 +115,8 @@ TRAIN_CASES = {
 def test_train_bad_option(case, tmp_path, capsys):
     args, needles = TRAIN_CASES[case]
     logs = f"--trainer.logger.init_args.save_dir={tmp_path}"
-    _one_line(train_main, [*TINY_TRAIN, logs, *args], capsys, *needles)
+    if case == "missing gpu" and torch.cuda.is_available():
+        pytest.skip("this machine has a GPU")
+    # A later option overrides an earlier one; --config must come first to be read first.
+    order = [*args, *TINY_TRAIN, logs] if case == "missing config" else [*TINY_TRAIN, logs, *args]
+    _one_line(train_main, order, capsys, *needles)

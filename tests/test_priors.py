@@ -1,14 +1,19 @@
-"""Pixel-wise priors against hand loops, RoI maps, resizing and the priors file."""
+"""Pixel-wise priors against hand loops and scipy's Gaussian filter, RoI maps, resizing, the
+priors file and its cache."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
+from scipy.ndimage import gaussian_filter
 
 from costseg.classes import CLASS_NAMES, ROI_NAMES, class_index
 from costseg.data.priors import (
+    cached_priors,
+    default_sigma,
     load_priors,
     pixel_priors,
     resize_priors,
@@ -42,7 +47,7 @@ def _random_labels(count: int, size: tuple[int, int], n: int, seed: int) -> list
 
 def test_matches_brute_force_count() -> None:
     labels = _random_labels(count=3, size=(4, 5), n=3, seed=0)
-    pi = pixel_priors(labels, num_classes=3, eps=1e-3, progress=False)
+    pi = pixel_priors(labels, num_classes=3, sigma=0, eps=1e-3, progress=False)
     assert pi.dtype == torch.float32 and pi.shape == (3, 4, 5)
     torch.testing.assert_close(pi.double(), _brute_force(labels, 3, 1e-3), atol=1e-6, rtol=0)
     torch.testing.assert_close(pi[:, 0, 0], torch.full((3,), 1 / 3))
@@ -52,7 +57,7 @@ def test_matches_brute_force_count() -> None:
 def test_ignored_pixels_count_nowhere() -> None:
     # Location (0, 0): class 1 twice, ignored three times → all mass on class 1 before the floor.
     labels = [torch.tensor([[v, 0]]) for v in (1, 255, 1, 255, 255)]
-    pi = pixel_priors(labels, num_classes=2, eps=1e-5, progress=False)
+    pi = pixel_priors(labels, num_classes=2, sigma=0, eps=1e-5, progress=False)
     torch.testing.assert_close(pi[:, 0, 0], torch.tensor([1e-5, 1.0]) / (1 + 1e-5))
     torch.testing.assert_close(pi[:, 0, 1], torch.tensor([1.0, 1e-5]) / (1 + 1e-5))
 
@@ -60,27 +65,29 @@ def test_ignored_pixels_count_nowhere() -> None:
 def test_eps_floor_and_iterables() -> None:
     labels = _random_labels(count=12, size=(6, 7), n=19, seed=1)
     eps = 1e-4
-    pi = pixel_priors(iter(labels), eps=eps, progress=True)  # an iterator without len works too
+    pi = pixel_priors(iter(labels), sigma=0, eps=eps, progress=True)  # an iterator has no len
     torch.testing.assert_close(pi.sum(dim=0), torch.ones(6, 7))
     assert pi.min() >= eps / (1 + 19 * eps) - 1e-9
     torch.testing.assert_close(pi.double(), _brute_force(labels, 19, eps), atol=1e-6, rtol=0)
-    uint8 = pixel_priors([label.to(torch.uint8) for label in labels], eps=eps, progress=False)
+    uint8 = [label.to(torch.uint8) for label in labels]
+    uint8 = pixel_priors(uint8, sigma=0, eps=eps, progress=False)
     assert torch.equal(uint8, pi)
 
 
 def test_smoothing_keeps_distributions() -> None:
     labels = _random_labels(count=6, size=(12, 16), n=4, seed=2)
-    raw = pixel_priors(labels, num_classes=4, progress=False)
+    raw = pixel_priors(labels, num_classes=4, sigma=0, progress=False)
     smooth = pixel_priors(labels, num_classes=4, sigma=2.0, progress=False)
     torch.testing.assert_close(smooth.sum(dim=0), torch.ones(12, 16))
     assert smooth.std(dim=(1, 2)).max() < raw.std(dim=(1, 2)).min()  # spatially smoother
     torch.testing.assert_close(smooth.mean(dim=(1, 2)), raw.mean(dim=(1, 2)), atol=0.02, rtol=0)
     constant = pixel_priors([torch.full((5, 6), 2)] * 3, num_classes=4, sigma=3.0, progress=False)
-    torch.testing.assert_close(constant, pixel_priors([torch.full((5, 6), 2)], 4, progress=False))
+    unsmoothed = pixel_priors([torch.full((5, 6), 2)], 4, sigma=0, progress=False)
+    torch.testing.assert_close(constant, unsmoothed)
 
 
 def test_resize_renormalises() -> None:
-    pi = pixel_priors(_random_labels(4, (8, 10), 5, seed=3), num_classes=5, progress=False)
+    pi = pixel_priors(_random_labels(4, (8, 10), 5, seed=3), num_classes=5, sigma=0, progress=False)
     for size in [(4, 5), (16, 20), (7, 13)]:
         out = resize_priors(pi, size)
         assert out.shape == (5, *size)
@@ -125,7 +132,8 @@ def test_roi_map_on_hand_made_priors() -> None:
 def test_roi_map_on_toy_priors() -> None:
     toy = pytest.importorskip("costseg.data.toy")
     scenes = toy.StreetScenes(split="train", length=100, size=(64, 128), seed=0)
-    roi = roi_map(pixel_priors((label for _, label in scenes), progress=False))
+    # Unsmoothed counts: with the default σ = 5 px the thinner left sidewalk loses to road.
+    roi = roi_map(pixel_priors((label for _, label in scenes), sigma=0, progress=False))
     h, w = roi.shape
     street, sidewalk, building, sky = 1, 2, 3, 4
     assert roi[h - 4 :, w // 2 - 8 : w // 2 + 8].eq(street).all()
@@ -152,3 +160,91 @@ def test_save_and_load(tmp_path: Path) -> None:
     renamed = ("street", *CLASS_NAMES[1:])
     with pytest.raises(ValueError, match="expected"):
         load_priors(path, class_names=renamed)
+
+
+def _counts(labels: list[torch.Tensor], n: int) -> np.ndarray:
+    """(n, H, W) class counts with plain loops, 255 ignored."""
+    h, w = labels[0].shape
+    out = np.zeros((n, h, w))
+    for label in labels:
+        for y in range(h):
+            for x in range(w):
+                if int(label[y, x]) != 255:
+                    out[int(label[y, x]), y, x] += 1
+    return out
+
+
+def test_smoothing_matches_scipy_on_counts() -> None:
+    # Counts are smoothed (then divided by the smoothed total), as in the paper's authors' code.
+    labels = _random_labels(count=5, size=(9, 11), n=3, seed=5)
+    labels[0][:, :4] = labels[1][:, :4] = 255  # unevenly labelled locations weigh less
+    eps, sigma = 1e-4, 1.5
+    counts = gaussian_filter(_counts(labels, 3), sigma=(0, sigma, sigma), mode="nearest")
+    freq = np.maximum(counts / counts.sum(axis=0, keepdims=True), eps)
+    want = torch.from_numpy(freq / freq.sum(axis=0, keepdims=True))
+    got = pixel_priors(labels, num_classes=3, sigma=sigma, eps=eps, progress=False)
+    torch.testing.assert_close(got.double(), want, atol=1e-6, rtol=0)
+    # Smoothing the frequencies instead would give something else on this case.
+    raw = _counts(labels, 3) / _counts(labels, 3).sum(axis=0, keepdims=True).clip(min=1)
+    other = gaussian_filter(raw, sigma=(0, sigma, sigma), mode="nearest")
+    assert np.abs(other / other.sum(0) - want.numpy()).max() > 1e-3
+
+
+def test_hand_case_smoothing_spreads_one_pixel() -> None:
+    # One labelled location (class 1) in a 1 x 5 row: σ = 1 spreads it, and since the total is
+    # smoothed the same way, every location within reach is all class 1 before the floor.
+    label = torch.full((1, 5), 255)
+    label[0, 2] = 1
+    pi = pixel_priors([label], num_classes=2, sigma=1.0, eps=1e-5, progress=False)
+    torch.testing.assert_close(pi[1], torch.full((1, 5), 1 / (1 + 1e-5)))
+    far = torch.full((1, 12), 255)
+    far[0, 0] = 0  # beyond 4σ = 4 pixels the kernel ends: no information, uniform
+    pi = pixel_priors([far], num_classes=2, sigma=1.0, progress=False)
+    torch.testing.assert_close(pi[:, 0, 11], torch.tensor([0.5, 0.5]))
+    assert pi[0, 0, 3] > 0.99
+
+
+def test_default_sigma_and_max_labels() -> None:
+    labels = _random_labels(count=4, size=(64, 20), n=4, seed=6)
+    assert default_sigma(64) == 5.0 and default_sigma(1024) == 80.0
+    default = pixel_priors(labels, num_classes=4, progress=False)
+    torch.testing.assert_close(default, pixel_priors(labels, 4, sigma=5.0, progress=False))
+    assert not torch.allclose(default, pixel_priors(labels, 4, sigma=0, progress=False))
+    capped = pixel_priors(iter(labels), 4, sigma=0, progress=False, max_labels=2)
+    torch.testing.assert_close(capped, pixel_priors(labels[:2], 4, sigma=0, progress=False))
+    with pytest.raises(ValueError, match="max_labels"):
+        pixel_priors(labels, 4, max_labels=0)
+    with pytest.raises(ValueError, match="sigma"):
+        pixel_priors(labels, 4, sigma=-1.0)
+
+
+def test_cached_priors_reused_and_recomputed(tmp_path: Path) -> None:
+    labels = _random_labels(count=3, size=(16, 8), n=19, seed=7)
+    calls = []
+
+    def factory() -> list[torch.Tensor]:
+        calls.append(1)
+        return labels
+
+    cache = tmp_path / "out" / "priors.pt"
+    settings = {"root": tmp_path / "data", "split": "train", "size": (16, 8), "cap": None}
+    first = cached_priors(factory, cache, settings, progress=False)
+    assert (first.reused, first.num_labels, first.sigma, len(calls)) == (False, 3, 1.25, 1)
+    torch.testing.assert_close(first.priors, pixel_priors(labels, progress=False))
+    assert torch.equal(load_priors(cache), first.priors)
+    # Same settings (a tuple read back as a list, a path as its string): reused, no labels read.
+    same = {**settings, "size": [16, 8], "root": str(tmp_path / "data")}
+    again = cached_priors(factory, cache, same, progress=False)
+    assert again.reused and len(calls) == 1 and torch.equal(again.priors, first.priors)
+    assert (again.num_labels, again.sigma) == (3, 1.25)
+    # Other label source or other smoothing: recomputed and the cache replaced.
+    other = cached_priors(factory, cache, {**settings, "split": "val"}, progress=False)
+    assert not other.reused and len(calls) == 2
+    raw = cached_priors(factory, cache, {**settings, "split": "val"}, sigma=0, progress=False)
+    assert not raw.reused and len(calls) == 3
+    torch.testing.assert_close(raw.priors, pixel_priors(labels, sigma=0, progress=False))
+    assert cached_priors(factory, cache, {**settings, "split": "val"}, sigma=0).reused
+    # A file that is no priors file is replaced, not an error.
+    cache.write_bytes(b"junk")
+    assert not cached_priors(factory, cache, settings, progress=False).reused
+    assert torch.equal(load_priors(cache), first.priors)

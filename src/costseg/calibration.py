@@ -113,7 +113,7 @@ def fit_vector_scaling(
         max_iter: L-BFGS iterations at most.
 
     Returns:
-        a, b: two (N,) float64 tensors.
+        a, b: two (N,) float64 tensors on the CPU.
 
     >>> z = torch.tensor([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0], [0.0, 1.0]])
     >>> a, b = fit_vector_scaling(z, torch.tensor([0, 0, 0, 1]))
@@ -125,8 +125,8 @@ def fit_vector_scaling(
     n = z.shape[1]
     inverse_t = 1 / fit_temperature(z, y, ignore_index)
     present = torch.bincount(y, minlength=n) > 0
-    a = torch.full((n,), inverse_t, dtype=torch.float64)
-    b = torch.zeros(n, dtype=torch.float64)
+    a = torch.full((n,), inverse_t, dtype=torch.float64, device=z.device)
+    b = torch.zeros(n, dtype=torch.float64, device=z.device)
     free_a, free_b = a[present].clone().requires_grad_(), b[present].clone().requires_grad_()
     optimizer = torch.optim.LBFGS(
         [free_a, free_b],
@@ -146,7 +146,7 @@ def fit_vector_scaling(
 
     optimizer.step(closure)
     a[present], b[present] = free_a.detach(), free_b.detach()
-    return a, b - b.mean()
+    return a.cpu(), (b - b.mean()).cpu()
 
 
 @dataclass(frozen=True)

@@ -21,10 +21,14 @@ CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 COST_CHOICES = "robotistic, altruistic, egoistic, ml or a .yaml cost file"
 
 
-def fail(message: str) -> NoReturn:
-    """Print one line ``error: message`` on stderr and exit with status 2."""
-    lines = str(message).strip().splitlines() or ["unknown error"]
-    print(f"error: {lines[-1]}", file=sys.stderr)
+def fail(message: str, join: bool = False) -> NoReturn:
+    """Print one line ``error: message`` on stderr and exit with status 2.
+
+    Of a multi-line message the last line is kept (an error raised in a DataLoader worker
+    carries the worker's traceback before it), or, with ``join``, all lines joined.
+    """
+    lines = [line.strip() for line in str(message).strip().splitlines()] or ["unknown error"]
+    print(f"error: {' '.join(lines) if join else lines[-1]}", file=sys.stderr)
     sys.exit(2)
 
 
@@ -36,8 +40,7 @@ def user_errors(*extra: type[BaseException]) -> Iterator[None]:
     except (ValueError, OSError, *extra) as err:
         if os.environ.get("COSTSEG_DEBUG"):
             raise
-        # Errors raised in a DataLoader worker carry its traceback: keep the original last line.
-        fail(str(err) or err.__class__.__name__)
+        fail(str(err) or err.__class__.__name__, isinstance(err, argparse.ArgumentError))
 
 
 def train_main(args: Sequence[str] | None = None) -> tuple[Any, Any]:
@@ -54,7 +57,7 @@ def train_main(args: Sequence[str] | None = None) -> tuple[Any, Any]:
 
     from costseg.training import run_training
 
-    with user_errors(ArgumentError, MisconfigurationException):
+    with user_errors(ArgumentError, MisconfigurationException, ImportError):
         return run_training(args)
 
 
@@ -122,22 +125,76 @@ def evaluate_parser() -> argparse.ArgumentParser:
     add("--limit", type=positive_int, help="evaluate only the first N images")
     add("--batch_size", type=positive_int)
     add("--device", default=d.device, help="auto, cpu, cuda, cuda:1, ...")
-    add("--save-predictions", dest="save_predictions", action="store_true",
-        help="write Cityscapes label-id PNGs per image and rule")  # fmt: skip
-    add("--save-probs", dest="save_probs", action="store_true",
-        help="write each image's probabilities (float16 .npz) for later --probs runs")  # fmt: skip
-    add("--num_examples", type=nonnegative_int, default=d.num_examples,
-        help="images in the mask figures")  # fmt: skip
-    add("--sweep", type=step_size, metavar="STEP",
-        help="also sweep the barycentric grid of this step over the three --vertices")  # fmt: skip
+    add(
+        "--save-predictions",
+        dest="save_predictions",
+        action="store_true",
+        help="write Cityscapes label-id PNGs per image and rule",
+    )
+    add(
+        "--save-probs",
+        dest="save_probs",
+        action="store_true",
+        help="write each image's probabilities (float16 .npz) for later --probs runs",
+    )
+    add(
+        "--num_examples",
+        type=nonnegative_int,
+        default=d.num_examples,
+        help="images in the mask figures",
+    )
+    add(
+        "--sweep",
+        type=step_size,
+        metavar="STEP",
+        help="also sweep the barycentric grid of this step over the three --vertices",
+    )
     add("--vertices", nargs=3, default=d.vertices, help="the triangle's corners")
-    add("--vertex_scaling", default=d.vertex_scaling, choices=("none", "mean"),
-        help="'mean': rescale each vertex to unit mean off-diagonal cost before mixing")  # fmt: skip
+    add(
+        "--vertex_scaling",
+        default=d.vertex_scaling,
+        choices=("none", "mean"),
+        help="'mean': rescale each vertex to unit mean off-diagonal cost before mixing",
+    )
     add("--target", help="constraint on the sweep, e.g. 'person:roi1:recall>=0.99'")
     add("--maximize", help="what to maximise under --target, e.g. person:roi1:precision")
-    add("--alpha_sweep", type=step_size, metavar="STEP",
-        help="also sweep the prior-adapted rule from Bayes (α=0) to ML (α=1)")  # fmt: skip
+    add(
+        "--alpha_sweep",
+        type=step_size,
+        metavar="STEP",
+        help="also sweep the prior-adapted rule from Bayes (α=0) to ML (α=1)",
+    )
     add("--alpha_cost", help="cost matrix of the α sweep (default: symmetric)")
+    cal = p.add_argument_group("calibration and guarantees (fitted on held-out images)")
+    cal.add_argument(
+        "--calibrate",
+        choices=("temperature", "vector"),
+        help="scale the logits, fitted on the first half of the split (or --calibration_split); "
+        "the second half is reported",
+    )
+    cal.add_argument(
+        "--calibration_split",
+        choices=("train", "val", "test"),
+        help="fit / certify on this split instead of the first half of --split",
+    )
+    cal.add_argument(
+        "--temperature_sweep",
+        action="store_true",
+        help="every named rule at T = 0.5 ... 2 (and the fitted T), the network run once",
+    )
+    cal.add_argument(
+        "--guarantee",
+        type=float,
+        metavar="DELTA",
+        help="choose the --sweep / --alpha_sweep point with P(risk > α) <= DELTA "
+        "(Learn-then-Test); α comes from --target",
+    )
+    cal.add_argument(
+        "--guarantee_method",
+        default=d.guarantee_method,
+        choices=("bonferroni", "fixed_sequence"),
+        help="family-wise error control (fixed_sequence tests along the grid / α order)",
+    )
     add("--no-progress", dest="progress", action="store_false")
     return p
 

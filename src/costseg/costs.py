@@ -1,4 +1,4 @@
-"""Confusion cost matrices: load, validate, build (aggregates, sky, ML), mix, grid.
+"""Confusion cost matrices: load, validate, build (symmetric, aggregates, sky), mix, grid.
 
 A cost matrix ``C`` is (N, N) with **rows = predicted class, columns = true class** (SPEC §1).
 Matrices are float64 tensors so that YAML values and mixtures stay exact.
@@ -98,7 +98,7 @@ def load_cost(name_or_path: str | Path, class_names: Sequence[str] = CLASS_NAMES
         path = COSTS_DIR / f"{name_or_path}.yaml"
     spec = _read_yaml(path)
     if "off_diagonal" in spec:
-        cost = float(spec["off_diagonal"]) * (1 - torch.eye(len(class_names), dtype=torch.float64))
+        cost = float(spec["off_diagonal"]) * symmetric_cost(len(class_names))
     elif "aggregates" in spec:
         cost = _expand_aggregates(spec, path.parent, class_names)
     elif "classes" in spec:
@@ -193,29 +193,23 @@ def _expand_aggregates(spec: dict, folder: Path, class_names: Sequence[str]) -> 
     return cost.fill_diagonal_(0.0)
 
 
-def ml_cost(priors: torch.Tensor, lam: float = 1.0) -> torch.Tensor:
-    """Maximum-likelihood cost ``C[k̂, k] = λ / π(k)`` for global priors π (N,).
-
-    ``decide(p, ml_cost(π))`` equals ``argmax p/π``. For pixel-wise priors use
-    ``decide(p, None, priors=π)`` instead: never a matrix per pixel.
-
-    >>> ml_cost(torch.tensor([0.5, 0.25]))
-    tensor([[0., 4.],
-            [2., 0.]], dtype=torch.float64)
-    """
-    priors = torch.as_tensor(priors, dtype=torch.float64)
-    if priors.ndim != 1 or not bool((priors > 0).all()):
-        raise ValueError(f"priors must be a positive 1-D vector, got shape {tuple(priors.shape)}")
-    return (lam / priors).expand(len(priors), -1).clone().fill_diagonal_(0.0)
-
-
 def symmetric_cost(
     n: int, dtype: torch.dtype = torch.float64, device: torch.device | str | None = None
 ) -> torch.Tensor:
-    """The robotistic matrix ``1 - I`` (N, N): every confusion costs 1, so the rule is argmax.
+    """The robotistic matrix ``1 - I`` (every off-diagonal cost 1): its rule is argmax.
 
-    >>> symmetric_cost(3).tolist()
-    [[0.0, 1.0, 1.0], [1.0, 0.0, 1.0], [1.0, 1.0, 0.0]]
+    Args:
+        n: number of classes N.
+        dtype: dtype of the result (float64 by default, like every cost matrix here).
+        device: device of the result.
+
+    Returns:
+        (N, N) matrix.
+
+    >>> symmetric_cost(3)
+    tensor([[0., 1., 1.],
+            [1., 0., 1.],
+            [1., 1., 0.]], dtype=torch.float64)
     """
     return 1 - torch.eye(n, dtype=dtype, device=device)
 

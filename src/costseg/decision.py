@@ -1,25 +1,46 @@
-"""The decision layer: per-pixel argmin of expected cost (SPEC §1).
+"""The decision layer: per-pixel argmin of expected cost (SPEC §1), fast and exact.
 
 ``d(x; C) = argmin_k' Σ_k C[k', k] · p(k|x) / π(k)``, ties to the lowest class index.
 
-Two details make it exact and fast:
+**The reference** (the float64 evaluation every decision equals, bit for bit): each column of
+``C`` is shifted by its largest entry, ``Cs = C - C.max(0)`` in float64 (a column constant
+changes every row's cost equally, hence no decision); ``q = p / π`` in float64; the costs
+``Σ_k Cs[k', k] · q_k`` are summed over k in ascending order, one rounded product and one
+rounded sum at a time; argmin with ties to the lowest index. The shift turns the symmetric
+matrix into ``-λI``: its costs are ``-λ q`` rounded monotonically, so exact ties in ``q`` stay
+exact and the robotistic rule *is* argmax.
 
-* Expected costs are summed in float64 and, before that, each column of ``C`` is shifted by its
-  largest entry (a column constant changes every row's cost equally, hence no decision). The
-  symmetric matrix then becomes ``-λI``: its costs are ``-λ p`` bit for bit, so exact ties in
-  ``p`` reach the argmin untouched and the robotistic rule *is* argmax.
-* Work runs in chunks of pixels that stay in cache on the CPU; on a GPU in one piece.
-  Mixtures mix the few vertex cost maps (the cost is linear in ``C``) and skip every pixel whose
-  decision cannot change anywhere on the mixture simplex.
+**The fast path** gives the same decisions on every pixel (probabilities must be >= 0):
+
+* costs in float32, one matmul per chunk of pixels (CPU: chunks that stay in cache; GPU: whole
+  images), with ``W = (C.max(0) - C) / π`` scaled by a power of two: every cost is a sum of
+  nonnegative terms, so rounding errs by at most a *relative* ``γ`` of each cost (``_Fast``);
+* argmax and the gap to the runner-up in integer reductions: nonnegative float32 values order
+  like their int32 bit patterns, so the class index rides in the low bits (``_top``);
+* pixels whose gap is within the rounding bound are re-decided by the reference.
+
+Mixtures ``Σ_v w_kv C_v`` (K of them, ``w >= 0``) mix the V vertex cost maps in float32: the
+cost is linear in ``C`` and the vertices' shifts differ from the mixture's by a column constant.
+Where every vertex picks the same class with a certified margin, so does every mixture; elsewhere
+only classes that no vertex winner beats in every vertex are mixed, and near ties are re-decided
+by the reference on the mixed matrix (``mix_costs``), so the result equals ``decide`` on it.
 """
 
 from __future__ import annotations
 
-import torch
-from torch import nn
+import math
+from collections.abc import Iterator
 
-CPU_CHUNK = 16384  # pixels per chunk on the CPU: (N × chunk) float64 stays in L2
-MIX_BLOCK = 1 << 21  # mixed costs held at once (K × pixels × candidates), 16 MB of float64
+import torch
+
+from costseg.costs import mix_costs, symmetric_cost
+
+CPU_CHUNK = 32768  # pixels per chunk on the CPU: (V·N x chunk) float32 costs stay in cache
+GPU_CHUNK = 1 << 21  # one 1024 x 2048 image
+U32, U64 = 2.0**-24, 2.0**-53  # unit roundoffs
+INT_MAX, INF = 0x7FFFFFFF, 0x7F800000  # INF: bit pattern of float32 +inf (NaN lies above)
+SMALL = (127 - 60) << 23  # bit pattern of 2**-60: below it, underflow voids relative bounds
+TINY = 2.0**-120  # absolute slack (underflow of N products: N · 2**-149) for the pruning
 
 
 def decide(
@@ -27,13 +48,13 @@ def decide(
     cost: torch.Tensor | None = None,
     priors: torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """Cost-based decision for every pixel.
+    """Cost-based decision for every pixel, equal to the float64 reference on every pixel.
 
     Args:
-        probs: (B, N, H, W) class probabilities (any float dtype, any device).
+        probs: (B, N, H, W) class probabilities >= 0 (float16/bfloat16/32/64, any device).
         cost: (N, N) cost matrix, rows = predicted class, columns = true class; ``None`` means the
             symmetric matrix (argmax, or maximum likelihood when priors are given).
-        priors: ``None``, (N,) global or (N, H, W) pixel-wise priors π: the rule is applied to
+        priors: ``None``, (N,) global or (N, H, W) pixel-wise priors π > 0: the rule is applied to
             ``p / π`` (a per-pixel column scaling).
 
     Returns:
@@ -44,9 +65,21 @@ def decide(
     >>> decide(p, None).item(), decide(p, C).item()
     (0, 1)
     """
-    shifted = _shift(_costs(cost, probs))
-    # min(dim).indices: first minimum like argmin, but much faster over a non-inner dim.
-    return _run(probs, shifted, priors, lambda e, out: out[0].copy_(e.min(0).indices))[:, 0]
+    n = _check(probs)
+    cost = symmetric_cost(n) if cost is None else cost
+    if cost.shape != (n, n):
+        raise ValueError(f"cost matrix must be {n}x{n} for {n} classes, got {tuple(cost.shape)}")
+    shifted = _shift(cost.to(device=probs.device, dtype=torch.float64))[None]
+    fast = _Fast(shifted, probs, priors, eps=(n + 4) * U64)
+    b, _, h, w = probs.shape
+    out = torch.empty(b, h * w, dtype=torch.long, device=probs.device)
+    for i, s, q in fast.chunks():
+        index, ambiguous = _top(fast.costs(q), fast.delta)
+        out[i, s : s + q.shape[1]] = index
+        redo = ambiguous.nonzero()[:, 0]
+        if len(redo):
+            out[i, s + redo] = _reference(fast.exact_q(i, s + redo), shifted)
+    return out.view(b, h, w)
 
 
 def decide_mixtures(
@@ -57,13 +90,14 @@ def decide_mixtures(
 ) -> torch.Tensor:
     """Decisions for K mixtures ``Σ_v w_kv C_v`` of V vertex matrices, in one pass.
 
-    Equals ``decide(probs, Σ_v w_kv C_v, priors)`` for every k (float64 rounding aside), at the
+    Equals ``decide(probs, mix_costs(vertices, weights)[k], priors)`` exactly for every k, at the
     cost of V vertex cost maps plus a cheap mixing step, instead of K full evaluations.
 
     Args:
-        probs: (B, N, H, W) class probabilities.
+        probs: (B, N, H, W) class probabilities >= 0.
         vertices: (V, N, N) cost matrices.
-        weights: (K, V) mixture weights (e.g. :func:`costseg.costs.barycentric_grid`).
+        weights: (K, V) mixture weights >= 0, each row with a positive entry
+            (e.g. :func:`costseg.costs.barycentric_grid`).
         priors: as in :func:`decide`.
 
     Returns:
@@ -74,53 +108,189 @@ def decide_mixtures(
     >>> decide_mixtures(torch.rand(2, 19, 4, 5).softmax(1), V, barycentric_grid(0.1)).shape
     torch.Size([2, 66, 4, 5])
     """
-    if vertices.ndim != 3 or weights.ndim != 2 or weights.shape[1] != vertices.shape[0]:
+    n = _check(probs)
+    if vertices.shape[1:] != (n, n) or weights.ndim != 2 or weights.shape[1] != len(vertices):
         raise ValueError(
-            f"expected vertices (V, N, N) and weights (K, V), got {tuple(vertices.shape)} "
-            f"and {tuple(weights.shape)}"
+            f"expected vertices ({n} x {n} matrices) and weights (K, V), got "
+            f"{tuple(vertices.shape)} and {tuple(weights.shape)}"
         )
-    shifted = _shift(torch.stack([_costs(c, probs) for c in vertices]))
-    mix = weights.to(device=probs.device, dtype=torch.float64)
-    dtype = torch.uint8 if probs.shape[1] <= 256 else torch.long  # K label maps add up
-    return _run(probs, shifted, priors, lambda e, out: _mixed_argmin(e, mix, out), len(mix), dtype)
+    if not bool((weights >= 0).all() and (weights > 0).any(1).all()):
+        raise ValueError("mixture weights must be >= 0 with a positive entry in each row")
+    mixed = _shift(mix_costs(vertices, weights).to(probs.device))  # the reference matrices
+    v, k = weights.shape[1], weights.shape[0]
+    # Reference rounding of a mixed cost, relative to the mixed vertex cost maps' best values.
+    fast = _Fast(
+        _shift(vertices.to(probs.device, torch.float64)), probs, priors, 2 * (n + 6) * n * v * U64
+    )
+    mix = _Mixer(weights.to(probs.device, torch.float32), fast)
+    b, _, h, w = probs.shape
+    dtype = torch.uint8 if n <= 256 else torch.long  # K label maps add up
+    out = torch.empty(b, k, h * w, dtype=dtype, device=probs.device)
+    for i, s, q in fast.chunks():
+        labels = out[i, :, s : s + q.shape[1]]
+        costs = fast.costs(q).view(v, n, -1)
+        winner, ambiguous = _top(costs, fast.delta)
+        labels.copy_(winner[0].expand(k, -1))
+        contested = ((winner != winner[:1]).any(0) | ambiguous.any(0)).nonzero()[:, 0]
+        if len(contested):
+            decided, redo = mix(costs[:, :, contested], winner[:, contested])
+            grid, pixel = redo.nonzero().unbind(1)
+            if len(grid):
+                q64 = fast.exact_q(i, s + contested[pixel])
+                decided[grid, pixel] = _reference(q64, mixed[grid])
+            labels[:, contested] = decided.to(dtype)
+    return out.view(b, k, h, w)
 
 
-class DecisionLayer(nn.Module):
-    """``nn.Module`` form of :func:`decide_mixtures` (of :func:`decide` when K = 1).
+class _Fast:
+    """Float32 costs of V shifted matrices for one call, with their certified rounding bound.
 
-    The matrices are non-persistent buffers: they follow ``.to(device)`` but never enter a
-    checkpoint, so a checkpoint cannot override the cost the user asked for.
-
-    >>> from costseg.costs import load_cost
-    >>> layer = DecisionLayer(torch.stack([load_cost("robotistic"), load_cost("egoistic")]))
-    >>> layer(torch.rand(1, 19, 8, 8).softmax(1)).shape     # two rules, one pass
-    torch.Size([1, 2, 8, 8])
+    ``costs(q)`` = ``weight @ q``: (V·N, N) float32 ``W = (C.max(0) - C) / π >= 0`` (global
+    priors folded into the columns) times (N, P) float32 ``q``; each result is a sum of N
+    nonnegative terms, so it errs by at most ``γ`` times its own value (plus underflow, below
+    ``2**-149`` per term). ``γ`` counts: ``ρ``, the measured rounding of W to float32 (a power-of-2
+    scale keeps it in range); two roundings of the inputs where matmuls may use TF32/bfloat16;
+    three roundings of q (casts and the division by pixel-wise priors); ``γ_N = Nu / (1 - Nu)`` of
+    a dot product of length N in any order. ``eps`` bounds the reference's own rounding relative
+    to the largest cost, ``delta`` the resulting relative gap that certifies a decision.
     """
 
-    def __init__(self, vertices: torch.Tensor, weights: torch.Tensor | None = None) -> None:
-        super().__init__()
-        vertices = torch.as_tensor(vertices, dtype=torch.float64)
-        if weights is None:
-            weights = torch.eye(len(vertices), dtype=torch.float64)
-        self.register_buffer("vertices", vertices, persistent=False)
-        self.register_buffer("weights", torch.as_tensor(weights, dtype=torch.float64), False)
+    def __init__(self, shifted: torch.Tensor, probs: torch.Tensor, priors, eps: float) -> None:
+        b, n, h, w = probs.shape
+        self.probs, self.priors = probs.reshape(b, n, h * w), _priors(priors, n, h, w, probs)
+        weight = -shifted
+        if self.priors is not None and self.priors.ndim == 1:
+            weight = weight / self.priors.double()
+        top = weight.max().item()
+        if top > 0:
+            weight = weight * 2.0 ** -math.frexp(top)[1]  # exact
+        single = weight.float()
+        rho = ((single.double() - weight).abs() / weight).nan_to_num(0).max().item() + 4 * U64
+        precision = torch.get_float32_matmul_precision()
+        if probs.device.type == "cuda" and torch.backends.cuda.matmul.allow_tf32:
+            precision = "high" if precision == "highest" else precision
+        self.u_in = {"highest": 0.0, "high": 2.0**-11, "medium": 2.0**-8}[precision]
+        dot = n * U32 / (1 - n * U32)
+        self.gamma = (1 + rho) * (1 + self.u_in) ** 2 * (1 + U32) ** 3 * (1 + dot) - 1
+        self.eps, self.delta = eps, _delta(self.gamma, eps)
+        self.weight = single.reshape(-1, n)
+        self.pixel_priors = (
+            self.priors if self.priors is not None and self.priors.ndim == 2 else None
+        )
 
-    def forward(self, probs: torch.Tensor, priors: torch.Tensor | None = None) -> torch.Tensor:
-        """(B, N, H, W) probabilities → (B, K, H, W) decisions."""
-        return decide_mixtures(probs, self.vertices, self.weights, priors)
+    def costs(self, q: torch.Tensor) -> torch.Tensor:
+        """(N, P) float32 → (V·N, P) float32 costs, larger = better."""
+        return self.weight @ q
+
+    def exact_q(self, image: int, pixels: torch.Tensor) -> torch.Tensor:
+        """(R, N) float64 ``p / π`` of the given pixels of one image, as the reference has it."""
+        q = self.probs[image][:, pixels].double()
+        if self.priors is not None:
+            prior = self.priors[:, None] if self.priors.ndim == 1 else self.priors[:, pixels]
+            q = q / prior.double()
+        return q.t()
+
+    def chunks(self) -> Iterator[tuple[int, int, torch.Tensor]]:
+        """(image, first pixel, (N, P) float32 q) for every chunk of pixels."""
+        step = CPU_CHUNK if self.probs.device.type == "cpu" else GPU_CHUNK
+        for i, image in enumerate(self.probs):
+            for s in range(0, image.shape[1], step):
+                q = image[:, s : s + step]
+                if self.pixel_priors is not None:
+                    q = q.float() / self.pixel_priors[:, s : s + step].float()
+                yield i, s, q.float()
 
 
-def _costs(cost: torch.Tensor | None, probs: torch.Tensor) -> torch.Tensor:
+class _Mixer:
+    """Certified decisions of K mixtures on contested pixels (see the module docstring)."""
+
+    def __init__(self, weights: torch.Tensor, fast: _Fast) -> None:
+        self.weights, v = weights, weights.shape[1]
+        # A mixed cost sums V nonnegative terms: fast.gamma, the rounding of w to float32, the
+        # matmul's inputs and a dot product of length V; the reference errs by eps relative to
+        # the mixed vertices' best costs, at most V times the best mixed cost.
+        dot = v * U32 / (1 - v * U32)
+        gamma = (1 + fast.gamma) * (1 + U32) * (1 + fast.u_in) ** 2 * (1 + dot) - 1
+        self.delta = _delta(gamma, v * fast.eps)
+        self.prune = fast.delta * 1.001  # + the rounding of the pruning test itself
+
+    def __call__(self, costs: torch.Tensor, winner: torch.Tensor):
+        """Vertex costs (V, N, P) and winners (V, P) → labels (K, P) and re-check mask (K, P)."""
+        candidate = self._candidates(costs, winner)
+        count = candidate.sum(0)
+        k, v = self.weights.shape
+        labels = torch.empty(k, costs.shape[2], dtype=torch.long, device=costs.device)
+        redo = torch.zeros(k, costs.shape[2], dtype=torch.bool, device=costs.device)
+        for m in count.unique().tolist():
+            sel = (count == m).nonzero()[:, 0]
+            classes = candidate[:, sel].t().nonzero()[:, 1].view(-1, m).t()  # (m, P') ascending
+            if m == 1:
+                labels[:, sel] = classes
+                continue
+            picked = costs[:, :, sel].gather(1, classes.expand(v, -1, -1))
+            mixed = (self.weights @ picked.reshape(v, -1)).view(k, m, -1)
+            position, redo[:, sel] = _top(mixed, self.delta)
+            labels[:, sel] = classes.gather(0, position)
+        return labels, redo
+
+    def _candidates(self, costs: torch.Tensor, winner: torch.Tensor) -> torch.Tensor:
+        """(N, P) bool: classes that no vertex winner beats in every vertex by a certain margin.
+
+        A class beaten by the same class in every vertex is beaten at every mixture (w >= 0),
+        in the reference too, so it can never be the decision.
+        """
+        margin = self.prune * costs.amax(1, keepdim=True) + TINY
+        candidate = torch.ones(costs.shape[1:], dtype=torch.bool, device=costs.device)
+        for best in winner:
+            lead = costs.gather(1, best.expand(costs.shape[0], 1, -1)) - costs
+            candidate &= ~(lead > margin).all(0)
+        return candidate
+
+
+def _top(costs: torch.Tensor, delta: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Argmax over dim -2 of float32 costs >= 0, and where it is not certified.
+
+    Nonnegative floats order like their int32 bit patterns, whose low ``bits`` carry the
+    position (lowest wins ties). Between two values n ulps apart the gap exceeds
+    ``n · 2**-24`` times the smaller one, so a packed gap above ``limit`` certifies a relative
+    gap ``delta``; clearing the low bits moves each pattern by less than ``2**bits``.
+
+    Returns:
+        (..., P) int64 positions and (..., P) bool: gap within ``delta``, tiny, inf or NaN.
+    """
+    m = costs.shape[-2]
+    low = (1 << max(1, (m - 1).bit_length())) - 1
+    code = low - torch.arange(m, dtype=torch.int32, device=costs.device).view(m, 1)
+    packed = torch.bitwise_and(costs.view(torch.int32), INT_MAX - low).bitwise_or_(code)
+    best = packed.amax(-2, keepdim=True)
+    # best - 1 - packed >= 0 except at the best (-1, masked to INT_MAX): the gap minus one.
+    gap = torch.sub(best - 1, packed, out=packed).bitwise_and_(INT_MAX).amin(-2)
+    best = best.squeeze(-2)
+    limit = math.ceil(delta * 2**24 / (1 - delta)) + 2 * low + 2
+    ambiguous = (gap < limit) | (best < SMALL) | (best >= INF)
+    return (low - (best & low)).long(), ambiguous
+
+
+def _delta(gamma: float, eps: float) -> float:
+    # Costs x (computed) and y (exact) with |x - y| <= γ·y, the reference within eps·max(y):
+    # x_a - x_b > 2(γ + eps)/(1 - γ) · x_a certifies that a is the reference's unique argmin.
+    return 2 * (gamma + eps) / (1 - gamma)
+
+
+def _reference(q: torch.Tensor, shifted: torch.Tensor) -> torch.Tensor:
+    """The reference: (R, N) float64 q and (R or 1, N, N) shifted matrices → (R,) labels."""
+    costs = torch.zeros(q.shape[0], shifted.shape[1], dtype=torch.float64, device=q.device)
+    for k in range(q.shape[1]):  # ascending k, product and sum each rounded once
+        costs = costs + shifted[:, :, k] * q[:, k, None]
+    return costs.min(1).indices  # first minimum: ties to the lowest index
+
+
+def _check(probs: torch.Tensor) -> int:
     if probs.ndim != 4 or not probs.is_floating_point():
         raise ValueError(
             f"probs must be a float (B, N, H, W) tensor, got {probs.dtype} {tuple(probs.shape)}"
         )
-    n = probs.shape[1]
-    if cost is None:
-        return 1 - torch.eye(n, dtype=torch.float64, device=probs.device)
-    if cost.shape != (n, n):
-        raise ValueError(f"cost matrix must be {n}x{n} for {n} classes, got {tuple(cost.shape)}")
-    return cost.to(device=probs.device, dtype=torch.float64)
+    return probs.shape[1]
 
 
 def _shift(costs: torch.Tensor) -> torch.Tensor:
@@ -128,26 +298,13 @@ def _shift(costs: torch.Tensor) -> torch.Tensor:
     return costs - costs.amax(dim=-2, keepdim=True)
 
 
-def _run(probs, shifted, priors, pick, k: int = 1, dtype=torch.long) -> torch.Tensor:
-    """Expected costs (N, P) or (V, N, P) chunk by chunk; ``pick`` writes (K, P) labels."""
-    b, n, h, w = probs.shape
-    flat = probs.reshape(b, n, h * w)
-    scale = _flat_priors(priors, n, h, w, probs.device)
-    chunk = CPU_CHUNK if probs.device.type == "cpu" else h * w
-    out = torch.empty(b, k, h * w, dtype=dtype, device=probs.device)
-    for i in range(b):
-        for s in range(0, h * w, chunk):
-            q = flat[i, :, s : s + chunk].to(torch.float64)
-            if scale is not None:
-                q = q / (scale if scale.shape[1] == 1 else scale[:, s : s + chunk])
-            pick(shifted @ q, out[i, :, s : s + chunk])
-    return out.view(b, k, h, w)
-
-
-def _flat_priors(priors, n: int, h: int, w: int, device) -> torch.Tensor | None:
+def _priors(priors, n: int, h: int, w: int, probs: torch.Tensor) -> torch.Tensor | None:
+    """None, (N,) or (N, H·W) priors on the probabilities' device, validated."""
     if priors is None:
         return None
-    priors = torch.as_tensor(priors).to(device=device, dtype=torch.float64)
+    priors = torch.as_tensor(priors).to(probs.device)
+    if not priors.is_floating_point():
+        priors = priors.double()
     if priors.shape not in ((n,), (n, h, w)):
         raise ValueError(
             f"priors must be ({n},) or ({n}, {h}, {w}) for these probabilities, "
@@ -155,44 +312,4 @@ def _flat_priors(priors, n: int, h: int, w: int, device) -> torch.Tensor | None:
         )
     if not bool((priors > 0).all()):
         raise ValueError("priors must be > 0 everywhere (floor them, e.g. at 1e-5)")
-    return priors.reshape(n, -1)
-
-
-def _mixed_argmin(costs: torch.Tensor, weights: torch.Tensor, labels: torch.Tensor) -> None:
-    """Argmin over classes of ``Σ_v w_kv costs[v]``: (V, N, P), weights (K, V) → labels (K, P).
-
-    Where every vertex picks the same class, so does every mixture. Elsewhere only classes
-    that no vertex winner beats in every vertex can win; those few are mixed for each k.
-    """
-    k = weights.shape[0]
-    winners = costs.min(1).indices  # (V, P)
-    labels.copy_(winners[0].expand(k, -1))
-    contested = (winners != winners[:1]).any(0).nonzero().squeeze(1)
-    if contested.numel() == 0:
-        return
-    costs, winners = costs[:, :, contested], winners[:, contested]
-    candidate = _undominated(costs, winners)
-    count = candidate.sum(0)
-    descending = torch.arange(costs.shape[1], 0, -1, device=costs.device).unsqueeze(1)
-    for m in count.unique().tolist():  # pixels with m candidates each, in blocks
-        same = (count == m).nonzero().squeeze(1)
-        for part in same.split(max(1, MIX_BLOCK // (k * m))):
-            # Candidates first, in ascending class order, so ties go to the lowest index.
-            index = (candidate[:, part] * descending).topk(m, dim=0).indices  # (m, P')
-            picked = costs[:, :, part].gather(1, index.expand(costs.shape[0], -1, -1))
-            mixed = (weights @ picked.flatten(1)).view(k, m, -1)
-            labels[:, contested[part]] = index.gather(0, mixed.min(1).indices).to(labels.dtype)
-
-
-def _undominated(costs: torch.Tensor, winners: torch.Tensor) -> torch.Tensor:
-    """(N, P) bool: classes that no vertex winner beats in every vertex by more than rounding.
-
-    A class beaten in every vertex by the same class is beaten at every mixture, so it can
-    never be the argmin; vertex winners themselves always remain.
-    """
-    margin = 1e-9 * costs.abs().amax((0, 1)) + 1e-300
-    candidate = torch.ones(costs.shape[1:], dtype=torch.bool, device=costs.device)
-    for winner in winners:
-        beaten_by = costs.gather(1, winner.expand(costs.shape[0], 1, -1))  # (V, 1, P)
-        candidate &= ~(beaten_by + margin < costs).all(0)
-    return candidate
+    return priors.reshape(n, -1) if priors.ndim == 3 else priors

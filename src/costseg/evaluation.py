@@ -1,33 +1,43 @@
 """The ``evaluate.py`` job: options → plan (once) → one loop over the images → results.
 
 :func:`plan` checks every option, opens the probability source (:mod:`costseg.sources`) and the
-data, builds the rule groups (:mod:`costseg.rules`) and claims a fresh output folder. :func:`run`
-passes over the images once: scores → probabilities → every rule group → metrics (the step of
-:mod:`costseg.scoring`, shared with validation). :func:`evaluate` does both and hands the
-results to :mod:`costseg.report.evaluation`. Under ``torchrun`` every process takes its own
-share of the images and the metrics' sums are merged.
+data, builds the rule groups (:mod:`costseg.rules`), splits off calibration images when a
+scaling or a guarantee needs them, and claims a fresh output folder. :func:`run` fits and
+certifies on the calibration images (:mod:`costseg.calibration_set`), then passes over the
+reported images once: scores → probabilities → every rule group → metrics (the step of
+:mod:`costseg.scoring`, shared with validation). :func:`evaluate` does both and hands the results
+to :mod:`costseg.report.evaluation`. Under ``torchrun`` every process takes its own share of the
+reported images and the metrics' sums are merged.
 """
 
 from __future__ import annotations
 
+import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import torch
 import torch.distributed as dist
-from torch.utils.data import DataLoader, Dataset
-from tqdm import tqdm
+from torch.utils.data import Dataset
 
+from costseg.calibration import Scaling
+from costseg.calibration_set import as_logits, certify, fit_scaling
 from costseg.classes import CLASS_NAMES, class_indices
-from costseg.data.from_config import build_dataset, eval_batch_size, image_stems
+from costseg.data.from_config import build_dataset, eval_batch_size
 from costseg.data.prior_maps import PriorMaps, heatmap_canvas
+from costseg.metrics import CalibrationError
 from costseg.options import EvalOptions
+from costseg.plan_checks import (
+    check_calibration_size,
+    check_options,
+    needs_priors,
+    source_priors,
+)
 from costseg.report.outputs import BatchWriter, claim_output_dir
 from costseg.results import EvalResults, Example, GroupResult
-from costseg.rules import RuleGroup, alpha_group, grid_group, parse_rules, rules_group
+from costseg.rules import RuleGroup, temperature_group
 from costseg.scoring import GroupMetrics, score_batch
-from costseg.selection import parse_metric, parse_target
-from costseg.sources import Source, open_source, resolve_device
+from costseg.sources import Batch, Source, batches, open_source, resolve_device
 
 
 @dataclass
@@ -38,36 +48,16 @@ class EvalPlan:
     device: torch.device
     source: Source
     dataset: Dataset
-    indices: list[int]  # this process's share of the (limited) split
+    indices: list[int]  # this process's share of the reported images
+    num_reported: int  # reported images over all processes
+    calibration: tuple[Dataset, list[int]] | None  # images that fit / certify, never reported
     batch_size: int
+    num_workers: int
     groups: list[RuleGroup]
     class_ids: list[int]
     output_dir: Path
     priors: PriorMaps
     canvas: tuple[int, int]
-    num_workers: int
-
-
-def check_options(opts: EvalOptions) -> list[RuleGroup]:
-    """Fail on malformed options before anything is loaded; returns the rule groups."""
-    class_indices(opts.classes)
-    if sum(x is not None for x in (opts.ckpt_path, opts.network, opts.probs)) > 1:
-        raise ValueError("give at most one of --ckpt_path, --network and --probs")
-    if opts.probs is not None and opts.data_root is None:
-        raise ValueError("--probs needs --data_root: the dataset whose images were scored")
-    if opts.save_probs and opts.probs is not None:
-        raise ValueError("--save-probs writes a network's probabilities; with --probs they exist")
-    groups = [rules_group(parse_rules(opts.cost))]
-    if opts.target or opts.maximize:
-        if not (opts.target and opts.maximize and opts.sweep):
-            raise ValueError("--target and --maximize go together, with --sweep STEP")
-        parse_target(opts.target)
-        parse_metric(opts.maximize)
-    if opts.sweep is not None:
-        groups.append(grid_group(opts.vertices, opts.sweep, opts.vertex_scaling))
-    if opts.alpha_sweep is not None:
-        groups.append(alpha_group(opts.alpha_sweep, opts.alpha_cost))
-    return groups
 
 
 def plan(opts: EvalOptions) -> EvalPlan:
@@ -84,66 +74,100 @@ def plan(opts: EvalOptions) -> EvalPlan:
     count = len(dataset) if opts.limit is None else min(opts.limit, len(dataset))
     if count == 0:
         raise ValueError(f"the {opts.split} split holds no images: nothing to evaluate")
-    rank, world = _rank(), _world_size()
-    priors = PriorMaps(source.priors, CLASS_NAMES, device)
-    if priors.priors is None and _needs_priors(groups):
+    reported, calibration = _split_calibration(opts, config, dataset, count)
+    if calibration is not None:
+        candidates = next((g for g in groups if g.kind in ("grid", "alpha")), groups[0])
+        check_calibration_size(opts, len(calibration[1]), len(candidates.names))
+    base = _default_base(source)
+    priors = PriorMaps(source_priors(source, opts, config, base), CLASS_NAMES, device)
+    if priors.priors is None and needs_priors(groups):
         raise ValueError("ml and --alpha_sweep need pixel-wise priors, and this source has none")
     return EvalPlan(
         options=opts,
         device=device,
         source=source,
         dataset=dataset,
-        indices=list(range(rank, count, world)),
+        indices=reported[_rank() :: _world_size()],
+        num_reported=len(reported),
+        calibration=calibration,
         batch_size=opts.batch_size or eval_batch_size(config, opts.data_root),
+        num_workers=int(config.get("init_args", {}).get("num_workers", 2)),
         groups=groups,
         class_ids=class_indices(opts.classes),
-        output_dir=_on_rank0(
-            lambda: claim_output_dir(opts.output_dir, opts.overwrite, _default_base(source))
-        ),
+        output_dir=_on_rank0(lambda: claim_output_dir(opts.output_dir, opts.overwrite, base)),
         priors=priors,
         canvas=heatmap_canvas(dataset),
-        num_workers=int(config.get("init_args", {}).get("num_workers", 2)),
     )
 
 
 def run(plan: EvalPlan) -> EvalResults:
-    """One pass over the planned images: every rule group, all metrics, side outputs."""
+    """Calibrate and certify on the held-out images, then one pass over the reported ones."""
+    opts, extra = plan.options, {}
+    scaling = Scaling()
+    if opts.calibrate:
+        scaling = fit_scaling(_calibration_batches(plan, "fit scaling"), opts.calibrate,
+                              plan.source.kind)  # fmt: skip
+        print(f"calibration: {scaling.describe()}")
+        extra["scaling"] = scaling.to_dict()
+        if opts.temperature_sweep and scaling.kind == "temperature":
+            plan.groups.append(temperature_group(plan.groups[0].rules, scaling.temperature))
+    if opts.guarantee is not None:
+        group = next(g for g in plan.groups if g.kind in ("grid", "alpha"))
+        extra["certificate"] = certify(
+            _calibration_batches(plan, "certify"),
+            group,
+            lambda b: _probabilities(plan, b, scaling),
+            plan.priors.at,
+            opts.target,
+            opts.maximize,
+            opts.guarantee,
+            opts.guarantee_method,
+            plan.class_ids,
+        )
+    return _report_pass(plan, scaling, extra)
+
+
+def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict) -> EvalResults:
     opts, device = plan.options, plan.device
     metrics = [
-        GroupMetrics(g, len(CLASS_NAMES), 4, plan.class_ids, plan.canvas).to(device)
+        GroupMetrics(g, len(CLASS_NAMES), 4, None if g.temperature else plan.class_ids,
+                     plan.canvas).to(device)
         for g in plan.groups
-    ]
+    ]  # fmt: skip
+    ece = {"raw": CalibrationError(len(CLASS_NAMES)).to(device)}
+    if scaling.kind != "none":
+        ece["scaled"] = CalibrationError(len(CLASS_NAMES)).to(device)
     writer = BatchWriter(plan.output_dir, plan.groups[0].names, opts.save_predictions)
     examples: list[Example] = []
-    loader = DataLoader(
-        _Indexed(plan.dataset, plan.indices),
-        batch_size=plan.batch_size,
-        num_workers=plan.num_workers,
-        collate_fn=_collate_by_size,
-    )
+    desc = "evaluate" if opts.progress and _rank() == 0 else None
     with torch.inference_mode():
-        for batch in tqdm(loader, "evaluate", disable=not opts.progress):
-            for images, labels, indices in batch:
-                images, labels = images.to(device), labels.to(device)
-                stems = image_stems(plan.dataset, indices)
-                probs = _probabilities(plan.source, images, stems)
-                if opts.save_probs:  # evaluate exactly what is saved, so --probs reproduces it
-                    probs = probs.half().float()
-                    writer.save_probs(stems, probs)
-                priors, roi = plan.priors.at(tuple(labels.shape[-2:]))
-                preds = score_batch(plan.groups, metrics, probs, labels, priors, roi)
-                writer.save_predictions(stems, preds[0])
-                _keep_examples(examples, opts.num_examples, images, labels, preds[0])
+        for batch in batches(plan.source, plan.dataset, plan.indices, plan.batch_size, device,
+                             plan.num_workers, desc):  # fmt: skip
+            probs = _probabilities(plan, batch, scaling)
+            if opts.save_probs:  # evaluate exactly what is saved, so --probs reproduces it
+                probs = probs.half().float()
+                writer.save_probs(batch.stems, probs)
+            _update_ece(ece, plan, batch, probs)
+            priors, roi = plan.priors.at(tuple(batch.labels.shape[-2:]))
+            by_temperature = _tempered(plan, batch, probs)
+            preds = [
+                score_batch([g], [m], by_temperature[g.temperature], batch.labels, priors, roi)[0]
+                for g, m in zip(plan.groups, metrics, strict=True)
+            ]
+            writer.save_predictions(batch.stems, preds[0])
+            _keep_examples(examples, opts.num_examples, batch, preds[0])
+    extra["ece"] = {k: m.compute() for k, m in ece.items()}
     return EvalResults(
         output_dir=plan.output_dir,
         options=asdict(opts),
         source=plan.source.description,
-        probabilities=_describe_probabilities(plan),
+        probabilities=_describe_probabilities(plan, scaling),
         class_ids=plan.class_ids,
         groups=[GroupResult(g, **m.compute()) for g, m in zip(plan.groups, metrics, strict=True)],
         examples=examples,
         roi=plan.priors.roi_map(),
-        num_images=len(plan.indices) * _world_size(),
+        num_images=plan.num_reported,
+        extra=extra,
     )
 
 
@@ -157,55 +181,68 @@ def evaluate(opts: EvalOptions) -> EvalResults:
     return results
 
 
-def _probabilities(source: Source, images: torch.Tensor, stems: list[str]) -> torch.Tensor:
-    scores = source.scores(images, stems)
-    return scores if source.kind == "probs" else scores.softmax(1)
+def _calibration_batches(plan: EvalPlan, what: str):
+    dataset, indices = plan.calibration
+    desc = f"{what} ({len(indices)} calibration images)" if plan.options.progress else None
+    with torch.inference_mode():
+        yield from batches(plan.source, dataset, indices, plan.batch_size, plan.device,
+                           plan.num_workers, desc)  # fmt: skip
 
 
-def _describe_probabilities(plan: EvalPlan) -> str:
-    text = "saved probabilities" if plan.source.kind == "probs" else "softmax of the logits"
-    return text + (" (rounded to float16, as saved)" if plan.options.save_probs else "")
+def _probabilities(plan: EvalPlan, batch: Batch, scaling: Scaling) -> torch.Tensor:
+    if scaling.kind != "none":
+        return scaling.apply(as_logits(batch, plan.source.kind))
+    return batch.scores if plan.source.kind == "probs" else batch.scores.softmax(1)
 
 
-def _keep_examples(examples, limit, images, labels, preds) -> None:
-    for i in range(min(len(images), limit - len(examples))):
-        examples.append(Example(images[i].cpu(), labels[i].cpu(), preds[i].cpu()))
+def _tempered(plan: EvalPlan, batch: Batch, probs: torch.Tensor) -> dict:
+    """The probabilities of every temperature a group asks for (None: the main ones)."""
+    out = {None: probs}
+    for t in {g.temperature for g in plan.groups if g.temperature}:
+        out[t] = Scaling("temperature", temperature=t).apply(as_logits(batch, plan.source.kind))
+    return out
 
 
-def _needs_priors(groups: list[RuleGroup]) -> bool:
-    return any(r.priors_alpha for r in groups[0].rules) or any(g.kind == "alpha" for g in groups)
+def _update_ece(ece: dict, plan: EvalPlan, batch: Batch, probs: torch.Tensor) -> None:
+    if "scaled" in ece:
+        ece["scaled"].update(probs, batch.labels)
+        probs = _probabilities(plan, batch, Scaling())
+    ece["raw"].update(probs, batch.labels)
+
+
+def _describe_probabilities(plan: EvalPlan, scaling: Scaling) -> str:
+    if scaling.kind != "none":
+        text = scaling.describe()
+    elif plan.source.kind == "probs":
+        text = "saved probabilities, no scaling"
+    else:
+        text = scaling.describe()
+    return text + ("; rounded to float16 as saved" if plan.options.save_probs else "")
+
+
+def _keep_examples(examples: list, limit: int, batch: Batch, preds: torch.Tensor) -> None:
+    for i in range(min(len(batch.images), limit - len(examples))):
+        examples.append(Example(batch.images[i].cpu(), batch.labels[i].cpu(), preds[i].cpu()))
+
+
+def _split_calibration(opts: EvalOptions, config: dict, dataset: Dataset, count: int):
+    """(reported indices, calibration (dataset, indices) or None), disjoint by construction."""
+    if not (opts.calibrate or opts.guarantee is not None):
+        return list(range(count)), None
+    if opts.calibration_split is not None:
+        held = build_dataset(config, opts.calibration_split, opts.data_root)
+        return list(range(count)), (held, list(range(len(held))))
+    half = count // 2
+    if half == 0:
+        raise ValueError(f"{count} image(s): too few to split into calibration and report halves")
+    return list(range(half, count)), (dataset, list(range(half)))
 
 
 def _default_base(source: Source) -> Path:
     if source.run_dir is not None:
         return source.run_dir / "evaluation"
-    name = Path(str(next(iter(source.description.values())))).name.split(":")[-1]
+    name = str(next(iter(source.description.values()))).split(":")[-1].rstrip("/")
     return Path("eval") / (Path(name).stem or "network")
-
-
-class _Indexed(Dataset):
-    """(image, label, index) of the chosen items of a dataset."""
-
-    def __init__(self, dataset: Dataset, indices: list[int]) -> None:
-        self.dataset, self.indices = dataset, indices
-
-    def __len__(self) -> int:
-        return len(self.indices)
-
-    def __getitem__(self, i: int):
-        image, label = self.dataset[self.indices[i]]
-        return image, label, self.indices[i]
-
-
-def _collate_by_size(items) -> list[tuple[torch.Tensor, torch.Tensor, list[int]]]:
-    """A batch as sub-batches of equal image size (datasets may mix resolutions)."""
-    by_size: dict[tuple[int, ...], list] = {}
-    for item in items:
-        by_size.setdefault(tuple(item[1].shape), []).append(item)
-    return [
-        (torch.stack([i[0] for i in same]), torch.stack([i[1] for i in same]), [i[2] for i in same])
-        for same in by_size.values()
-    ]
 
 
 def _on_rank0(make):
@@ -223,6 +260,4 @@ def _rank() -> int:
 def _world_size() -> int:
     if dist.is_available() and dist.is_initialized():
         return dist.get_world_size()
-    import os
-
     return int(os.environ.get("WORLD_SIZE", "1"))

@@ -18,6 +18,7 @@ import torch.nn.functional as F
 
 from costseg.classes import CLASS_NAMES, IGNORE_INDEX, class_index
 from costseg.data.prior_maps import PriorMaps
+from costseg.metrics import CalibrationError
 from costseg.models.deeplabv3plus import DeepLabV3Plus
 from costseg.rules import parse_rules, rules_group
 from costseg.scoring import GroupMetrics, score_batch
@@ -73,10 +74,12 @@ class SegmentationModule(L.LightningModule):
             self.net = self.net.to(memory_format=torch.channels_last)
         self.rules = rules_group(parse_rules(val_costs, CLASS_NAMES[:num_classes]))
         self.val_metrics = GroupMetrics(self.rules, num_classes)
+        self.val_ece = CalibrationError(num_classes)
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), False)
         self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), False)
         self._priors = PriorMaps(None)  # (N, H, W) at label resolution, set before fit
         self.data_config: dict[str, Any] | None = None  # how to rebuild the data, for evaluation
+        self.priors_info: dict[str, Any] | None = None  # how the priors were estimated
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
         """(B, 3, H, W) uint8 RGB → (B, N, H, W) logits."""
@@ -109,6 +112,7 @@ class SegmentationModule(L.LightningModule):
         if priors is not None:
             priors, roi = priors.to(self.device), roi.to(self.device)
         probs = logits.float().softmax(1)
+        self.val_ece.update(probs, labels)
         (preds,) = score_batch([self.rules], [self.val_metrics], probs, labels, priors, roi)
         return {"preds": preds, "names": self.rules.names}
 
@@ -116,6 +120,8 @@ class SegmentationModule(L.LightningModule):
         out = self.val_metrics.compute()["pixels"]
         self.val_metrics.reset()
         self.log("val/miou", out["miou"][0].float(), prog_bar=True)
+        self.log("val/ece", self.val_ece.compute()["ece"].float())
+        self.val_ece.reset()
         names = CLASS_NAMES[: self.hparams.num_classes]
         person, building = class_index("person", names), class_index("building", names)
         for k, rule in enumerate(self.rules.names):
@@ -144,9 +150,11 @@ class SegmentationModule(L.LightningModule):
             "class_names": list(CLASS_NAMES[: self.hparams.num_classes]),
             "priors": None if self.priors is None else self.priors.cpu(),
             "data": self.data_config,
+            "priors_info": self.priors_info,
         }
 
     def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         extra = checkpoint.get(CHECKPOINT_KEY, {})
         self.priors = extra.get("priors")
         self.data_config = extra.get("data")
+        self.priors_info = extra.get("priors_info")

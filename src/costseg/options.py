@@ -31,4 +31,9 @@ class EvalOptions:
     maximize: str | None = None
     alpha_sweep: float | None = None
     alpha_cost: str | None = None
+    calibrate: str | None = None
+    calibration_split: str | None = None
+    temperature_sweep: bool = False
+    guarantee: float | None = None
+    guarantee_method: str = "bonferroni"
     progress: bool = True

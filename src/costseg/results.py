@@ -34,7 +34,7 @@ class GroupResult:
         The rule is identified by the group's columns (``matrix``; ``alpha, beta, gamma``; or
         ``prior_alpha``). NaN marks an undefined ratio.
         """
-        pixels, seg = self.pixels, self.segments
+        pixels = self.pixels
         rows = []
         for k, columns in enumerate(self.group.columns):
             for c, cls in enumerate(class_ids):
@@ -46,16 +46,21 @@ class GroupResult:
                             "roi": r,
                             "precision": pixels["precision"][k, r, cls].item(),
                             "recall": pixels["recall"][k, r, cls].item(),
-                            "fp_segments": int(seg["fp"][k, c, r]),
-                            "fn_segments": int(seg["fn"][k, c, r]),
-                            "n_pred_segments": int(seg["n_pred"][k, c, r]),
-                            "n_gt_segments": int(seg["n_gt"][k, c, r]),
-                            "fp_rate": seg["fp_rate"][k, c, r].item(),
-                            "fn_rate": seg["fn_rate"][k, c, r].item(),
+                            **self._segment_columns(k, c, r),
                             "miou": pixels["miou"][k].item(),
                         }
                     )
         return rows
+
+    def _segment_columns(self, k: int, c: int, r: int) -> dict:
+        """Segment counts and rates of rule k, class position c, RoI r (none if not measured)."""
+        if not self.segments:
+            return {}
+        seg = self.segments
+        counts = {f"{key}_segments": int(seg[key][k, c, r]) for key in ("fp", "fn")}
+        totals = {f"{key}_segments": int(seg[key][k, c, r]) for key in ("n_pred", "n_gt")}
+        rates = {key: seg[key][k, c, r].item() for key in ("fp_rate", "fn_rate")}
+        return counts | totals | rates
 
 
 @dataclass

@@ -58,6 +58,8 @@ class RuleGroup:
         rules: the named rules (kind "rules").
         vertices: (3, N, N) vertex matrices and ``weights`` (K, 3) (kind "grid").
         note: how the group was built, for every output that shows it.
+        temperature: decide on ``softmax(z / T)`` of the raw logits instead of the
+            probabilities every other group sees (the temperature sweep of SPEC §6).
     """
 
     kind: str
@@ -69,6 +71,7 @@ class RuleGroup:
     vertices: torch.Tensor | None = None
     weights: torch.Tensor | None = None
     note: str = ""
+    temperature: float | None = None
 
 
 def parse_rules(names: Sequence[str], class_names: Sequence[str] = CLASS_NAMES) -> list[Rule]:
@@ -217,3 +220,19 @@ def alpha_group(
         [{"prior_alpha": a} for a in alphas],
         note=f"{label} on p/π_α, π_α = (1-α) + απ",
     )
+
+
+TEMPERATURES = (0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0)
+
+
+def temperature_group(rules: Sequence[Rule], temperature: float) -> RuleGroup:
+    """The named rules on ``softmax(z / T)`` (SPEC §6: cost rules move with T, argmax does not).
+
+    >>> temperature_group(parse_rules(["egoistic"]), 0.5).names
+    ['egoistic@T=0.50']
+    """
+    group = rules_group(rules)
+    group.kind, group.heatmaps, group.temperature = "temperature", False, temperature
+    group.names = [f"{r.name}@T={temperature:.2f}" for r in rules]
+    group.columns = [{"matrix": r.name, "temperature": temperature} for r in rules]
+    return group

@@ -144,3 +144,19 @@ def choose(
         best = (reached.max() if t.op in (">=", ">") else reached.min()).item()
     value = values[points[0]].item() if points else math.nan
     return Choice(target, maximize, points, value, best)
+
+
+def risk_level(target: Target) -> float:
+    """α of a guarantee: ``recall >= v`` bounds the loss 1 − recall by 1 − v (same for
+    precision); ``fp_rate <= v`` bounds the rate itself by v.
+
+    >>> round(risk_level(parse_target("person:roi1:recall>=0.95")), 6)
+    0.05
+    """
+    if target.metric in ("recall", "precision"):
+        if target.op not in (">=", ">"):
+            raise ValueError("--guarantee certifies recall or precision >= a value")
+        return 1 - target.value
+    if target.op not in ("<=", "<"):
+        raise ValueError("--guarantee certifies fp_rate or fn_rate <= a value")
+    return target.value

@@ -7,15 +7,19 @@ the probabilities the rules see (softmax, calibration, float16 rounding for ``--
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import torch
 from torch import Tensor
+from torch.utils.data import DataLoader, Dataset
+from tqdm import tqdm
 
-from costseg.checkpoints import check_classes, find_checkpoint
+from costseg.checkpoints import find_checkpoint
 from costseg.classes import CLASS_NAMES
+from costseg.data.from_config import image_stems
 
 
 @dataclass
@@ -74,18 +78,22 @@ def open_source(
 
 
 def _costseg_source(path: Path, device: torch.device) -> Source:
-    from costseg.networks import load_network
+    from costseg.networks import load_costseg_checkpoint
 
     print(f"checkpoint: {path}")
-    checkpoint = check_classes(path, CLASS_NAMES)
-    extra = checkpoint.get("costseg", {})
-    net = load_network(f"costseg:{path}", device=str(device))
+    checkpoint = load_costseg_checkpoint(path)
+    if checkpoint.class_names != tuple(CLASS_NAMES):
+        raise ValueError(
+            f"checkpoint {path} was trained on {len(checkpoint.class_names)} classes "
+            f"({', '.join(checkpoint.class_names[:3])}, ...), but {len(CLASS_NAMES)} classes are "
+            f"expected ({', '.join(CLASS_NAMES[:3])}, ...)"
+        )
     return Source(
         "network",
-        {"network": f"costseg:{path}", "hparams": dict(checkpoint.get("hyper_parameters", {}))},
-        network=net,
-        priors=extra.get("priors"),
-        data_config=extra.get("data"),
+        {"network": f"costseg:{path}", "hparams": checkpoint.hparams},
+        network=checkpoint.network.to(device).eval(),
+        priors=checkpoint.priors,
+        data_config=checkpoint.data_config,
         run_dir=path.parent.parent,
     )
 
@@ -111,3 +119,64 @@ def resolve_device(name: str) -> torch.device:
     elif device.type != "cpu":
         raise ValueError(f"device {name!r} is not supported: expected auto, cpu, cuda or cuda:N")
     return device
+
+
+@dataclass
+class Batch:
+    """Images of one size with their labels, names and the source's scores, on the device."""
+
+    images: Tensor  # (B, 3, H, W) uint8
+    labels: Tensor  # (B, H, W) int64
+    stems: list[str]
+    scores: Tensor  # (B, N, H, W) logits or probabilities (see Source.kind)
+
+
+def batches(
+    source: Source,
+    dataset: Dataset,
+    indices: Sequence[int],
+    batch_size: int,
+    device: torch.device,
+    num_workers: int = 0,
+    desc: str | None = None,
+) -> Iterator[Batch]:
+    """Score the chosen images of ``dataset``, batch by batch (a progress bar when ``desc``).
+
+    Images of different sizes (Mapillary, a user's own data) come in separate batches.
+    """
+    loader = DataLoader(
+        _Indexed(dataset, list(indices)),
+        batch_size=batch_size,
+        num_workers=num_workers,
+        collate_fn=_collate_by_size,
+    )
+    for group in tqdm(loader, desc, disable=desc is None):
+        for images, labels, chosen in group:
+            images, labels = images.to(device), labels.to(device)
+            stems = image_stems(dataset, chosen)
+            yield Batch(images, labels, stems, source.scores(images, stems))
+
+
+class _Indexed(Dataset):
+    """(image, label, index) of the chosen items of a dataset."""
+
+    def __init__(self, dataset: Dataset, indices: list[int]) -> None:
+        self.dataset, self.indices = dataset, indices
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    def __getitem__(self, i: int):
+        image, label = self.dataset[self.indices[i]]
+        return image, label, self.indices[i]
+
+
+def _collate_by_size(items) -> list[tuple[torch.Tensor, torch.Tensor, list[int]]]:
+    """A batch as sub-batches of equal image size (datasets may mix resolutions)."""
+    by_size: dict[tuple[int, ...], list] = {}
+    for item in items:
+        by_size.setdefault(tuple(item[1].shape), []).append(item)
+    return [
+        (torch.stack([i[0] for i in same]), torch.stack([i[1] for i in same]), [i[2] for i in same])
+        for same in by_size.values()
+    ]

@@ -5,7 +5,10 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import contextlib
+import logging
+import warnings
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -14,7 +17,7 @@ from lightning.pytorch import LightningDataModule, Trainer
 from lightning.pytorch.cli import LightningCLI
 
 from costseg.checkpoints import check_classes, find_checkpoint
-from costseg.data.priors import pixel_priors, roi_map, save_priors
+from costseg.data.priors import default_sigma, pixel_priors, roi_map, save_priors
 from costseg.module import SegmentationModule
 
 
@@ -30,28 +33,54 @@ class TrainCLI(LightningCLI):
         )
 
 
+@contextlib.contextmanager
+def _held_messages() -> Iterator[None]:
+    """Hold Lightning's log lines and warnings while the run is set up; show them only if the
+    set-up succeeds, so that a bad option ends with exactly one line on stderr."""
+    loggers = [logging.getLogger(n) for n in ("lightning.pytorch", "lightning.fabric")]
+    saved = [(lg.handlers, lg.propagate) for lg in loggers]
+    records: list[logging.LogRecord] = []
+    hold = logging.Handler()
+    hold.emit = records.append  # type: ignore[method-assign]
+    for lg in loggers:
+        lg.handlers, lg.propagate = [hold], False
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.filterwarnings("ignore", "LightningCLI's args parameter")
+            yield
+    finally:
+        for lg, (handlers, propagate) in zip(loggers, saved, strict=True):
+            lg.handlers, lg.propagate = handlers, propagate
+    for record in records:
+        logging.getLogger(record.name).handle(record)
+    for w in caught:
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+
+
 def run_training(args: Sequence[str]) -> tuple[SegmentationModule, Trainer]:
     """Parse ``args`` (a config and overrides), compute priors or resume, and fit."""
-    cli = TrainCLI(
-        SegmentationModule,
-        LightningDataModule,
-        subclass_mode_data=True,
-        run=False,
-        args=list(args),
-        save_config_kwargs={"overwrite": True},
-        parser_kwargs={"exit_on_error": False},
-    )
-    model, data, trainer = cli.model, cli.datamodule, cli.trainer
-    if model.hparams.num_classes != data.num_classes:
-        raise ValueError(
-            f"model.num_classes is {model.hparams.num_classes} but the dataset has "
-            f"{data.num_classes} classes"
+    with _held_messages():
+        cli = TrainCLI(
+            SegmentationModule,
+            LightningDataModule,
+            subclass_mode_data=True,
+            run=False,
+            args=list(args),
+            save_config_kwargs={"overwrite": True},
+            parser_kwargs={"exit_on_error": False},
         )
+        model, data, trainer = cli.model, cli.datamodule, cli.trainer
+        if model.hparams.num_classes != data.num_classes:
+            raise ValueError(
+                f"model.num_classes is {model.hparams.num_classes} but the dataset has "
+                f"{data.num_classes} classes"
+            )
+        ckpt_path = cli.config.get("ckpt_path")
+        if ckpt_path:
+            ckpt_path = str(find_checkpoint(ckpt_path))
+            check_classes(ckpt_path, data.class_names)
     model.data_config = _data_config(cli)
-    ckpt_path = cli.config.get("ckpt_path")
     if ckpt_path:
-        ckpt_path = str(find_checkpoint(ckpt_path))
-        check_classes(ckpt_path, data.class_names)
         print(f"resuming from {ckpt_path}")
     else:
         model.priors = _compute_priors(model, data, trainer)
@@ -71,9 +100,14 @@ def _compute_priors(model: SegmentationModule, data, trainer: Trainer) -> torch.
     from costseg.report.figures import plot_priors, plot_roi_map
     from costseg.report.files import save_figure
 
-    priors = pixel_priors(
-        data.prior_labels(), data.num_classes, sigma=model.hparams.prior_sigma, progress=True
-    )
+    labels = data.prior_labels()
+    sigma = model.hparams.prior_sigma
+    priors = pixel_priors(labels, data.num_classes, sigma=sigma, progress=True)
+    model.priors_info = {
+        "labels": len(labels),
+        "sigma_px": default_sigma(priors.shape[1]) if sigma is None else sigma,
+        "size": list(priors.shape[1:]),
+    }
     if trainer.is_global_zero and trainer.log_dir:
         run = Path(trainer.log_dir)
         save_priors(run / "priors.pt", priors, data.class_names)

@@ -158,7 +158,7 @@ class StreetScenesDataModule(_SegmentationDataModule):
         val_length: int = 100,
         test_length: int = 100,
         seed: int = 0,
-        prior_images: int | None = 500,
+        prior_images: int | None = None,
     ) -> None:
         super().__init__(batch_size, num_workers, prior_images, eval_batch_size=batch_size)
         if train_length < batch_size:

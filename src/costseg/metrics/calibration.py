@@ -173,7 +173,8 @@ class CalibrationError(Metric):
             "count": self.count,
             "confidence": self.confidence / count,
             "accuracy": self.hits / count,
-            "edges": torch.arange(self.n_bins + 1, dtype=torch.float64) / self.n_bins,
+            "edges": torch.arange(self.n_bins + 1, dtype=torch.float64, device=count.device)
+            / self.n_bins,
         }
         if self.norm == "class":
             out["per_class"] = gap

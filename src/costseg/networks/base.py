@@ -124,9 +124,12 @@ def read_torch_file(path: str | Path, mmap: bool = False) -> Any:
             return torch.load(path, map_location="cpu", weights_only=True, mmap=mmap)
     except pickle.UnpicklingError as err:
         # torch's message spans many lines and suggests weights_only=False: keep the cause.
-        cause = next((line for line in str(err).splitlines() if "got" in line), "")
+        lines = str(err).partition("WeightsUnpickler error:")[2].strip().splitlines()
+        cause = (lines or ["unreadable pickle"])[0].split(" was not an allowed global")[0]
+        if "global" not in cause.lower() and "got <class" not in cause:
+            raise ValueError(f"{path} is not a readable torch file: {cause}") from None
         raise ValueError(
-            f"{path} holds objects other than weights and plain data: {cause}"
+            f"{path} holds objects other than weights and plain data ({cause})"
         ) from None
     except Exception as err:  # torch raises several types for a truncated or foreign file
         first = (str(err).strip().splitlines() or [type(err).__name__])[0]

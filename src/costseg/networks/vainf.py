@@ -121,7 +121,7 @@ def export_vainf_state(net: DeepLabV3Plus) -> dict[str, torch.Tensor]:
 def vainf_backbone(state: dict[str, torch.Tensor]) -> str | None:
     """``resnet50`` / ``resnet101`` from the number of ``backbone.layer3`` blocks, else None.
 
-    >>> vainf_backbone({"backbone.layer3.22.conv1.weight": torch.zeros(1)})
+    >>> vainf_backbone({f"backbone.layer3.{i}.conv1.weight": torch.zeros(1) for i in range(23)})
     'resnet101'
     """
     blocks = {k.split(".")[2] for k in state if k.startswith("backbone.layer3.")}

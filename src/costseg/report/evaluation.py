@@ -21,6 +21,7 @@ SUMMARY_COLUMNS = ("matrix", "class", "roi", "precision", "recall", "fp_segments
 
 def write_evaluation(results: EvalResults) -> None:
     """Write the named rules' results, then each sweep's, into ``results.output_dir``."""
+    from costseg.report.calibration import write_calibration
     from costseg.report.sweep import write_sweeps
 
     out = results.output_dir
@@ -30,7 +31,7 @@ def write_evaluation(results: EvalResults) -> None:
     print(f"probabilities: {results.probabilities}")
     print(console_table(headline, SUMMARY_COLUMNS))
     print("mIoU: " + ", ".join(f"{n} {100 * v:.2f}" for n, v in _miou(named).items()))
-    tables = _tables(headline, named, results.probabilities)
+    tables = _tables(headline, named, _probability_note(results))
     write_text(out / "table.md", tables)
     write_csv(out / "results.csv", rows)
     write_json(out / "results.json", _json(results, rows))
@@ -50,7 +51,14 @@ def write_evaluation(results: EvalResults) -> None:
             )
         log_figures(writer, {f"evaluation/{t}": f for t, f in figures.items()})
         write_sweeps(results, writer)
+        write_calibration(results, writer)
     print(f"results written to {out}")
+
+
+def _probability_note(results: EvalResults) -> str:
+    ece = results.extra.get("ece", {})
+    values = ", ".join(f"{k} {float(v['ece']):.4f}" for k, v in ece.items())
+    return results.probabilities + (f"; ECE (top label, 15 bins): {values}" if values else "")
 
 
 def _miou(result: GroupResult) -> dict[str, float]:
@@ -90,7 +98,8 @@ def _json(results: EvalResults, rows: list[dict]) -> dict:
             "layout": "[rule][true class][predicted class], whole image, pixels",
             **{n: pixels["confmat"][k, 0].tolist() for k, n in enumerate(names)},
         },
-        **results.extra,
+        "scaling": results.extra.get("scaling"),
+        "ece": {k: float(v["ece"]) for k, v in results.extra.get("ece", {}).items()},
     }
 
 

@@ -1,0 +1,86 @@
+"""Speed of the decision layer at Cityscapes scale, as ratios measured side by side in one run.
+
+    python scripts/bench_decision.py [--repeats 5] [--size 1024 2048]
+
+On (1, 19, H, W) float32 probabilities (softmax of smooth random logits, the recipe of
+``scripts/bench.py``), on the CPU and, when there is one, on the GPU: one read pass ``p.sum()``,
+``torch.argmax(p, 1)``, single-rule ``decide`` (egoistic) and ``decide_mixtures`` over the
+66-point barycentric grid (robotistic / altruistic / egoistic vertices, unscaled). Each timing is
+the best of several repeats after a warm-up; every ratio compares timings of the same run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Callable
+
+import torch
+
+from costseg.costs import barycentric_grid, load_cost
+from costseg.decision import decide, decide_mixtures
+
+VERTICES = torch.stack([load_cost(n) for n in ("robotistic", "altruistic", "egoistic")])
+
+
+def best_time(fn: Callable[[], object], repeats: int, sync: Callable[[], object]) -> float:
+    """Best wall time in seconds of ``repeats`` calls, after one warm-up call."""
+    fn()
+    sync()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        sync()
+        times.append(time.perf_counter() - start)
+    return min(times)
+
+
+def probabilities(shape: tuple[int, int, int, int], device: str) -> torch.Tensor:
+    """Softmax of smooth random logits: confident almost everywhere, unsure near borders."""
+    gen = torch.Generator().manual_seed(0)
+    b, n, h, w = shape
+    coarse = torch.randn(b, n, h // 16, w // 16, generator=gen) * 6
+    logits = torch.nn.functional.interpolate(coarse, size=(h, w), mode="bilinear")
+    return logits.softmax(1).to(device)
+
+
+def bench(device: str, shape: tuple[int, int, int, int], repeats: int) -> None:
+    """Print the timings and ratios on one device."""
+    probs = probabilities(shape, device)
+    sync = torch.cuda.synchronize if device == "cuda" else (lambda: None)
+    grid = barycentric_grid(0.1)
+    t_sum = best_time(lambda: probs.sum(), repeats, sync)
+    t_argmax = best_time(lambda: probs.argmax(1), repeats, sync)
+    t_decide = best_time(lambda: decide(probs, VERTICES[2]), repeats, sync)
+    t_mix = best_time(lambda: decide_mixtures(probs, VERTICES, grid), max(1, repeats // 2), sync)
+    threads = f", {torch.get_num_threads()} threads" if device == "cpu" else ""
+    print(f"{device}{threads}, probabilities {tuple(shape)} float32:")
+    print(f"  p.sum() (one read pass)        {1e3 * t_sum:8.1f} ms")
+    print(f"  torch.argmax(p, 1)             {1e3 * t_argmax:8.1f} ms")
+    print(f"  decide (egoistic)              {1e3 * t_decide:8.1f} ms")
+    print(f"  decide_mixtures, {len(grid)} points    {1e3 * t_mix:8.1f} ms")
+    print(f"  decide / p.sum()               {t_decide / t_sum:8.2f}   (target <= 5)")
+    print(f"  decide / argmax                {t_decide / t_argmax:8.2f}")
+    print(f"  decide_mixtures / decide       {t_mix / t_decide:8.2f}   (target <= 10)")
+    if device == "cuda":
+        gigabytes = probs.numel() * probs.element_size() / 1e9
+        print(
+            f"  effective bandwidth: decide {gigabytes / t_decide:.0f} GB/s, "
+            f"p.sum() {gigabytes / t_sum:.0f} GB/s"
+        )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--size", type=int, nargs=2, default=(1024, 2048), metavar=("H", "W"))
+    args = parser.parse_args()
+    shape = (1, 19, *args.size)
+    bench("cpu", shape, args.repeats)
+    if torch.cuda.is_available():
+        bench("cuda", shape, args.repeats)
+
+
+if __name__ == "__main__":
+    main()

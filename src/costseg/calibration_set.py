@@ -1,0 +1,115 @@
+"""The held-out calibration images: fit a scaling (SPEC §6) and certify a value system (§7).
+
+Both run before the reported images are seen, on images disjoint from them, each in one pass
+of the network over the calibration images.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from costseg.calibration import PixelSampler, Scaling
+from costseg.guarantee import LTTResult, learn_then_test
+from costseg.rules import RuleGroup
+from costseg.scoring import GroupMetrics
+from costseg.selection import metric_values, parse_metric, parse_target, risk_level
+from costseg.sources import Batch
+
+
+def as_logits(batch: Batch, kind: str) -> torch.Tensor:
+    """Logits of a batch: the network's, or ``log p`` of saved probabilities."""
+    return batch.scores if kind == "network" else batch.scores.clamp_min(1e-30).log()
+
+
+def fit_scaling(batches, kind: str, source_kind: str, pixels_per_image: int = 4096) -> Scaling:
+    """Fit ``kind`` ("temperature" or "vector") on a sample of pixels of every batch."""
+    sampler = PixelSampler(pixels_per_image)
+    for batch in batches:
+        sampler.update(as_logits(batch, source_kind).cpu(), batch.labels.cpu())
+    if sampler.num_images == 0:
+        raise ValueError("no calibration image to fit the scaling on")
+    return sampler.fit(kind)
+
+
+@dataclass
+class Certificate:
+    """The value system chosen with a guarantee (Learn-then-Test over a rule group).
+
+    Attributes:
+        group: the candidates (grid points or α values).
+        ltt: the test's outcome (p-values, risks, images used and left out).
+        chosen: index of the certified candidate with the best ``maximize`` on the
+            calibration images, or None when nothing is certified.
+        objective: (K,) pooled value of ``maximize`` on the calibration images.
+        target, maximize: the texts asked; ``num_images``: calibration images.
+    """
+
+    group: RuleGroup
+    ltt: LTTResult
+    chosen: int | None
+    objective: torch.Tensor
+    target: str
+    maximize: str
+    num_images: int
+
+
+def minimum_images(alpha: float, delta: float, family: int) -> int:
+    """Calibration images needed before even a risk of 0 can be certified (Hoeffding–Bentkus
+    with Bonferroni: ``(1 - α)^n ≤ δ / family``).
+
+    >>> minimum_images(0.05, 0.1, 1)
+    45
+    """
+    return math.ceil(math.log(delta / family) / math.log(1 - alpha))
+
+
+def certify(
+    batches,
+    group: RuleGroup,
+    probabilities,
+    priors_at,
+    target: str,
+    maximize: str,
+    delta: float,
+    method: str,
+    class_ids: list[int],
+) -> Certificate:
+    """Learn-then-Test on the calibration images: the certified rules of ``group`` whose risk
+    ``E[L_i]`` of the target's per-image loss is ≤ α, and the best of them by ``maximize``.
+
+    Args:
+        batches: the calibration batches (:class:`~costseg.sources.Batch`).
+        group: the candidate rules.
+        probabilities: ``batch → (B, N, H, W)`` probabilities the rules see.
+        priors_at: ``(h, w) → (priors, roi)``.
+        target: e.g. ``person:roi1:recall>=0.95`` (α = 1 − 0.95 for recall and precision,
+            0.05 for the segment rates with ``<=``).
+        maximize: e.g. ``person:roi1:precision``.
+        delta: δ; method: ``bonferroni`` or ``fixed_sequence`` (along the group's order).
+        class_ids: classes of the segment metrics.
+    """
+    from costseg.metrics.per_image import per_image_counts, per_image_loss
+
+    t, goal = parse_target(target), parse_metric(maximize)
+    alpha = risk_level(t)
+    segments = sorted({*class_ids, t.cls} | ({goal.cls} if "rate" in goal.metric else set()))
+    metrics = GroupMetrics(group, 19, 4, segments)
+    counts, n = [], 0
+    for batch in batches:
+        priors, roi = priors_at(tuple(batch.labels.shape[-2:]))
+        preds = group.decide(probabilities(batch), priors)
+        metrics.to(preds.device).update(preds, batch.labels, roi)
+        counts.append(per_image_counts(preds, batch.labels, roi, t.cls, t.roi, t.metric).cpu())
+        n += len(batch.labels)
+    losses = per_image_loss(torch.cat(counts), t.metric).numpy()
+    ltt = learn_then_test(losses, alpha, delta, method)
+    pooled = metrics.compute()
+    objective = metric_values(pooled["pixels"], pooled["segments"], goal, segments)
+    chosen = ltt.best(np.nan_to_num(objective.cpu().numpy(), nan=-np.inf))
+    if chosen is not None and not math.isfinite(float(objective[chosen])):
+        chosen = None
+    return Certificate(group, ltt, chosen, objective, target, maximize, n)

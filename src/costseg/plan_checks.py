@@ -1,0 +1,126 @@
+"""What the evaluation plan decides before any image: valid options, rule groups, priors.
+
+Every check here fails with a ValueError whose one line says what was expected, so a user
+mistake is reported before a network is loaded.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import torch
+
+from costseg.calibration_set import minimum_images
+from costseg.classes import class_indices
+from costseg.options import EvalOptions
+from costseg.rules import (
+    TEMPERATURES,
+    RuleGroup,
+    alpha_group,
+    grid_group,
+    parse_rules,
+    rules_group,
+    temperature_group,
+)
+from costseg.selection import parse_metric, parse_target, risk_level
+
+
+def check_options(opts: EvalOptions) -> list[RuleGroup]:
+    """Fail on malformed or contradictory options; returns the rule groups they ask for."""
+    class_indices(opts.classes)
+    if sum(x is not None for x in (opts.ckpt_path, opts.network, opts.probs)) > 1:
+        raise ValueError("give at most one of --ckpt_path, --network and --probs")
+    if opts.probs is not None and opts.data_root is None:
+        raise ValueError("--probs needs --data_root: the dataset whose images were scored")
+    if opts.save_probs and opts.probs is not None:
+        raise ValueError("--save-probs writes a network's probabilities; with --probs they exist")
+    rules = parse_rules(opts.cost)
+    groups = [rules_group(rules)]
+    if opts.sweep is not None:
+        groups.append(grid_group(opts.vertices, opts.sweep, opts.vertex_scaling))
+    if opts.alpha_sweep is not None:
+        groups.append(alpha_group(opts.alpha_sweep, opts.alpha_cost))
+    if opts.temperature_sweep:
+        groups += [temperature_group(rules, t) for t in TEMPERATURES]
+    _check_selection(opts)
+    _check_calibration(opts)
+    return groups
+
+
+def _check_selection(opts: EvalOptions) -> None:
+    if opts.guarantee is not None:
+        if not 0 < opts.guarantee < 1:
+            raise ValueError(f"--guarantee is δ and must lie in (0, 1), got {opts.guarantee}")
+        if not opts.target:
+            raise ValueError("--guarantee needs --target (what to certify) and --maximize")
+        if opts.sweep is None and opts.alpha_sweep is None:
+            raise ValueError("--guarantee chooses among --sweep or --alpha_sweep points")
+    if opts.target or opts.maximize:
+        if not (opts.target and opts.maximize):
+            raise ValueError("--target and --maximize go together")
+        if opts.sweep is None and opts.guarantee is None:
+            raise ValueError("--target and --maximize choose among --sweep STEP points")
+        target = parse_target(opts.target)
+        parse_metric(opts.maximize)
+        if opts.guarantee is not None and not 0 < risk_level(target) < 1:
+            raise ValueError(f"--target {opts.target} leaves no risk level α in (0, 1)")
+
+
+def _check_calibration(opts: EvalOptions) -> None:
+    if opts.calibrate not in (None, "temperature", "vector"):
+        raise ValueError(f"--calibrate must be temperature or vector, got {opts.calibrate!r}")
+    if opts.calibration_split is not None:
+        if not (opts.calibrate or opts.guarantee is not None):
+            raise ValueError("--calibration_split goes with --calibrate or --guarantee")
+        if opts.calibration_split == opts.split:
+            raise ValueError(
+                f"--calibration_split {opts.calibration_split} overlaps the reported split "
+                f"{opts.split}: calibration images must be disjoint from the reported ones"
+            )
+
+
+def check_calibration_size(opts: EvalOptions, n_images: int, family: int) -> None:
+    """Refuse a guarantee that cannot certify anything with ``n_images`` calibration images."""
+    if opts.guarantee is None:
+        return
+    alpha = risk_level(parse_target(opts.target))
+    test_family = family if opts.guarantee_method == "bonferroni" else 1
+    needed = minimum_images(alpha, opts.guarantee, test_family)
+    if n_images < needed:
+        raise ValueError(
+            f"{n_images} calibration images cannot certify anything at α = {alpha:.3g}, "
+            f"δ = {opts.guarantee} over {family} candidates: at least {needed} are needed"
+        )
+
+
+def needs_priors(groups: list[RuleGroup]) -> bool:
+    """Whether some rule divides by the pixel-wise priors (``ml``, the α sweep)."""
+    return any(r.priors_alpha for r in groups[0].rules) or any(g.kind == "alpha" for g in groups)
+
+
+def source_priors(source, opts: EvalOptions, config: dict, cache_base: Path) -> torch.Tensor | None:
+    """The priors of a costseg checkpoint, or, for another network, the dataset's training
+    labels' priors (SPEC §3, §8), computed once and cached next to the outputs."""
+    if source.priors is not None:
+        return source.priors
+    from costseg.data.from_config import build_dataset
+    from costseg.data.priors import cached_priors
+
+    try:
+        train = build_dataset(config, "train", opts.data_root)
+    except FileNotFoundError:
+        print("no training labels found: no pixel-wise priors, no RoI map")
+        return None
+    root = str(Path(opts.data_root or config.get("init_args", {}).get("root", "")).resolve())
+    key = hashlib.sha1(root.encode()).hexdigest()[:12]
+    read = getattr(train, "read_label", None) or (lambda i: train[i][1])
+    found = cached_priors(
+        lambda: (read(i) for i in range(len(train))),
+        cache_base.parent / "priors" / f"train_{key}.pt",
+        {"root": root, "split": "train", "images": len(train)},
+        progress=opts.progress,
+    )
+    verb = "reused" if found.reused else "computed"
+    print(f"priors {verb} from {found.num_labels} training labels of {root} (σ = {found.sigma} px)")
+    return found.priors

@@ -1,0 +1,139 @@
+"""Outputs about the probabilities: scaling, ECE and reliability diagrams, the temperature
+sweep, and the value system chosen with a guarantee.
+
+``calibration.json`` (scaling, ECE before / after), ``figures/reliability.png``,
+``temperature_sweep.csv|json`` and ``figures/temperature_*.png``, ``guarantee.json`` and
+``guarantee_cost.yaml``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+import torch
+from matplotlib.figure import Figure
+from torch.utils.tensorboard import SummaryWriter
+
+from costseg.classes import CLASS_NAMES
+from costseg.costs import mix_costs, save_cost
+from costseg.report.curves import plot_curves
+from costseg.report.files import save_figure, write_csv, write_json
+from costseg.report.tensorboard import log_figures
+from costseg.results import EvalResults
+
+
+def write_calibration(results: EvalResults, writer: SummaryWriter) -> None:
+    """ECE, reliability diagrams, temperature sweep and guarantee, as far as evaluated."""
+    out, extra = results.output_dir, results.extra
+    ece = extra.get("ece", {})
+    record = {"probabilities": results.probabilities, "scaling": extra.get("scaling")}
+    record["ece"] = {k: float(v["ece"]) for k, v in ece.items()}
+    write_json(out / "calibration.json", record)
+    print(
+        "ECE (top label, 15 bins): " + ", ".join(f"{k} {v:.4f}" for k, v in record["ece"].items())
+    )
+    figures = {"reliability": plot_reliability(ece)} if ece else {}
+    figures |= _temperature_sweep(results)
+    for tag, fig in figures.items():
+        save_figure(fig, out / "figures" / f"{tag}.png")
+    log_figures(writer, {f"calibration/{t}": f for t, f in figures.items()})
+    if "certificate" in extra:
+        _write_certificate(results)
+
+
+def plot_reliability(bins: Mapping[str, Mapping[str, torch.Tensor]]) -> Figure:
+    """Accuracy against confidence per bin, one line per set of probabilities (raw, scaled).
+
+    >>> from costseg.metrics import CalibrationError
+    >>> m = CalibrationError(3, n_bins=4)
+    >>> m.update(torch.tensor([[0.7, 0.2, 0.1]]).view(1, 3, 1, 1), torch.tensor([[[0]]]))
+    >>> plot_reliability({"raw": m.compute()}).axes[0].get_xlabel()
+    'confidence'
+    """
+    fig = Figure(figsize=(5, 5), layout="constrained")
+    ax = fig.add_subplot()
+    ax.plot([0, 1], [0, 1], color="grey", linestyle="--", label="perfect calibration")
+    for name, b in bins.items():
+        conf, acc = b["confidence"].cpu().numpy(), b["accuracy"].cpu().numpy()
+        keep = np.isfinite(conf) & np.isfinite(acc)
+        ax.plot(conf[keep], acc[keep], marker="o", label=f"{name} (ECE {float(b['ece']):.4f})")
+    ax.set(xlabel="confidence", ylabel="accuracy", xlim=(0, 1), ylim=(0, 1))
+    ax.set_title("reliability (top label)")
+    ax.legend()
+    return fig
+
+
+def _temperature_sweep(results: EvalResults) -> dict[str, Figure]:
+    groups = sorted(
+        (g for g in results.groups if g.group.temperature), key=lambda g: g.group.temperature
+    )
+    if not groups:
+        return {}
+    rows = [row for g in groups for row in g.rows(results.class_ids, (0, 1, 2))]
+    write_csv(results.output_dir / "temperature_sweep.csv", rows)
+    write_json(results.output_dir / "temperature_sweep.json", {"rows": rows})
+    temps = [g.group.temperature for g in groups]
+    figures = {}
+    for cls in results.class_ids:
+        name = CLASS_NAMES[cls]
+        series = {
+            f"{rule} {metric}": [g.pixels[metric][k, 1, cls].item() for g in groups]
+            for k, rule in enumerate(c["matrix"] for c in groups[0].group.columns)
+            for metric in ("precision", "recall")
+        }
+        figures[f"temperature_{name}"] = plot_curves(
+            temps, series, "temperature T of softmax(z / T)", f"{name} in RoI 1 (street)"
+        )
+    return figures
+
+
+def _write_certificate(results: EvalResults) -> None:
+    cert, out = results.extra["certificate"], results.output_dir
+    ltt, group = cert.ltt, cert.group
+    record = {
+        "target": cert.target,
+        "maximize": cert.maximize,
+        "alpha": ltt.alpha,
+        "delta": ltt.delta,
+        "method": ltt.method,
+        "bound": ltt.bound,
+        "calibration_images": cert.num_images,
+        "candidates": len(group.names),
+        "certified": [group.columns[i] for i in ltt.valid.tolist()],
+        "found": cert.chosen is not None,
+    }
+    if cert.chosen is None:
+        print(f"no value system is certified for {cert.target} at δ = {ltt.delta} "
+              f"with {cert.num_images} calibration images")  # fmt: skip
+        write_json(out / "guarantee.json", record)
+        return
+    k = cert.chosen
+    record |= {
+        "chosen": group.columns[k],
+        "calibration_risk": float(ltt.risk[k]),
+        "pvalue": float(ltt.pvalues[k]),
+        "images_used": int(ltt.n[k]),
+        "images_left_out": int(ltt.n_undefined[k]),
+        "calibration_value": float(cert.objective[k]),
+        "report": _reported(results, group.kind, k),
+    }
+    if group.vertices is not None:
+        matrix = mix_costs(group.vertices, group.weights[k : k + 1])[0]
+        save_cost(out / "guarantee_cost.yaml", matrix, "guaranteed")
+        record["matrix"] = matrix.tolist()
+    write_json(out / "guarantee.json", record)
+    print(
+        f"certified for {cert.target} with P(risk > {ltt.alpha:.3g}) <= {ltt.delta}: "
+        f"{group.names[k]} (calibration risk {ltt.risk[k]:.4f} on {ltt.n[k]} images, "
+        f"{ltt.n_undefined[k]} left out; {cert.maximize} {float(cert.objective[k]):.4f}); "
+        f"{len(ltt.valid)} of {len(group.names)} candidates certified"
+    )
+
+
+def _reported(results: EvalResults, kind: str, k: int) -> dict:
+    """The chosen rule's precision and recall on the reported images (RoI 0-2, --classes)."""
+    group = results.group(kind)
+    return {row["class"] + f"/roi{row['roi']}": {m: row[m] for m in ("precision", "recall")}
+            for row in group.rows(results.class_ids, (0, 1, 2))
+            if row | group.group.columns[k] == row}  # fmt: skip
