@@ -108,7 +108,7 @@ def test_files_of_the_wrong_kind(tmp_path: Path) -> None:
     (tmp_path / "text.npz").write_text("not a zip file")
     (tmp_path / "text.pt").write_text("not a torch file")
     with open(tmp_path / "obj.pt", "wb") as f:
-        pickle.dump({"probs": object()}, f)
+        pickle.dump({"probs": object()}, f, protocol=2)
     torch.save(torch.zeros(19, 2, 2), tmp_path / "bare.pt")  # a tensor, but probs or logits?
     (tmp_path / "probs.png").write_bytes(b"\x89PNG")
     for name in ("text.npz", "text.pt", "obj.pt", "bare.pt", "probs.png"):

@@ -52,6 +52,11 @@ def train_main(args: Sequence[str] | None = None) -> tuple[Any, Any]:
     args = list(sys.argv[1:] if args is None else args)
     if not any(a == "--config" or a.startswith("--config=") for a in args):
         args = ["--config", str(CONFIG_DIR / "toy.yaml"), *args]
+    if "-h" in args or "--help" in args:
+        print_train_help(args)
+        sys.exit(0)
+    if "--help_all" in args:  # LightningCLI's own help: every option of every class (slow)
+        args[args.index("--help_all")] = "--help"
     from jsonargparse import ArgumentError
     from lightning.fabric.utilities.exceptions import MisconfigurationException
 
@@ -59,6 +64,41 @@ def train_main(args: Sequence[str] | None = None) -> tuple[Any, Any]:
 
     with user_errors(ArgumentError, MisconfigurationException, ImportError):
         return run_training(args)
+
+
+def print_train_help(args: Sequence[str]) -> None:
+    """A fast ``train.py --help``: usage and every key of the chosen config with its value.
+
+    LightningCLI's own help needs Lightning imported (~10 s on 2 cores): ``--help_all``.
+    """
+    import yaml
+
+    path = Path(args[args.index("--config") + 1] if "--config" in args else
+                next(a.split("=", 1)[1] for a in args if a.startswith("--config=")))  # fmt: skip
+    print(
+        "usage: train.py [--config FILE] [--KEY VALUE ...] [--ckpt_path PATH|last] "
+        "[--print_config] [--help_all]\n\n"
+        "Train DeepLabv3+ with LightningCLI. Every key of the config can be overridden, e.g.\n"
+        "  python train.py --trainer.max_steps 3000 --model.backbone resnet34\n"
+        "  python train.py --config configs/cityscapes.yaml --data.init_args.root /data/cityscapes\n"
+        "  python train.py --ckpt_path last        # resume the newest runs/**/last.ckpt\n"
+        "--help_all lists every option of the trainer, model and data classes.\n\n"
+        f"Keys of {path} and their values:"
+    )
+    try:
+        config = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as err:
+        fail(f"cannot read --config {path}: {err}")
+    for key, value in _flatten(config):
+        print(f"  --{key} {value}")
+
+
+def _flatten(config: Any, prefix: str = "") -> Iterator[tuple[str, Any]]:
+    if isinstance(config, dict):
+        for key, value in config.items():
+            yield from _flatten(value, f"{prefix}{key}.")
+    else:
+        yield prefix.rstrip("."), config
 
 
 class OneLineParser(argparse.ArgumentParser):

@@ -69,12 +69,13 @@ def decide(
     cost = symmetric_cost(n) if cost is None else cost
     if cost.shape != (n, n):
         raise ValueError(f"cost matrix must be {n}x{n} for {n} classes, got {tuple(cost.shape)}")
-    shifted = _shift(cost.to(device=probs.device, dtype=torch.float64))[None]
-    fast = _Fast(shifted, probs, priors, eps=(n + 4) * U64)
+    cost = cost.to(device=probs.device, dtype=torch.float64)[None]
+    shifted = _shift(cost)
+    fast = _Fast(cost, probs, priors, eps=(n + 4) * U64)  # eps: the reference's rounding
     b, _, h, w = probs.shape
     out = torch.empty(b, h * w, dtype=torch.long, device=probs.device)
     for i, s, q in fast.chunks():
-        index, ambiguous = _top(fast.costs(q), fast.delta)
+        index, ambiguous = _top(fast.costs(q)[0], fast.gamma, fast.eps)
         out[i, s : s + q.shape[1]] = index
         redo = ambiguous.nonzero()[:, 0]
         if len(redo):
@@ -117,19 +118,17 @@ def decide_mixtures(
     if not bool((weights >= 0).all() and (weights > 0).any(1).all()):
         raise ValueError("mixture weights must be >= 0 with a positive entry in each row")
     mixed = _shift(mix_costs(vertices, weights).to(probs.device))  # the reference matrices
-    v, k = weights.shape[1], weights.shape[0]
-    # Reference rounding of a mixed cost, relative to the mixed vertex cost maps' best values.
-    fast = _Fast(
-        _shift(vertices.to(probs.device, torch.float64)), probs, priors, 2 * (n + 6) * n * v * U64
-    )
+    k = weights.shape[0]
+    # eps: the reference's rounding on a mixed matrix (also the mixing in mix_costs), per T.
+    fast = _Fast(vertices.to(probs.device, torch.float64), probs, priors, (n + 8) * U64)
     mix = _Mixer(weights.to(probs.device, torch.float32), fast)
     b, _, h, w = probs.shape
     dtype = torch.uint8 if n <= 256 else torch.long  # K label maps add up
     out = torch.empty(b, k, h * w, dtype=dtype, device=probs.device)
     for i, s, q in fast.chunks():
         labels = out[i, :, s : s + q.shape[1]]
-        costs = fast.costs(q).view(v, n, -1)
-        winner, ambiguous = _top(costs, fast.delta)
+        costs = fast.costs(q)
+        winner, ambiguous = _top(costs, fast.gamma, fast.eps)
         labels.copy_(winner[0].expand(k, -1))
         contested = ((winner != winner[:1]).any(0) | ambiguous.any(0)).nonzero()[:, 0]
         if len(contested):
@@ -143,22 +142,24 @@ def decide_mixtures(
 
 
 class _Fast:
-    """Float32 costs of V shifted matrices for one call, with their certified rounding bound.
+    """Float32 costs of V matrices for one call, with their certified rounding bound.
 
-    ``costs(q)`` = ``weight @ q``: (V·N, N) float32 ``W = (C.max(0) - C) / π >= 0`` (global
-    priors folded into the columns) times (N, P) float32 ``q``; each result is a sum of N
-    nonnegative terms, so it errs by at most ``γ`` times its own value (plus underflow, below
-    ``2**-149`` per term). ``γ`` counts: ``ρ``, the measured rounding of W to float32 (a power-of-2
-    scale keeps it in range); two roundings of the inputs where matmuls may use TF32/bfloat16;
-    three roundings of q (casts and the division by pixel-wise priors); ``γ_N = Nu / (1 - Nu)`` of
-    a dot product of length N in any order. ``eps`` bounds the reference's own rounding relative
-    to the largest cost, ``delta`` the resulting relative gap that certifies a decision.
+    ``costs(q)``: (V, N + 1, P) = ``weight @ q`` for (N, P) float32 ``q``. Rows ``:N`` use
+    ``W = (C - C.min(0)) / π >= 0`` (global priors folded into the columns; argmin), row N is
+    ``T = Σ_k R_k q_k`` with ``R = (C.max(0) - C.min(0) + |C|.max(0)) / π``, which bounds the
+    magnitude of every reference cost. All terms are nonnegative, so each result errs by at most
+    ``γ`` times its own value (plus underflow, below ``2**-149`` per term), and the reference by
+    at most ``eps · T``. ``γ`` counts: ``ρ``, the measured rounding of the matrix to float32 (a
+    power-of-2 scale keeps it in range); two roundings of the inputs where matmuls may use
+    TF32/bfloat16; three roundings of q (casts, the division by pixel-wise priors); and
+    ``γ_N = Nu / (1 - Nu)`` of a dot product of length N in any order.
     """
 
-    def __init__(self, shifted: torch.Tensor, probs: torch.Tensor, priors, eps: float) -> None:
+    def __init__(self, matrices: torch.Tensor, probs: torch.Tensor, priors, eps: float) -> None:
         b, n, h, w = probs.shape
         self.probs, self.priors = probs.reshape(b, n, h * w), _priors(priors, n, h, w, probs)
-        weight = -shifted
+        low, high = matrices.amin(-2, keepdim=True), matrices.amax(-2, keepdim=True)
+        weight = torch.cat([matrices - low, high - low + matrices.abs().amax(-2, True)], -2)
         if self.priors is not None and self.priors.ndim == 1:
             weight = weight / self.priors.double()
         top = weight.max().item()
@@ -172,15 +173,15 @@ class _Fast:
         self.u_in = {"highest": 0.0, "high": 2.0**-11, "medium": 2.0**-8}[precision]
         dot = n * U32 / (1 - n * U32)
         self.gamma = (1 + rho) * (1 + self.u_in) ** 2 * (1 + U32) ** 3 * (1 + dot) - 1
-        self.eps, self.delta = eps, _delta(self.gamma, eps)
+        self.eps, self.rows = eps, single.shape[:2]
         self.weight = single.reshape(-1, n)
         self.pixel_priors = (
             self.priors if self.priors is not None and self.priors.ndim == 2 else None
         )
 
     def costs(self, q: torch.Tensor) -> torch.Tensor:
-        """(N, P) float32 → (V·N, P) float32 costs, larger = better."""
-        return self.weight @ q
+        """(N, P) float32 → (V, N + 1, P) float32: N costs (smaller = better), then T."""
+        return (self.weight @ q).view(*self.rows, -1)
 
     def exact_q(self, image: int, pixels: torch.Tensor) -> torch.Tensor:
         """(R, N) float64 ``p / π`` of the given pixels of one image, as the reference has it."""
@@ -205,20 +206,17 @@ class _Mixer:
     """Certified decisions of K mixtures on contested pixels (see the module docstring)."""
 
     def __init__(self, weights: torch.Tensor, fast: _Fast) -> None:
-        self.weights, v = weights, weights.shape[1]
-        # A mixed cost sums V nonnegative terms: fast.gamma, the rounding of w to float32, the
-        # matmul's inputs and a dot product of length V; the reference errs by eps relative to
-        # the mixed vertices' best costs, at most V times the best mixed cost.
+        self.weights, self.fast, v = weights, fast, weights.shape[1]
+        # A mixed cost (and T) sums V nonnegative terms: fast.gamma, the rounding of w to
+        # float32, the matmul's inputs and a dot product of length V.
         dot = v * U32 / (1 - v * U32)
-        gamma = (1 + fast.gamma) * (1 + U32) * (1 + fast.u_in) ** 2 * (1 + dot) - 1
-        self.delta = _delta(gamma, v * fast.eps)
-        self.prune = fast.delta * 1.001  # + the rounding of the pruning test itself
+        self.gamma = (1 + fast.gamma) * (1 + U32) * (1 + fast.u_in) ** 2 * (1 + dot) - 1
 
     def __call__(self, costs: torch.Tensor, winner: torch.Tensor):
-        """Vertex costs (V, N, P) and winners (V, P) → labels (K, P) and re-check mask (K, P)."""
+        """Vertex costs (V, N + 1, P), winners (V, P) → labels (K, P), re-check mask (K, P)."""
         candidate = self._candidates(costs, winner)
         count = candidate.sum(0)
-        k, v = self.weights.shape
+        (k, v), n = self.weights.shape, costs.shape[1] - 1
         labels = torch.empty(k, costs.shape[2], dtype=torch.long, device=costs.device)
         redo = torch.zeros(k, costs.shape[2], dtype=torch.bool, device=costs.device)
         for m in count.unique().tolist():
@@ -227,9 +225,10 @@ class _Mixer:
             if m == 1:
                 labels[:, sel] = classes
                 continue
-            picked = costs[:, :, sel].gather(1, classes.expand(v, -1, -1))
-            mixed = (self.weights @ picked.reshape(v, -1)).view(k, m, -1)
-            position, redo[:, sel] = _top(mixed, self.delta)
+            rows = torch.cat([classes, torch.full_like(classes[:1], n)])  # candidates, then T
+            picked = costs[:, :, sel].gather(1, rows.expand(v, -1, -1))
+            mixed = (self.weights @ picked.reshape(v, -1)).view(k, m + 1, -1)
+            position, redo[:, sel] = _top(mixed, self.gamma, self.fast.eps)
             labels[:, sel] = classes.gather(0, position)
         return labels, redo
 
@@ -237,44 +236,48 @@ class _Mixer:
         """(N, P) bool: classes that no vertex winner beats in every vertex by a certain margin.
 
         A class beaten by the same class in every vertex is beaten at every mixture (w >= 0),
-        in the reference too, so it can never be the decision.
+        in the reference too, so it can never be the decision. "Certain": ``x_j - x_a`` exceeds
+        twice the rounding of both and of the reference (``_top``'s bounds, doubled).
         """
-        margin = self.prune * costs.amax(1, keepdim=True) + TINY
+        costs, total = costs[:, :-1], costs[:, -1:]
+        slack = 2 * self.fast.gamma / (1 - self.fast.gamma) * 1.01
+        lead = costs * (1 - slack)
         candidate = torch.ones(costs.shape[1:], dtype=torch.bool, device=costs.device)
         for best in winner:
-            lead = costs.gather(1, best.expand(costs.shape[0], 1, -1)) - costs
-            candidate &= ~(lead > margin).all(0)
+            chosen = costs.gather(1, best.expand(costs.shape[0], 1, -1))
+            candidate &= ~(lead > chosen * (1 + slack) + 4 * self.fast.eps * total + TINY).all(0)
         return candidate
 
 
-def _top(costs: torch.Tensor, delta: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """Argmax over dim -2 of float32 costs >= 0, and where it is not certified.
+def _top(costs: torch.Tensor, gamma: float, eps: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Argmin over dim -2 of float32 costs >= 0 whose last row is T, and where it is uncertain.
 
-    Nonnegative floats order like their int32 bit patterns, whose low ``bits`` carry the
-    position (lowest wins ties). Between two values n ulps apart the gap exceeds
-    ``n · 2**-24`` times the smaller one, so a packed gap above ``limit`` certifies a relative
-    gap ``delta``; clearing the low bits moves each pattern by less than ``2**bits``.
+    With computed costs x, exact y, ``|x - y| <= γ y`` and the reference within ``eps · T`` of
+    y (up to a per-pixel constant), the runner-up b and the argmin a satisfy
+    ``y_b - y_a > 2 eps T`` -- the reference then decides a, uniquely -- when
+    ``x_b - x_a > Δ x_b`` with ``Δ = 5γ / (1 - γ)``, ``x_b >= 4 eps T / γ`` and ``x_b >= 2**-60``
+    (underflow is then negligible). Nonnegative floats order like their int32 bit patterns,
+    whose low ``bits`` carry the row (lowest wins ties); n ulps above a value lies at least
+    ``n · 2**-24`` times it, and clearing the low bits moves a pattern by less than ``2**bits``.
 
     Returns:
-        (..., P) int64 positions and (..., P) bool: gap within ``delta``, tiny, inf or NaN.
+        (..., P) int64 argmin rows and (..., P) bool: not certified (also inf, NaN).
     """
+    costs, total = costs[..., :-1, :], costs[..., -1, :]
     m = costs.shape[-2]
     low = (1 << max(1, (m - 1).bit_length())) - 1
-    code = low - torch.arange(m, dtype=torch.int32, device=costs.device).view(m, 1)
+    code = torch.arange(m, dtype=torch.int32, device=costs.device).view(m, 1)
     packed = torch.bitwise_and(costs.view(torch.int32), INT_MAX - low).bitwise_or_(code)
-    best = packed.amax(-2, keepdim=True)
-    # best - 1 - packed >= 0 except at the best (-1, masked to INT_MAX): the gap minus one.
-    gap = torch.sub(best - 1, packed, out=packed).bitwise_and_(INT_MAX).amin(-2)
+    best = packed.amin(-2, keepdim=True)
+    # packed - best - 1 >= 0 except at the best (-1, masked to INT_MAX): the gap minus one.
+    gap = torch.sub(packed, best + 1, out=packed).bitwise_and_(INT_MAX).amin(-2)
     best = best.squeeze(-2)
+    delta = 5 * gamma / (1 - gamma)
     limit = math.ceil(delta * 2**24 / (1 - delta)) + 2 * low + 2
-    ambiguous = (gap < limit) | (best < SMALL) | (best >= INF)
-    return (low - (best & low)).long(), ambiguous
-
-
-def _delta(gamma: float, eps: float) -> float:
-    # Costs x (computed) and y (exact) with |x - y| <= γ·y, the reference within eps·max(y):
-    # x_a - x_b > 2(γ + eps)/(1 - γ) · x_a certifies that a is the reference's unique argmin.
-    return 2 * (gamma + eps) / (1 - gamma)
+    second = (best.long() + gap + (1 - low)).clamp_(max=INF).int()  # <= the runner-up's bits
+    floor = (4 * eps / gamma * total).clamp_(min=2.0**-60)
+    certain = (gap >= limit) & (second.view(torch.float32) >= floor) & (second < INF - low)
+    return (best & low).long(), ~certain
 
 
 def _reference(q: torch.Tensor, shifted: torch.Tensor) -> torch.Tensor:

@@ -10,6 +10,7 @@ written by ``numpy.savez(path, probs=array)``, a ``.pt`` file by
 from __future__ import annotations
 
 import os
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +18,7 @@ import torch
 from torch import Tensor
 
 from costseg.classes import NUM_CLASSES
+from costseg.networks.base import read_torch_file
 
 __all__ = ["PROBS_SUFFIXES", "find_probs_file", "load_probs", "save_probs"]
 
@@ -47,7 +49,10 @@ def save_probs(path: str | Path, probs: Tensor, compress: bool = False) -> Path:
     if path.suffix not in PROBS_SUFFIXES:
         raise ValueError(f"probability files end in .npz or .pt; got {path}")
     if probs.ndim != 3 or not probs.is_floating_point():
-        raise ValueError(f"expected (N, H, W) floating probabilities; got {tuple(probs.shape)}")
+        dtype = str(probs.dtype).removeprefix("torch.")
+        raise ValueError(
+            f"expected (N, H, W) floating probabilities; got {tuple(probs.shape)} {dtype}"
+        )
     half = probs.detach().to("cpu", torch.float16)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
@@ -141,15 +146,17 @@ def _read(path: Path) -> tuple[str, Tensor]:
     """The (key, tensor) a probability file holds; ValueError naming the file otherwise."""
     if path.suffix not in PROBS_SUFFIXES:
         raise ValueError(f"{path}: probability files end in .npz or .pt")
-    try:
-        if path.suffix == ".npz":
+    if path.suffix == ".pt":
+        content = read_torch_file(path)
+    elif not zipfile.is_zipfile(path):  # np.load would try to unpickle it
+        raise ValueError(f"{path} is not a .npz file (not a zip archive)")
+    else:
+        try:
             with np.load(path, allow_pickle=False) as data:
                 content = {k: torch.from_numpy(data[k]) for k in data.files if k in _KEYS}
-        else:
-            content = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as err:  # numpy and torch raise many types for a foreign or truncated file
-        first = (str(err).strip().splitlines() or [type(err).__name__])[0]
-        raise ValueError(f"{path} is not a readable {path.suffix} file: {first}") from None
+        except Exception as err:  # numpy raises many types for a foreign or truncated file
+            first = (str(err).strip().splitlines() or [type(err).__name__])[0]
+            raise ValueError(f"{path} is not a readable .npz file: {first}") from None
     keys = [k for k in _KEYS if isinstance(content, dict) and isinstance(content.get(k), Tensor)]
     if len(keys) != 1:
         raise ValueError(f"{path} should hold exactly one tensor named 'probs' or 'logits'")

@@ -7,7 +7,7 @@ it, and the network is rebuilt from ``hyper_parameters`` and the ``net.*`` weigh
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +29,8 @@ class CostsegCheckpoint:
         data_config: ``{"class_path": ..., "init_args": {...}}`` of the training data, or None.
         class_names: the N classes, in output order.
         hparams: the LightningModule's hyper-parameters.
+        extra: everything the module stored under the checkpoint's ``"costseg"`` key
+            (``priors_info``, ...), priors included.
     """
 
     network: ImageNetwork
@@ -36,6 +38,7 @@ class CostsegCheckpoint:
     data_config: dict[str, Any] | None
     class_names: tuple[str, ...]
     hparams: dict[str, Any]
+    extra: dict[str, Any] = field(default_factory=dict)
 
 
 _NET_ARGS = ("num_classes", "backbone", "output_stride", "decoder_channels", "decoder_convs")
@@ -65,12 +68,14 @@ def load_costseg_checkpoint(path: str | Path) -> CostsegCheckpoint:
     state = {k[4:]: v for k, v in checkpoint["state_dict"].items() if k.startswith("net.")}
     check_state_keys(net.state_dict(), state, f"{path} does not fit its own settings")
     net.load_state_dict(state)
+    # The file is memory-mapped, and train.py may rewrite it while evaluation runs.
     priors = extra.get("priors")
+    priors = None if priors is None else priors.clone()
     return CostsegCheckpoint(
         network=ImageNetwork(net, channels_last=bool(hparams.get("channels_last", False))),
-        # The file is memory-mapped, and train.py may rewrite it while evaluation runs.
-        priors=None if priors is None else priors.clone(),
+        priors=priors,
         data_config=extra.get("data"),
         class_names=tuple(extra.get("class_names") or ()),
         hparams=hparams,
+        extra={**extra, "priors": priors},
     )

@@ -1,0 +1,311 @@
+"""Empirical check of the Learn-then-Test guarantee on the procedural world (SPEC §7).
+
+    python scripts/check_guarantee.py [--ckpt_path PATH | --network SPEC] [--n 50] [--trials 200]
+        [--test 1000] [--delta 0.1] [--target person:roi1:recall>=0.95]
+
+Procedural scenes of a split and seed unrelated to training (``--split test --seed 1000``) form
+one pool: its first --test images are the fresh test set, the next ones the calibration pool
+(--trials × --n images by default, so the calibration sets are disjoint and independent). The
+network runs once per image; for every point λ of the barycentric grid the per-image counts of
+the target and of --maximize are kept, cached in ``counts.npz`` in --output_dir (reruns with
+other --n, --trials, --delta or --method are instant). For each calibration set:
+
+* Learn-then-Test at δ picks λ̂, the certified λ with the best pooled --maximize (or nothing);
+* the naive rule (``evaluate.py --target``) picks the λ meeting the target on the pooled
+  calibration images with the best pooled --maximize.
+
+The risk of λ on the test set is its mean per-image loss (images with an undefined loss are left
+out and counted); a violation is ``R_test(λ̂) > α``. Guarantee: violations in at most a δ
+fraction of the calibration sets, up to sampling error. Writes ``guarantee_check.json`` (every
+number) and ``guarantee_check.png`` (test risks of the chosen λ, LTT vs naive).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from matplotlib.figure import Figure
+from torch.utils.data import DataLoader, Subset
+from tqdm import tqdm
+
+from costseg.checkpoints import find_checkpoint
+from costseg.costs import barycentric_grid
+from costseg.data.prior_maps import PriorMaps
+from costseg.data.toy import StreetScenes
+from costseg.decision import decide_mixtures
+from costseg.guarantee import learn_then_test
+from costseg.metrics.per_image import per_image_counts, per_image_loss
+from costseg.networks import load_costseg_checkpoint, load_network
+from costseg.report.files import save_figure, write_json
+from costseg.rules import vertex_matrices
+from costseg.selection import best_points, meets, parse_metric, parse_target, risk_level
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (see the module docstring)."""
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add = p.add_argument
+    add("--ckpt_path", help="costseg checkpoint (default: newest runs/**/last.ckpt); also the "
+        "source of the RoI map and image size with --network")  # fmt: skip
+    add("--network", help="other network spec (costseg:PATH, vainf:PATH, hf:DIR)")
+    add("--target", default="person:roi1:recall>=0.95", help="the guarantee's target (α from it)")
+    add("--maximize", default="person:roi1:precision", help="what to maximise among the certified")
+    add("--delta", type=float, default=0.1, help="δ: allowed probability of a violation")
+    add("--method", default="bonferroni", choices=("bonferroni", "fixed_sequence"))
+    add("--bound", default="hoeffding_bentkus", choices=("hoeffding_bentkus", "hoeffding"))
+    add("--n", type=int, default=50, help="images per calibration set")
+    add("--trials", type=int, default=200, help="calibration sets drawn")
+    add("--test", type=int, default=1000, help="images of the fresh test set")
+    add("--cal_pool", type=int, help="calibration pool (default --trials × --n: disjoint sets; "
+        "smaller: sets drawn at random from it, overlapping)")  # fmt: skip
+    add("--step", type=float, default=0.1, help="barycentric grid step (0.1: 66 points)")
+    add("--vertices", nargs=3, default=["robotistic", "altruistic", "egoistic"])
+    add("--vertex_scaling", default="none", choices=("none", "mean"))
+    add("--split", default="test", choices=("train", "val", "test"), help="scene stream")
+    add("--seed", type=int, default=1000, help="scene seed (training uses 0)")
+    add("--draw_seed", type=int, default=0, help="seed of the calibration-set draws")
+    add("--size", type=int, nargs=2, metavar=("H", "W"), help="default: the checkpoint's")
+    add("--batch_size", type=int, default=16)
+    add("--device", default="auto", help="auto, cpu, cuda, ...")
+    add("--output_dir", type=Path, default=Path("runs/guarantee_check"))
+    return p
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """Parsed and checked options; ValueError for a bad target or sizes."""
+    args = build_parser().parse_args(argv)
+    args.target_spec, args.max_spec = parse_target(args.target), parse_metric(args.maximize)
+    args.alpha = risk_level(args.target_spec)
+    args.cal_pool = args.trials * args.n if args.cal_pool is None else args.cal_pool
+    if not 0 < args.alpha < 1 or not 0 < args.delta < 1:
+        raise ValueError(f"need α = {args.alpha:g} and δ = {args.delta:g} in (0, 1)")
+    if min(args.n, args.trials, args.test, args.batch_size) < 1 or args.n > args.cal_pool:
+        raise ValueError(f"need n, trials, test, batch_size >= 1 and n <= cal_pool "
+                         f"({args.cal_pool}); got n = {args.n}")  # fmt: skip
+    return args
+
+
+def resolve_checkpoint(args: argparse.Namespace) -> Path | None:
+    """The checkpoint in use: --ckpt_path or the newest; with --network only if there is one."""
+    if args.network is None or args.ckpt_path is not None:
+        return find_checkpoint(args.ckpt_path)
+    try:
+        return find_checkpoint(None)
+    except FileNotFoundError:
+        return None
+
+
+def load_source(
+    args: argparse.Namespace, path: Path | None
+) -> tuple[torch.nn.Module, torch.Tensor | None, tuple[int, int]]:
+    """(network, RoI map or None, image size) of the checkpoint or --network."""
+    ckpt = None if path is None else load_costseg_checkpoint(path)
+    config = (ckpt.data_config or {}).get("init_args", {}) if ckpt else {}
+    size = tuple(args.size or config.get("size") or (128, 256))
+    roi = None
+    if ckpt is not None and ckpt.priors is not None:
+        roi = PriorMaps(ckpt.priors, ckpt.class_names).at(size)[1]
+    if (args.target_spec.roi or args.max_spec.roi) and roi is None:
+        raise ValueError("a RoI target or --maximize needs a checkpoint with priors (RoI map)")
+    device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    device = device if args.device == "auto" else torch.device(args.device)
+    net = load_network(args.network, device) if args.network else ckpt.network.to(device).eval()
+    return net, roi, (int(size[0]), int(size[1]))
+
+
+def compute_counts(
+    args: argparse.Namespace, net: torch.nn.Module, roi: torch.Tensor | None, size: tuple[int, int]
+) -> dict[str, np.ndarray]:
+    """(pool, K, 2) int64 per-image counts of the target ("target") and --maximize ("maximize")."""
+    scenes = StreetScenes(args.split, args.test + args.cal_pool, size, args.seed)
+    loader = DataLoader(Subset(scenes, range(len(scenes))), args.batch_size, num_workers=1)
+    vertices = vertex_matrices(args.vertices, args.vertex_scaling)
+    weights = barycentric_grid(args.step)
+    device = next(net.parameters()).device
+    roi = None if roi is None else roi.to(device)
+    out: dict[str, list[torch.Tensor]] = {"target": [], "maximize": []}
+    with torch.inference_mode():
+        for images, labels in tqdm(loader, "network and counts", unit="batch"):
+            images, labels = images.to(device), labels.to(device)
+            probs = net(images).float().softmax(1)
+            preds = decide_mixtures(probs, vertices, weights)
+            for key, spec in (("target", args.target_spec), ("maximize", args.max_spec)):
+                counts = per_image_counts(preds, labels, roi, spec.cls, spec.roi, spec.metric)
+                out[key].append(counts.cpu())
+    return {k: torch.cat(v).numpy() for k, v in out.items()}
+
+
+def cached_counts(args: argparse.Namespace) -> tuple[dict[str, np.ndarray], str, float]:
+    """The counts, from ``counts.npz`` if made with the same settings; network; seconds spent."""
+    path = resolve_checkpoint(args)
+    name = args.network or f"costseg:{path}"
+    stamp = None if path is None else path.stat().st_mtime
+    keys = ("split", "seed", "size", "step", "vertices", "vertex_scaling")
+    key = {k: getattr(args, k) for k in keys} | {"network": name, "checkpoint": str(path)}
+    key |= {"mtime": stamp, "pool": args.test + args.cal_pool}
+    key |= {"target": list(args.target_spec[:3]), "maximize": list(args.max_spec)}
+    key_text = json.dumps(key, sort_keys=True)
+    cache = args.output_dir / "counts.npz"
+    if cache.is_file():
+        with np.load(cache) as cached:
+            if str(cached["key"]) == key_text:
+                return {"target": cached["target"], "maximize": cached["maximize"]}, name, 0.0
+    start = time.perf_counter()
+    counts = compute_counts(args, *load_source(args, path))
+    seconds = time.perf_counter() - start
+    args.output_dir.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(cache, key=np.array(key_text), **counts)
+    return counts, name, seconds
+
+
+def pooled(counts: np.ndarray) -> np.ndarray:
+    """(K,) pooled metric Σ numerators / Σ denominators of (n, K, 2) counts; NaN for 0/0."""
+    part, whole = counts.sum(0).T.astype(float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(whole > 0, part / whole, np.nan)
+
+
+def draw_sets(args: argparse.Namespace) -> tuple[np.ndarray, bool]:
+    """(trials, n) pool indices of the calibration sets, and whether they are disjoint."""
+    rng = np.random.default_rng(args.draw_seed)
+    calib = np.arange(args.test, args.test + args.cal_pool)
+    if args.cal_pool >= args.trials * args.n:
+        return rng.permutation(calib)[: args.trials * args.n].reshape(args.trials, args.n), True
+    return np.stack([rng.choice(calib, args.n, replace=False) for _ in range(args.trials)]), False
+
+
+def choose(args: argparse.Namespace, target: np.ndarray, goal: np.ndarray) -> dict[str, Any]:
+    """LTT's and the naive rule's choice on one calibration set's (n, K, 2) counts."""
+    losses = per_image_loss(target, args.target_spec.metric).numpy()
+    ltt = learn_then_test(losses, args.alpha, args.delta, args.method, bound=args.bound)
+    objective = pooled(goal)
+    chosen = ltt.best(np.nan_to_num(objective, nan=-np.inf))  # as evaluate.py --guarantee
+    allowed = meets(torch.from_numpy(pooled(target)),
+                    args.target_spec)  # fmt: skip
+    naive = best_points(torch.from_numpy(objective), allowed)  # as evaluate.py --target
+    return {"ltt": chosen, "naive": naive[0] if naive else None,
+            "certified": len(ltt.valid), "left_out": float(ltt.n_undefined.mean())}  # fmt: skip
+
+
+def summarise(args: argparse.Namespace, counts: dict[str, np.ndarray]) -> dict[str, Any]:
+    """Every number of the check: per trial and aggregated."""
+    test_losses = per_image_loss(counts["target"][: args.test], args.target_spec.metric).numpy()
+    defined = (~np.isnan(test_losses)).sum(0)
+    risk = np.nansum(test_losses, 0) / np.maximum(defined, 1)
+    risk[defined == 0] = np.nan
+    test_goal = pooled(counts["maximize"][: args.test])
+    sets, disjoint = draw_sets(args)
+    trials = [
+        choose(args, counts["target"][s], counts["maximize"][s])
+        for s in tqdm(sets, "calibration sets", unit="set")
+    ]
+    out: dict[str, Any] = {"settings": settings(args), "disjoint_sets": disjoint}
+    ok = np.flatnonzero((risk <= args.alpha) & ~np.isnan(test_goal))
+    out["test"] = {
+        "images": args.test,
+        "undefined_images": [int(args.test - defined.max()), int(args.test - defined.min())],
+        "risk": risk.tolist(),
+        "risk_se": (np.nanstd(test_losses, 0) / np.sqrt(np.maximum(defined, 1))).tolist(),
+        "maximize": test_goal.tolist(),
+        "oracle": None if len(ok) == 0 else int(ok[np.argmax(test_goal[ok])]),
+        "meeting_alpha": len(ok),
+    }
+    for rule in ("ltt", "naive"):
+        out[rule] = rule_summary(args, [t[rule] for t in trials], risk, test_goal)
+    out["ltt"]["mean_certified"] = float(np.mean([t["certified"] for t in trials]))
+    out["calibration_left_out_mean"] = float(np.mean([t["left_out"] for t in trials]))
+    return out
+
+
+def rule_summary(args: argparse.Namespace, chosen: list[int | None], risk, goal) -> dict[str, Any]:
+    """Violations and achieved test values of one rule over the trials."""
+    picked = [c for c in chosen if c is not None]
+    risks = np.array([risk[c] for c in picked])
+    violations = int((risks > args.alpha).sum())  # NaN risk: no violation counted
+    rate = violations / len(chosen)
+    return {
+        "chosen": chosen,
+        "nothing_chosen": len(chosen) - len(picked),
+        "violations": violations,
+        "violation_rate": rate,
+        "violation_se": math.sqrt(rate * (1 - rate) / len(chosen)),
+        "test_risk": risks.tolist(),
+        "test_maximize": [float(goal[c]) for c in picked],
+        "mean_test_maximize": float(np.nanmean([goal[c] for c in picked])) if picked else None,
+    }
+
+
+def settings(args: argparse.Namespace) -> dict[str, Any]:
+    keys = ("target", "maximize", "alpha", "delta", "method", "bound", "n", "trials", "test")
+    keys += ("cal_pool", "step", "vertices", "vertex_scaling", "split", "seed", "draw_seed")
+    return {k: getattr(args, k) for k in keys}
+
+
+def report(out: dict[str, Any]) -> None:
+    """Print the findings."""
+    s, t = out["settings"], out["test"]
+    alpha, delta, trials = s["alpha"], s["delta"], s["trials"]
+    sets = "disjoint (independent)" if out["disjoint_sets"] else "overlapping (from one pool)"
+    print(f"target {s['target']} (α = {alpha:.4g}), δ = {delta:g}, {s['method']}, {s['bound']}")
+    print(f"{trials} calibration sets of {s['n']} images, {sets}; test set {t['images']} images")
+    lo, hi = t["undefined_images"]
+    print(f"undefined loss (left out): test {lo}-{hi} images per λ, calibration "
+          f"{out['calibration_left_out_mean']:.1f} of {s['n']} on average")  # fmt: skip
+    print(f"λ with test risk <= α: {t['meeting_alpha']} of {len(t['risk'])}")
+    bound = delta + 2 * math.sqrt(delta * (1 - delta) / trials)
+    for rule, name in (("ltt", "Learn-then-Test"), ("naive", "naive --target")):
+        r = out[rule]
+        mean = "n/a" if r["mean_test_maximize"] is None else f"{r['mean_test_maximize']:.4f}"
+        print(f"{name:16s} violations {r['violations']}/{trials} = {r['violation_rate']:.3f} "
+              f"± {r['violation_se']:.3f}, nothing chosen {r['nothing_chosen']}, "
+              f"mean test {s['maximize']} {mean}")  # fmt: skip
+    verdict = "holds" if out["ltt"]["violation_rate"] <= bound else "VIOLATED"
+    print(f"guarantee P(R_test > α) <= δ {verdict} (LTT rate vs δ + 2 SE = {bound:.3f})")
+
+
+def plot(out: dict[str, Any], path: Path) -> None:
+    """Histograms of the test risk and test --maximize of the chosen λ, LTT vs naive."""
+    fig = Figure(figsize=(10, 3.6))
+    left, right = fig.subplots(1, 2)
+    risks = [out[r]["test_risk"] for r in ("ltt", "naive")]
+    edges = np.histogram_bin_edges(np.concatenate([[out["settings"]["alpha"]], *risks]), 30)
+    for ax, key in ((left, "test_risk"), (right, "test_maximize")):
+        bins = edges if key == "test_risk" else 30
+        for rule, colour in (("ltt", "tab:blue"), ("naive", "tab:orange")):
+            r = out[rule]
+            label = f"{'LTT' if rule == 'ltt' else 'naive'} ({r['violation_rate']:.0%} violate)"
+            ax.hist(r[key], bins=bins, alpha=0.6, color=colour, label=label)
+    left.axvline(out["settings"]["alpha"], color="k", ls="--", label="α")
+    left.set(xlabel="test risk of the chosen λ", ylabel="calibration sets")
+    right.set(xlabel=f"test {out['settings']['maximize']}")
+    left.legend(fontsize=8)
+    fig.tight_layout()
+    save_figure(fig, path)
+
+
+def main(argv: list[str] | None = None) -> int:
+    try:
+        args = parse_args(argv)
+        counts, name, seconds = cached_counts(args)
+    except (FileNotFoundError, ValueError) as err:
+        print(f"check_guarantee.py: error: {err}", file=sys.stderr)
+        return 2
+    out = summarise(args, counts)
+    out["network"], out["count_seconds"] = name, seconds
+    write_json(args.output_dir / "guarantee_check.json", out)
+    plot(out, args.output_dir / "guarantee_check.png")
+    report(out)
+    print(f"wrote {args.output_dir}/guarantee_check.json and guarantee_check.png")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

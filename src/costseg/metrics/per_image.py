@@ -1,0 +1,185 @@
+"""Per-image counts and losses of one guarantee target, for K decision rules at once (SPEC §7).
+
+Learn-then-Test needs a loss ``L_i(λ)`` per image i and rule λ. For a class ``cls`` in a RoI
+these come from per-image counts (numerator, denominator):
+
+* ``recall``: (TP, TP + FN) pixels of ``cls`` inside the RoI; loss ``1 − recall``;
+* ``precision``: (TP, TP + FP) pixels of ``cls`` inside the RoI; loss ``1 − precision``;
+* ``fn_rate``: (FN segments, ground-truth segments) of ``cls`` owned by the RoI; loss the rate;
+* ``fp_rate``: (FP segments, predicted segments) of ``cls`` owned by the RoI; loss the rate.
+
+Pixel counts follow :func:`~costseg.metrics.functional.roi_confusion` (ignored pixels count
+nowhere) and segment counts the segment core of :class:`~costseg.metrics.SegmentErrors`
+(8-connected components, owner = the RoI holding most pixels), so summing the counts over images
+gives exactly the pooled metrics' counts. RoI id 0 means the whole image.
+
+>>> preds = torch.tensor([[[[1, 1], [0, 0]], [[1, 0], [0, 0]]]])     # (B=1, K=2, 2, 2)
+>>> target = torch.tensor([[[1, 1], [1, 255]]])
+>>> per_image_counts(preds, target, None, cls=1, roi_id=0, metric="recall").tolist()
+[[[2, 3], [1, 3]]]
+>>> per_image_loss(torch.tensor([[[2, 4], [0, 0]]]), "recall").tolist()
+[[0.5, nan]]
+"""
+
+from __future__ import annotations
+
+from typing import Literal, get_args
+
+import numpy as np
+import torch
+from numpy.typing import ArrayLike
+from torch import Tensor
+
+from costseg.classes import IGNORE_INDEX
+from costseg.guarantee import fn_segment_rate, fp_segment_rate, precision_loss, recall_loss
+from costseg.metrics.functional import check_batch
+from costseg.metrics.segments import _rule_errors
+
+__all__ = ["PerImageMetric", "per_image_counts", "per_image_loss"]
+
+PerImageMetric = Literal["recall", "precision", "fn_rate", "fp_rate"]
+_METRICS: tuple[str, ...] = get_args(PerImageMetric)
+# Rows of the (4, R+1) segment counts of mask_segment_errors: fp, fn, n_pred, n_gt.
+_SEGMENT_ROWS = {"fp_rate": (0, 2), "fn_rate": (1, 3)}
+
+
+def per_image_counts(
+    preds: Tensor,
+    target: Tensor,
+    roi: Tensor | None,
+    cls: int,
+    roi_id: int,
+    metric: PerImageMetric,
+    num_rois: int = 4,
+    ignore_index: int = IGNORE_INDEX,
+) -> Tensor:
+    """Per image and rule, the (numerator, denominator) counts behind ``metric``.
+
+    Args:
+        preds: (B, K, H, W) integer class ids of K rules (any integer dtype, e.g. uint8).
+        target: (B, H, W) integer class ids, or ``ignore_index``.
+        roi: None, (H, W) or (B, H, W) RoI ids in 0..num_rois (0 = in no RoI).
+        cls: the class.
+        roi_id: the RoI (0 = whole image; an id >= 1 needs ``roi``).
+        metric: "recall", "precision", "fn_rate" or "fp_rate" (see the module docstring).
+        num_rois: R.
+        ignore_index: target value that counts nowhere.
+
+    Returns:
+        int64 (B, K, 2) on preds' device: ``[..., 0]`` the numerator, ``[..., 1]`` the
+        denominator (0 where the loss is undefined).
+
+    >>> preds = torch.tensor([[[[1, 0, 0, 1], [0, 1, 0, 0]]]])          # (1, 1, 2, 4)
+    >>> target = torch.tensor([[[0, 0, 0, 1], [0, 0, 1, 1]]])
+    >>> per_image_counts(preds, target, None, 1, 0, "fp_rate").tolist()  # 1 of 2 segments
+    [[[1, 2]]]
+    """
+    _check_args(preds, target, roi, cls, roi_id, metric, num_rois, ignore_index)
+    if metric in ("recall", "precision"):
+        return _pixel_counts(preds, target, roi, cls, roi_id, metric, ignore_index)
+    return _segment_counts(preds, target, roi, cls, roi_id, metric, num_rois, ignore_index)
+
+
+def _check_args(
+    preds: Tensor,
+    target: Tensor,
+    roi: Tensor | None,
+    cls: int,
+    roi_id: int,
+    metric: str,
+    num_rois: int,
+    ignore_index: int,
+) -> None:
+    """Raise ValueError unless the inputs fit :func:`per_image_counts`."""
+    if not isinstance(preds, Tensor) or preds.ndim != 4:
+        got = f"shape {tuple(preds.shape)}" if isinstance(preds, Tensor) else type(preds).__name__
+        raise ValueError(f"expected preds as an integer (B, K, H, W) tensor, got {got}")
+    check_batch(preds, target, roi, num_rois)
+    if metric not in _METRICS:
+        raise ValueError(f"metric must be one of {', '.join(_METRICS)}; got {metric!r}")
+    if cls < 0 or cls == ignore_index:
+        raise ValueError(f"expected cls >= 0 and != ignore_index {ignore_index}, got {cls}")
+    if not 0 <= roi_id <= num_rois:
+        raise ValueError(f"expected roi_id in 0..{num_rois}, got {roi_id}")
+    if roi_id > 0 and roi is None:
+        raise ValueError(f"roi_id {roi_id} needs a RoI map; got roi=None")
+
+
+def _pixel_counts(
+    preds: Tensor,
+    target: Tensor,
+    roi: Tensor | None,
+    cls: int,
+    roi_id: int,
+    metric: str,
+    ignore_index: int,
+) -> Tensor:
+    """(B, K, 2): (TP, TP + FN) or (TP, TP + FP) pixels of ``cls`` in RoI ``roi_id``."""
+    inside = target != ignore_index
+    if roi_id > 0 and roi is not None:
+        inside = inside & (roi.to(target.device) == roi_id).expand_as(target)
+    gt = (target == cls) & inside  # (B, H, W)
+    predicted = (preds == cls) & inside.unsqueeze(1)  # (B, K, H, W)
+    tp = (predicted & gt.unsqueeze(1)).sum((-2, -1))
+    if metric == "recall":
+        whole = gt.sum((-2, -1)).unsqueeze(1).expand_as(tp)
+    else:
+        whole = predicted.sum((-2, -1))
+    return torch.stack([tp, whole], -1).long()
+
+
+def _segment_counts(
+    preds: Tensor,
+    target: Tensor,
+    roi: Tensor | None,
+    cls: int,
+    roi_id: int,
+    metric: str,
+    num_rois: int,
+    ignore_index: int,
+) -> Tensor:
+    """(B, K, 2): (FN, GT) or (FP, predicted) segments of ``cls`` owned by RoI ``roi_id``."""
+    rows = list(_SEGMENT_ROWS[metric])
+    valid = (target != ignore_index).unsqueeze(1)
+    pred_masks = ((preds == cls) & valid).cpu().numpy()
+    gt_masks = (target == cls).cpu().numpy()
+    rois = None if roi is None else roi.expand_as(target).cpu().numpy()
+    out = np.zeros((*preds.shape[:2], 2), dtype=np.int64)
+    for b in range(len(target)):
+        # The segment core of SegmentErrors: one labelling per distinct mask of the K rules.
+        inverse, counts, _, _ = _rule_errors(
+            pred_masks[b], gt_masks[b], None if rois is None else rois[b], num_rois, maps=False
+        )
+        out[b] = counts[inverse][:, rows, roi_id]
+    return torch.from_numpy(out).to(preds.device)
+
+
+def per_image_loss(counts: ArrayLike | Tensor, metric: PerImageMetric) -> Tensor:
+    """Per-image losses in [0, 1] from :func:`per_image_counts`; NaN where undefined.
+
+    Args:
+        counts: (n, K, 2) (numerator, denominator) counts.
+        metric: the metric the counts were taken for: the loss is ``1 − recall``,
+            ``1 − precision``, the FN-segment rate or the FP-segment rate.
+
+    Returns:
+        float64 (n, K) losses, NaN where the denominator is 0.
+
+    >>> per_image_loss(torch.tensor([[[3, 4]], [[0, 0]]]), "precision").tolist()
+    [[0.25], [nan]]
+    >>> per_image_loss(torch.tensor([[[1, 4]]]), "fn_rate").tolist()
+    [[0.25]]
+    """
+    counts = torch.as_tensor(counts)
+    if counts.ndim != 3 or counts.shape[-1] != 2:
+        raise ValueError(f"expected (n, K, 2) counts, got shape {tuple(counts.shape)}")
+    if metric not in _METRICS:
+        raise ValueError(f"metric must be one of {', '.join(_METRICS)}; got {metric!r}")
+    part, whole = counts.unbind(-1)
+    if metric == "recall":
+        return recall_loss(part, whole - part)
+    if metric == "precision":
+        return precision_loss(part, whole - part)
+    if metric == "fn_rate":
+        return fn_segment_rate(part, whole)
+    return fp_segment_rate(part, whole)

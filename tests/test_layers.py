@@ -1,0 +1,109 @@
+"""The import structure of DESIGN.md: no module imports one higher in the chain, no cycles, and
+the decision-level code and the reports import neither Lightning nor the model."""
+
+import ast
+from pathlib import Path
+
+SRC = Path(__file__).resolve().parents[1] / "src" / "costseg"
+# Lower layers first; a module may import its own layer or lower ones.
+CHAIN = [
+    {"classes", "checkpoints", "options"},
+    {"costs"},
+    {"decision"},
+    {"rules", "selection", "calibration", "guarantee"},
+    {"data", "metrics", "models", "networks", "probs_files", "results"},
+    {"scoring"},
+    {"module"},
+    {"sources", "calibration_set", "plan_checks", "report"},
+    {"evaluation", "callbacks", "training"},
+    {"cli"},
+]
+NO_LIGHTNING = {"costs", "decision", "rules", "selection", "calibration", "guarantee", "metrics",
+                "results", "scoring", "sources", "calibration_set", "plan_checks", "report",
+                "evaluation", "networks", "probs_files"}  # fmt: skip
+NO_MODEL = {"costs", "decision", "rules", "selection", "metrics", "results", "scoring", "report"}
+
+
+def _imports() -> dict[str, set[str]]:
+    """costseg module → the costseg (and lightning) modules it imports, anywhere in its code."""
+    found = {}
+    for path in SRC.rglob("*.py"):
+        name = ".".join(path.relative_to(SRC.parent).with_suffix("").parts)
+        names = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module:
+                names.add(node.module)
+            elif isinstance(node, ast.Import):
+                names.update(a.name for a in node.names)
+        found[name.removesuffix(".__init__")] = names
+    return found
+
+
+def _top(module: str) -> str:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else parts[0]
+
+
+def _layer(name: str) -> int:
+    return next(i for i, names in enumerate(CHAIN) if name in names)
+
+
+def test_every_module_has_a_layer_and_imports_downwards():
+    problems = []
+    for module, targets in _imports().items():
+        if module == "costseg":
+            continue
+        here = _layer(_top(module))
+        for target in targets:
+            if target.startswith("costseg.") and _layer(_top(target)) > here:
+                problems.append(f"{module} imports {target}")
+    assert not problems, problems
+
+
+def test_light_layers_import_neither_lightning_nor_the_model():
+    problems = []
+    for module, targets in _imports().items():
+        top = _top(module)
+        for target in targets:
+            if top in NO_LIGHTNING and target.split(".")[0] == "lightning":
+                problems.append(f"{module} imports {target}")
+            if top in NO_MODEL and target.startswith(("costseg.module", "costseg.models")):
+                problems.append(f"{module} imports {target}")
+    assert not problems, problems
+
+
+def test_no_import_cycles_between_modules():
+    imports = _imports()
+    graph = {m: {t for t in ts if t in imports and t != m} for m, ts in imports.items()}
+    state: dict[str, int] = {}
+
+    def visit(node: str, path: list[str]) -> None:
+        state[node] = 1
+        for nxt in sorted(graph[node]):
+            assert state.get(nxt) != 1, " -> ".join([*path, node, nxt])
+            if nxt not in state:
+                visit(nxt, [*path, node])
+        state[node] = 2
+
+    for node in sorted(graph):
+        if node not in state:
+            visit(node, [])
+
+
+def test_files_stay_short():
+    long = {str(p.relative_to(SRC)): n for p in SRC.rglob("*.py")
+            if (n := len(p.read_text().splitlines())) > 300}  # fmt: skip
+    assert not long, long
+
+
+def test_evaluation_imports_no_lightning_at_run_time():
+    """evaluate.py runs a plain nn.Module: Lightning (9 s to import on 2 cores) stays out."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, costseg.cli, costseg.evaluation, costseg.report.evaluation, "
+        "costseg.networks; print(sorted(m for m in sys.modules if m.split('.')[0] == 'lightning'))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
