@@ -188,8 +188,7 @@ def choose(args: argparse.Namespace, target: np.ndarray, goal: np.ndarray) -> di
     ltt = learn_then_test(losses, args.alpha, args.delta, args.method, bound=args.bound)
     objective = pooled(goal)
     chosen = ltt.best(np.nan_to_num(objective, nan=-np.inf))  # as evaluate.py --guarantee
-    allowed = meets(torch.from_numpy(pooled(target)),
-                    args.target_spec)  # fmt: skip
+    allowed = meets(torch.from_numpy(pooled(target)), args.target_spec)
     naive = best_points(torch.from_numpy(objective), allowed)  # as evaluate.py --target
     return {"ltt": chosen, "naive": naive[0] if naive else None,
             "certified": len(ltt.valid), "left_out": float(ltt.n_undefined.mean())}  # fmt: skip

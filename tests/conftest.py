@@ -20,11 +20,15 @@ LABEL_IDS = np.array([*range(34), 255], dtype=np.uint8)
 """Every id a ``*_gtFine_labelIds.png`` may hold: 0-33 and license plate's -1 stored as 255."""
 
 
-def cityscapes_label_ids(item: int, size: tuple[int, int] = CITYSCAPES_SIZE) -> np.ndarray:
-    """(H, W) uint8 label ids of generated item ``item``: 4x8 blocks cycling through LABEL_IDS."""
+def cityscapes_label_ids(
+    item: int, size: tuple[int, int] = CITYSCAPES_SIZE, valid_only: bool = False
+) -> np.ndarray:
+    """(H, W) uint8 label ids of generated item ``item``: 4x8 blocks cycling through LABEL_IDS
+    (without 255 when ``valid_only``: the official evaluator stops at an unknown id)."""
     h, w = size
+    ids_used = LABEL_IDS[:-1] if valid_only else LABEL_IDS
     block = np.arange(h // 4)[:, None] * (w // 8) + np.arange(w // 8)[None, :]
-    ids = LABEL_IDS[(block + 7 * item) % len(LABEL_IDS)]
+    ids = ids_used[(block + 7 * item) % len(ids_used)]
     return np.kron(ids, np.ones((4, 8), dtype=np.uint8))
 
 
@@ -34,7 +38,12 @@ def cityscapes_image(label_ids: np.ndarray) -> np.ndarray:
 
 
 def write_cityscapes_item(
-    root: Path, split: str, name: str, item: int, size: tuple[int, int] = CITYSCAPES_SIZE
+    root: Path,
+    split: str,
+    name: str,
+    item: int,
+    size: tuple[int, int] = CITYSCAPES_SIZE,
+    valid_only: bool = False,
 ) -> tuple[Path, Path]:
     """Write one (H, W) = ``size`` image/label pair in Cityscapes' layout (sizes divisible by
     (4, 8)); returns (image path, label path)."""
@@ -43,7 +52,7 @@ def write_cityscapes_item(
     label = root / "gtFine" / split / city / f"{name}_gtFine_labelIds.png"
     image.parent.mkdir(parents=True, exist_ok=True)
     label.parent.mkdir(parents=True, exist_ok=True)
-    ids = cityscapes_label_ids(item, size)
+    ids = cityscapes_label_ids(item, size, valid_only)
     write_png(torch.from_numpy(cityscapes_image(ids)), str(image))
     write_png(torch.from_numpy(ids)[None], str(label))
     return image, label

@@ -19,7 +19,9 @@ EVERY = 3
 def _config(tmp_path: Path) -> Path:
     """configs/toy.yaml with the periodic last.ckpt every EVERY steps."""
     config = yaml.safe_load((ROOT / "configs" / "toy.yaml").read_text())
-    periodic = [c for c in config["trainer"]["callbacks"] if "every_n_train_steps" in c["init_args"]]
+    periodic = [
+        c for c in config["trainer"]["callbacks"] if "every_n_train_steps" in c["init_args"]
+    ]
     assert len(periodic) == 1  # the shipped config saves last.ckpt periodically
     periodic[0]["init_args"]["every_n_train_steps"] = EVERY
     path = tmp_path / "toy.yaml"

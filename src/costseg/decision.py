@@ -74,12 +74,15 @@ def decide(
     fast = _Fast(cost, probs, priors, eps=(n + 4) * U64)  # eps: the reference's rounding
     b, _, h, w = probs.shape
     out = torch.empty(b, h * w, dtype=torch.long, device=probs.device)
-    for i, s, q in fast.chunks():
-        index, ambiguous = _top(fast.costs(q)[0], fast.gamma, fast.eps)
-        out[i, s : s + q.shape[1]] = index
-        redo = ambiguous.nonzero()[:, 0]
+    for i in range(b):
+        redo = []
+        for s, q in fast.chunks(i):
+            index, ambiguous = _top(fast.costs(q)[0], fast.gamma, fast.eps, inplace=True)
+            out[i, s : s + q.shape[1]] = index
+            redo.append(ambiguous.nonzero()[:, 0] + s)
+        redo = torch.cat(redo)
         if len(redo):
-            out[i, s + redo] = _reference(fast.exact_q(i, s + redo), shifted)
+            out[i, redo] = fast.settle(i, redo, shifted)
     return out.view(b, h, w)
 
 
@@ -121,11 +124,12 @@ def decide_mixtures(
     k = weights.shape[0]
     # eps: the reference's rounding on a mixed matrix (also the mixing in mix_costs), per T.
     fast = _Fast(vertices.to(probs.device, torch.float64), probs, priors, (n + 8) * U64)
-    mix = _Mixer(weights.to(probs.device, torch.float32), fast)
+    weights = weights.to(probs.device, torch.float64)
+    mix = _Mixer(weights.float(), fast)
     b, _, h, w = probs.shape
     dtype = torch.uint8 if n <= 256 else torch.long  # K label maps add up
     out = torch.empty(b, k, h * w, dtype=dtype, device=probs.device)
-    for i, s, q in fast.chunks():
+    for i, (s, q) in ((j, c) for j in range(b) for c in fast.chunks(j)):
         labels = out[i, :, s : s + q.shape[1]]
         costs = fast.costs(q)
         winner, ambiguous = _top(costs, fast.gamma, fast.eps)
@@ -135,8 +139,8 @@ def decide_mixtures(
             decided, redo = mix(costs[:, :, contested], winner[:, contested])
             grid, pixel = redo.nonzero().unbind(1)
             if len(grid):
-                q64 = fast.exact_q(i, s + contested[pixel])
-                decided[grid, pixel] = _reference(q64, mixed[grid])
+                pixels = s + contested[pixel]
+                decided[grid, pixel] = fast.settle(i, pixels, mixed[grid], weights[grid])
             labels[:, contested] = decided.to(dtype)
     return out.view(b, k, h, w)
 
@@ -160,6 +164,7 @@ class _Fast:
         self.probs, self.priors = probs.reshape(b, n, h * w), _priors(priors, n, h, w, probs)
         low, high = matrices.amin(-2, keepdim=True), matrices.amax(-2, keepdim=True)
         weight = torch.cat([matrices - low, high - low + matrices.abs().amax(-2, True)], -2)
+        self.weight64 = weight.reshape(-1, n)  # for q = p / π in float64
         if self.priors is not None and self.priors.ndim == 1:
             weight = weight / self.priors.double()
         top = weight.max().item()
@@ -173,6 +178,8 @@ class _Fast:
         self.u_in = {"highest": 0.0, "high": 2.0**-11, "medium": 2.0**-8}[precision]
         dot = n * U32 / (1 - n * U32)
         self.gamma = (1 + rho) * (1 + self.u_in) ** 2 * (1 + U32) ** 3 * (1 + dot) - 1
+        # float64: two roundings of the matrix (minus C.min, over π), one of q, the dot product.
+        self.gamma64 = (1 + U64) ** 3 * (1 + n * U64 / (1 - n * U64)) - 1
         self.eps, self.rows = eps, single.shape[:2]
         self.weight = single.reshape(-1, n)
         self.pixel_priors = (
@@ -185,21 +192,47 @@ class _Fast:
 
     def exact_q(self, image: int, pixels: torch.Tensor) -> torch.Tensor:
         """(R, N) float64 ``p / π`` of the given pixels of one image, as the reference has it."""
-        q = self.probs[image][:, pixels].double()
+        q = self.probs[image].index_select(1, pixels).double()
         if self.priors is not None:
             prior = self.priors[:, None] if self.priors.ndim == 1 else self.priors[:, pixels]
             q = q / prior.double()
         return q.t()
 
-    def chunks(self) -> Iterator[tuple[int, int, torch.Tensor]]:
-        """(image, first pixel, (N, P) float32 q) for every chunk of pixels."""
-        step = CPU_CHUNK if self.probs.device.type == "cpu" else GPU_CHUNK
-        for i, image in enumerate(self.probs):
-            for s in range(0, image.shape[1], step):
-                q = image[:, s : s + step]
-                if self.pixel_priors is not None:
-                    q = q.float() / self.pixel_priors[:, s : s + step].float()
-                yield i, s, q.float()
+    def chunks(self, image: int) -> Iterator[tuple[int, torch.Tensor]]:
+        """(first pixel, (N, P) float32 q) for every chunk of pixels of one image."""
+        probs = self.probs[image]
+        step = CPU_CHUNK if probs.device.type == "cpu" else GPU_CHUNK
+        for s in range(0, probs.shape[1], step):
+            q = probs[:, s : s + step]
+            if self.pixel_priors is not None:
+                q = q.float() / self.pixel_priors[:, s : s + step].float()
+            yield s, q.float()
+
+    def settle(self, image: int, pixels: torch.Tensor, shifted: torch.Tensor, weights=None):
+        """Labels (R,) where float32 left it open: the same certificate in float64 (matmuls),
+        then the reference where even that fails.
+
+        Args:
+            image: index in the batch.
+            pixels: (R,) pixel indices (repeats allowed).
+            shifted: (R or 1, N, N) the reference's shifted matrices.
+            weights: None (V = 1) or (R, V) float64 mixture weights.
+        """
+        pixels, inverse = torch.unique(pixels, return_inverse=True)
+        q = self.exact_q(image, pixels)
+        costs = (q @ self.weight64.t()).view(len(pixels), *self.rows)[inverse]
+        gamma = self.gamma64
+        if weights is None:
+            costs = costs[:, 0]
+        else:  # V more nonnegative terms
+            costs = (weights[:, :, None] * costs).sum(1)
+            gamma = (1 + gamma) * (1 + len(weights[0]) * U64 / (1 - len(weights[0]) * U64)) - 1
+        labels, unsure = _top64(costs, gamma, self.eps)
+        unsure = unsure.nonzero()[:, 0]
+        if len(unsure):
+            matrices = shifted[unsure] if len(shifted) > 1 else shifted
+            labels[unsure] = _reference(q[inverse[unsure]], matrices)
+        return labels
 
 
 class _Mixer:
@@ -249,35 +282,56 @@ class _Mixer:
         return candidate
 
 
-def _top(costs: torch.Tensor, gamma: float, eps: float) -> tuple[torch.Tensor, torch.Tensor]:
+def _top(
+    costs: torch.Tensor, gamma: float, eps: float, inplace: bool = False
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Argmin over dim -2 of float32 costs >= 0 whose last row is T, and where it is uncertain.
 
     With computed costs x, exact y, ``|x - y| <= γ y`` and the reference within ``eps · T`` of
     y (up to a per-pixel constant), the runner-up b and the argmin a satisfy
     ``y_b - y_a > 2 eps T`` -- the reference then decides a, uniquely -- when
-    ``x_b - x_a > Δ x_b`` with ``Δ = 5γ / (1 - γ)``, ``x_b >= 4 eps T / γ`` and ``x_b >= 2**-60``
-    (underflow is then negligible). Nonnegative floats order like their int32 bit patterns,
-    whose low ``bits`` carry the row (lowest wins ties); n ulps above a value lies at least
-    ``n · 2**-24`` times it, and clearing the low bits moves a pattern by less than ``2**bits``.
+    ``x_b - x_a > Δ x_b`` with ``Δ = 2.5γ / (1 - γ)`` (2γ for both roundings, γ/2 left for the
+    reference's), ``x_b >= 10 eps T / γ`` and ``x_b >= 2**-60`` (underflow then negligible).
+
+    Nonnegative floats order like their int32 bit patterns, whose low ``bits`` carry the row
+    (lowest wins ties); n ulps above a value lies at least ``n · 2**-24`` times it, and clearing
+    the low bits moves a pattern by less than ``2**bits``.
 
     Returns:
-        (..., P) int64 argmin rows and (..., P) bool: not certified (also inf, NaN).
+        (..., P) int64 argmin rows and (..., P) bool: not certified (also inf, NaN). With
+        ``inplace``, ``costs`` is overwritten.
     """
     costs, total = costs[..., :-1, :], costs[..., -1, :]
     m = costs.shape[-2]
     low = (1 << max(1, (m - 1).bit_length())) - 1
     code = torch.arange(m, dtype=torch.int32, device=costs.device).view(m, 1)
-    packed = torch.bitwise_and(costs.view(torch.int32), INT_MAX - low).bitwise_or_(code)
-    best = packed.amin(-2, keepdim=True)
-    # packed - best - 1 >= 0 except at the best (-1, masked to INT_MAX): the gap minus one.
-    gap = torch.sub(packed, best + 1, out=packed).bitwise_and_(INT_MAX).amin(-2)
-    best = best.squeeze(-2)
-    delta = 5 * gamma / (1 - gamma)
+    packed = costs.view(torch.int32)
+    packed = packed.bitwise_and_(INT_MAX - low) if inplace else packed & (INT_MAX - low)
+    best = packed.bitwise_or_(code).amin(-2, keepdim=True)
+    index = (best & low).long()
+    second = packed.scatter_(-2, index, INT_MAX).amin(-2)  # the runner-up's pattern
+    delta = 2.5 * gamma / (1 - gamma)
     limit = math.ceil(delta * 2**24 / (1 - delta)) + 2 * low + 2
-    second = (best.long() + gap + (1 - low)).clamp_(max=INF).int()  # <= the runner-up's bits
-    floor = (4 * eps / gamma * total).clamp_(min=2.0**-60)
-    certain = (gap >= limit) & (second.view(torch.float32) >= floor) & (second < INF - low)
-    return (best & low).long(), ~certain
+    # Every other cost's bits are >= second - low; second >= INF: inf or NaN.
+    floor = torch.add(2.0**-60, total, alpha=10 * eps / gamma)
+    lower = (second - low).view(torch.float32)
+    certain = (second - best.squeeze(-2) >= limit) & (lower >= floor) & (second < INF)
+    return index.squeeze(-2), ~certain
+
+
+def _top64(costs: torch.Tensor, gamma: float, eps: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """``_top`` for (R, m + 1) float64 costs (argmin over dim 1, last column T), by sorting.
+
+    Certified when ``y_b - y_a >= x_b - x_a - g (x_a + x_b) - (underflow)`` exceeds the
+    reference's ``2 eps T (1 + g)``, ``g = γ / (1 - γ)``; 1.25 and ``1 - 4u`` absorb the
+    rounding of the test itself.
+    """
+    if costs.shape[1] == 2:
+        return torch.zeros_like(costs[:, 0], dtype=torch.long), torch.zeros_like(costs[:, 0] > 0)
+    values, order = costs[:, :-1].sort(dim=1, stable=True)
+    g, (lo, hi) = gamma / (1 - gamma), values[:, :2].unbind(1)
+    need = 1.25 * (g * (lo + hi) + 2 * eps * (1 + g) * costs[:, -1]) + 2.0**-900
+    return order[:, 0], ~((hi - lo) * (1 - 4 * U64) > need)
 
 
 def _reference(q: torch.Tensor, shifted: torch.Tensor) -> torch.Tensor:

@@ -79,7 +79,8 @@ def plan(opts: EvalOptions) -> EvalPlan:
         candidates = next((g for g in groups if g.kind in ("grid", "alpha")), groups[0])
         check_calibration_size(opts, len(calibration[1]), len(candidates.names))
     base = _default_base(source)
-    priors = PriorMaps(source_priors(source, opts, config, base), CLASS_NAMES, device)
+    cache = (Path(opts.output_dir).resolve().parent if opts.output_dir else base.parent) / "priors"
+    priors = PriorMaps(source_priors(source, opts, config, cache), CLASS_NAMES, device)
     if priors.priors is None and needs_priors(groups):
         raise ValueError("ml and --alpha_sweep need pixel-wise priors, and this source has none")
     return EvalPlan(

@@ -99,9 +99,10 @@ def needs_priors(groups: list[RuleGroup]) -> bool:
     return any(r.priors_alpha for r in groups[0].rules) or any(g.kind == "alpha" for g in groups)
 
 
-def source_priors(source, opts: EvalOptions, config: dict, cache_base: Path) -> torch.Tensor | None:
+def source_priors(source, opts: EvalOptions, config: dict, cache_dir: Path) -> torch.Tensor | None:
     """The priors of a costseg checkpoint, or, for another network, the dataset's training
-    labels' priors (SPEC §3, §8), computed once and cached next to the outputs."""
+    labels' priors (SPEC §3, §8), computed once and cached in ``cache_dir`` (next to the
+    outputs)."""
     if source.priors is not None:
         return source.priors
     from costseg.data.from_config import build_dataset
@@ -117,7 +118,7 @@ def source_priors(source, opts: EvalOptions, config: dict, cache_base: Path) -> 
     read = getattr(train, "read_label", None) or (lambda i: train[i][1])
     found = cached_priors(
         lambda: (read(i) for i in range(len(train))),
-        cache_base.parent / "priors" / f"train_{key}.pt",
+        cache_dir / f"train_{key}.pt",
         {"root": root, "split": "train", "images": len(train)},
         progress=opts.progress,
     )
