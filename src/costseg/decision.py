@@ -75,14 +75,15 @@ def decide(
     b, _, h, w = probs.shape
     out = torch.empty(b, h * w, dtype=torch.long, device=probs.device)
     for i in range(b):
-        redo = []
+        redo, q64 = [], []
         for s, q in fast.chunks(i):
-            index, ambiguous = _top(fast.costs(q)[0], fast.gamma, fast.eps, inplace=True)
-            out[i, s : s + q.shape[1]] = index
+            labels = out[i, s : s + q.shape[1]]
+            _, ambiguous = _top(fast.costs(q)[0], fast.gamma, fast.eps, True, labels)
             redo.append(ambiguous.nonzero()[:, 0] + s)
+            q64.append(fast.exact_q(i, redo[-1]))  # while the chunk is in cache
         redo = torch.cat(redo)
         if len(redo):
-            out[i, redo] = fast.settle(i, redo, shifted)
+            out[i, redo] = fast.settle(torch.cat(q64), shifted)
     return out.view(b, h, w)
 
 
@@ -136,11 +137,12 @@ def decide_mixtures(
         labels.copy_(winner[0].expand(k, -1))
         contested = ((winner != winner[:1]).any(0) | ambiguous.any(0)).nonzero()[:, 0]
         if len(contested):
-            decided, redo = mix(costs[:, :, contested], winner[:, contested])
+            decided, redo = mix(costs[:, :, contested], winner[:, contested].long())
             grid, pixel = redo.nonzero().unbind(1)
             if len(grid):
-                pixels = s + contested[pixel]
-                decided[grid, pixel] = fast.settle(i, pixels, mixed[grid], weights[grid])
+                pixels, inverse = torch.unique(contested[pixel], return_inverse=True)
+                q64 = fast.exact_q(i, s + pixels)
+                decided[grid, pixel] = fast.settle(q64, mixed[grid], weights[grid], inverse)
             labels[:, contested] = decided.to(dtype)
     return out.view(b, k, h, w)
 
@@ -208,19 +210,19 @@ class _Fast:
                 q = q.float() / self.pixel_priors[:, s : s + step].float()
             yield s, q.float()
 
-    def settle(self, image: int, pixels: torch.Tensor, shifted: torch.Tensor, weights=None):
+    def settle(self, q: torch.Tensor, shifted: torch.Tensor, weights=None, inverse=None):
         """Labels (R,) where float32 left it open: the same certificate in float64 (matmuls),
         then the reference where even that fails.
 
         Args:
-            image: index in the batch.
-            pixels: (R,) pixel indices (repeats allowed).
+            q: (U, N) float64 ``p / π`` of the pixels (:meth:`exact_q`).
             shifted: (R or 1, N, N) the reference's shifted matrices.
             weights: None (V = 1) or (R, V) float64 mixture weights.
+            inverse: None (R = U) or (R,) the pixel of each label.
         """
-        pixels, inverse = torch.unique(pixels, return_inverse=True)
-        q = self.exact_q(image, pixels)
-        costs = (q @ self.weight64.t()).view(len(pixels), *self.rows)[inverse]
+        costs = (q @ self.weight64.t()).view(len(q), *self.rows)
+        if inverse is not None:
+            q, costs = q[inverse], costs[inverse]
         gamma = self.gamma64
         if weights is None:
             costs = costs[:, 0]
@@ -231,7 +233,7 @@ class _Fast:
         unsure = unsure.nonzero()[:, 0]
         if len(unsure):
             matrices = shifted[unsure] if len(shifted) > 1 else shifted
-            labels[unsure] = _reference(q[inverse[unsure]], matrices)
+            labels[unsure] = _reference(q[unsure], matrices)
         return labels
 
 
@@ -261,8 +263,8 @@ class _Mixer:
             rows = torch.cat([classes, torch.full_like(classes[:1], n)])  # candidates, then T
             picked = costs[:, :, sel].gather(1, rows.expand(v, -1, -1))
             mixed = (self.weights @ picked.reshape(v, -1)).view(k, m + 1, -1)
-            position, redo[:, sel] = _top(mixed, self.gamma, self.fast.eps)
-            labels[:, sel] = classes.gather(0, position)
+            position, redo[:, sel] = _top(mixed, self.gamma, self.fast.eps, True)
+            labels[:, sel] = classes.gather(0, position.long())
         return labels, redo
 
     def _candidates(self, costs: torch.Tensor, winner: torch.Tensor) -> torch.Tensor:
@@ -283,7 +285,7 @@ class _Mixer:
 
 
 def _top(
-    costs: torch.Tensor, gamma: float, eps: float, inplace: bool = False
+    costs: torch.Tensor, gamma: float, eps: float, inplace: bool = False, out=None
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Argmin over dim -2 of float32 costs >= 0 whose last row is T, and where it is uncertain.
 
@@ -298,8 +300,8 @@ def _top(
     the low bits moves a pattern by less than ``2**bits``.
 
     Returns:
-        (..., P) int64 argmin rows and (..., P) bool: not certified (also inf, NaN). With
-        ``inplace``, ``costs`` is overwritten.
+        (..., P) argmin rows (int32, or written to ``out``) and (..., P) bool: not certified
+        (also inf, NaN). With ``inplace``, ``costs`` is overwritten.
     """
     costs, total = costs[..., :-1, :], costs[..., -1, :]
     m = costs.shape[-2]
@@ -308,19 +310,20 @@ def _top(
     packed = costs.view(torch.int32)
     packed = packed.bitwise_and_(INT_MAX - low) if inplace else packed & (INT_MAX - low)
     best = packed.bitwise_or_(code).amin(-2, keepdim=True)
-    index = (best & low).long()
-    second = packed.scatter_(-2, index, INT_MAX).amin(-2)  # the runner-up's pattern
+    # packed - best - 1 >= 0 except at the best (-1, masked to INT_MAX): the gap minus one.
+    gap = torch.sub(packed, best + 1, out=packed).bitwise_and_(INT_MAX).amin(-2)
+    best = best.squeeze(-2)
     delta = 2.5 * gamma / (1 - gamma)
-    limit = math.ceil(delta * 2**24 / (1 - delta)) + 2 * low + 2
-    # Every other cost's bits are >= second - low; second >= INF: inf or NaN.
+    limit = math.ceil(delta * 2**24 / (1 - delta)) + 2 * low + 1
+    # Every other cost's bits are >= best + gap + 1 - low: a lower bound, inf or NaN past INF.
+    lower = best + torch.minimum(gap, INF - best) + (1 - low)
     floor = torch.add(2.0**-60, total, alpha=10 * eps / gamma)
-    lower = (second - low).view(torch.float32)
-    certain = (second - best.squeeze(-2) >= limit) & (lower >= floor) & (second < INF)
-    return index.squeeze(-2), ~certain
+    certain = (gap >= limit) & (lower.view(torch.float32) >= floor) & (lower < INF - low)
+    return torch.bitwise_and(best, low, out=out), ~certain
 
 
 def _top64(costs: torch.Tensor, gamma: float, eps: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """``_top`` for (R, m + 1) float64 costs (argmin over dim 1, last column T), by sorting.
+    """``_top`` for (R, m + 1) float64 costs (argmin over dim 1, last column T), in floats.
 
     Certified when ``y_b - y_a >= x_b - x_a - g (x_a + x_b) - (underflow)`` exceeds the
     reference's ``2 eps T (1 + g)``, ``g = γ / (1 - γ)``; 1.25 and ``1 - 4u`` absorb the
@@ -328,10 +331,12 @@ def _top64(costs: torch.Tensor, gamma: float, eps: float) -> tuple[torch.Tensor,
     """
     if costs.shape[1] == 2:
         return torch.zeros_like(costs[:, 0], dtype=torch.long), torch.zeros_like(costs[:, 0] > 0)
-    values, order = costs[:, :-1].sort(dim=1, stable=True)
-    g, (lo, hi) = gamma / (1 - gamma), values[:, :2].unbind(1)
-    need = 1.25 * (g * (lo + hi) + 2 * eps * (1 + g) * costs[:, -1]) + 2.0**-900
-    return order[:, 0], ~((hi - lo) * (1 - 4 * U64) > need)
+    costs, total = costs[:, :-1], costs[:, -1]
+    lo, index = costs.min(1, keepdim=True)  # the first minimum
+    hi = costs.scatter(1, index, math.inf).amin(1)
+    g, lo = gamma / (1 - gamma), lo[:, 0]
+    need = 1.25 * (g * (lo + hi) + 2 * eps * (1 + g) * total) + 2.0**-900
+    return index[:, 0], ~((hi - lo) * (1 - 4 * U64) > need)
 
 
 def _reference(q: torch.Tensor, shifted: torch.Tensor) -> torch.Tensor:

@@ -118,14 +118,15 @@ def _pixel_counts(
     inside = target != ignore_index
     if roi_id > 0 and roi is not None:
         inside = inside & (roi.to(target.device) == roi_id).expand_as(target)
-    gt = (target == cls) & inside  # (B, H, W)
-    predicted = (preds == cls) & inside.unsqueeze(1)  # (B, K, H, W)
-    tp = (predicted & gt.unsqueeze(1)).sum((-2, -1))
-    if metric == "recall":
-        whole = gt.sum((-2, -1)).unsqueeze(1).expand_as(tp)
-    else:
-        whole = predicted.sum((-2, -1))
-    return torch.stack([tp, whole], -1).long()
+    gt = target == cls
+    out = torch.zeros(*preds.shape[:2], 2, dtype=torch.long, device=preds.device)
+    recall = metric == "recall"
+    for b in range(len(target)):  # only the counted pixels of each image: RoIs are small
+        counted = (inside[b] & gt[b] if recall else inside[b]).flatten().nonzero().squeeze(1)
+        hits = preds[b].flatten(1)[:, counted] == cls  # (K, P')
+        out[b, :, 0] = hits.sum(1) if recall else (hits & gt[b].flatten()[counted]).sum(1)
+        out[b, :, 1] = len(counted) if recall else hits.sum(1)
+    return out
 
 
 def _segment_counts(
