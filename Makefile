@@ -26,6 +26,8 @@ test: lint
 	$(BIN)/python -m pytest -q
 
 bench: setup
+	$(BIN)/python scripts/bench_decision.py
+	$(BIN)/python scripts/bench_pipeline.py
 	$(BIN)/python scripts/bench.py
 	$(BIN)/python scripts/bench_data.py
 

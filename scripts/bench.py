@@ -1,23 +1,23 @@
-"""Speed of the decision layer, the value-space sweep and training, as side-by-side ratios.
+"""Speed of a foreign network with the rules, of saved probabilities, and of training.
 
-    python scripts/bench.py [--skip-sweep] [--skip-train]
+    python scripts/bench.py [--skip-network] [--skip-train]
 
-Every ratio compares two timings taken in the same run on the same tensors (best of several
-repeats), so a loaded machine shifts both alike. Sections:
+Every figure is timed in the same run (best of several repeats). Sections:
 
-1. decision layer on (1, 19, 512, 1024) fp32 probabilities on the CPU: single-rule ``decide`` ÷
-   ``torch.argmax(p, 1)`` and ÷ one read pass ``p.sum()``; ``decide_mixtures`` over the 66-point
-   grid ÷ single-rule ``decide`` (and the naive loop over 66 matrices, for reference);
-   on a GPU, if there is one, the same at (1, 19, 1024, 2048) with effective GB/s;
-2. a 231-point sweep (step 0.05) ÷ a single-rule evaluation over the same toy validation set,
-   network included, with the newest checkpoint under runs/ (or an untrained model);
-3. training throughput (images/s) of the default config ``configs/toy.yaml``; on a GPU also of
+1. one 1024 x 2048 image on the CPU: VainF's ResNet-101 DeepLabV3+ (random weights) with three
+   rules, against reading the image's saved float16 probabilities (``--probs``) with the same
+   rules;
+2. training throughput (images/s) of the default config ``configs/toy.yaml``; on a GPU also of
    ``configs/cityscapes.yaml``'s network (crop 768, batch 8, bf16 autocast, channels-last).
+
+The decision layer is timed by scripts/bench_decision.py, the evaluation pipeline by
+scripts/bench_pipeline.py.
 """
 
 from __future__ import annotations
 
 import argparse
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -25,11 +25,7 @@ from pathlib import Path
 import torch
 import yaml
 
-from costseg.costs import barycentric_grid, load_cost, mix_costs
-from costseg.decision import decide, decide_mixtures
-
 ROOT = Path(__file__).resolve().parents[1]
-VERTICES = torch.stack([load_cost(n) for n in ("robotistic", "altruistic", "egoistic")])
 
 
 def best_time(fn: Callable[[], object], repeats: int = 5, sync: Callable = lambda: None) -> float:
@@ -45,64 +41,41 @@ def best_time(fn: Callable[[], object], repeats: int = 5, sync: Callable = lambd
     return min(times)
 
 
-def probabilities(shape: tuple[int, ...], device: str) -> torch.Tensor:
-    """Softmax of smooth random logits: confident almost everywhere, unsure near borders."""
-    gen = torch.Generator().manual_seed(0)
-    b, n, h, w = shape
-    coarse = torch.randn(b, n, h // 16, w // 16, generator=gen) * 6
-    logits = torch.nn.functional.interpolate(coarse, size=(h, w), mode="bilinear")
-    return logits.softmax(1).to(device)
-
-
-def bench_decision(device: str, shape: tuple[int, ...]) -> None:
-    probs = probabilities(shape, device)
-    sync = torch.cuda.synchronize if device == "cuda" else (lambda: None)
-    grid = barycentric_grid(0.1)
-    t_argmax = best_time(lambda: probs.argmax(1), sync=sync)
-    t_sum = best_time(lambda: probs.sum(), sync=sync)
-    t_decide = best_time(lambda: decide(probs, VERTICES[2]), sync=sync)
-    t_mix = best_time(lambda: decide_mixtures(probs, VERTICES, grid), repeats=2, sync=sync)
-    mixed = mix_costs(VERTICES, grid)
-    t_loop = best_time(lambda: [decide(probs, c) for c in mixed], repeats=1, sync=sync)
-    print(f"decision layer, {device}, probabilities {tuple(shape)} fp32:")
-    print(f"  argmax {1e3 * t_argmax:8.1f} ms   p.sum() {1e3 * t_sum:8.1f} ms")
-    print(f"  decide (egoistic)              {1e3 * t_decide:8.1f} ms")
-    print(f"  decide / argmax                {t_decide / t_argmax:8.2f}   (target <= 1.0)")
-    print(f"  decide / p.sum()               {t_decide / t_sum:8.2f}")
-    print(f"  decide_mixtures, 66 points     {1e3 * t_mix:8.1f} ms")
-    print(f"  decide_mixtures / decide       {t_mix / t_decide:8.2f}   (target <= 10)")
-    print(f"  loop of 66 decide / decide     {t_loop / t_decide:8.2f}   (the naive way)")
-    if device == "cuda":
-        gigabytes = probs.numel() * probs.element_size() / 1e9
-        print(
-            f"  effective bandwidth: decide {gigabytes / t_decide:.0f} GB/s, "
-            f"argmax {gigabytes / t_argmax:.0f} GB/s, p.sum() {gigabytes / t_sum:.0f} GB/s"
-        )
-
-
-def bench_sweep() -> None:
-    from costseg.checkpoints import find_checkpoint
-    from costseg.eval_job import EvalOptions, load_model, make_loader
-    from costseg.evaluation import RuleGroup, evaluate
+def bench_network_and_rules(steps: int = 2) -> None:
+    """VainF's ResNet-101 DeepLabV3+ (random weights) + three rules per 1024 x 2048 image, and
+    reading saved float16 probabilities of such an image from disk instead."""
+    from costseg.networks import load_network
+    from costseg.networks.vainf import export_vainf_state, vainf_deeplabv3plus
+    from costseg.probs_files import load_probs, save_probs
     from costseg.rules import apply_rules, parse_rules
-    from costseg.sweep import sweep_group
 
-    try:
-        module, _ = load_model(EvalOptions(ckpt_path=str(find_checkpoint(None))))
-    except FileNotFoundError:
-        print("sweep: no checkpoint under runs/ (run `make demo` first); skipped")
-        return
-    loader = make_loader(module, EvalOptions())
-    rules = parse_rules(["robotistic"])
-    single = RuleGroup(["robotistic"], lambda p, pri: apply_rules(p, rules, pri))
-    sweep = sweep_group(VERTICES, barycentric_grid(0.05))
-    classes = [11, 2]
-    t_single = best_time(lambda: evaluate(module, loader, [single], classes, progress=False), 1)
-    t_sweep = best_time(lambda: evaluate(module, loader, [sweep], classes, progress=False), 1)
-    images = len(loader.dataset)
-    print(f"value-space sweep on the toy validation set ({images} images, network included):")
-    print(f"  single-rule evaluation {t_single:7.1f} s   231-point sweep {t_sweep:7.1f} s")
-    print(f"  sweep / single rule            {t_sweep / t_single:8.2f}   (target <= 5; ~231 naive)")
+    rules = parse_rules(["robotistic", "altruistic", "egoistic"])
+    images = torch.randint(0, 256, (1, 3, 1024, 2048), dtype=torch.uint8)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "vainf_r101_os16.pth"
+        torch.save(
+            {"model_state": export_vainf_state(vainf_deeplabv3plus(19, "resnet101", 16))}, path
+        )
+        net = load_network(f"vainf:{path}")
+        with torch.inference_mode():
+            probs = net(images).softmax(1)
+            t_net = best_time(lambda: apply_rules(net(images).softmax(1), rules), repeats=steps)
+            save_probs(Path(tmp) / "image.npz", probs[0])
+            t_disk = best_time(
+                lambda: apply_rules(
+                    load_probs(Path(tmp) / "image.npz", size=(1024, 2048))[None], rules
+                ),
+                repeats=steps,
+            )
+    print("one 1024 x 2048 image on the CPU, three rules (robotistic, altruistic, egoistic):")
+    print(
+        f"  VainF ResNet-101 OS16 network + rules  {t_net:7.2f} s/image ({1 / t_net:.2f} images/s)"
+    )
+    print(
+        f"  saved float16 probabilities + rules    {t_disk:7.2f} s/image "
+        f"({1 / t_disk:.2f} images/s)"
+    )
+    print(f"  --probs speed-up over the network      {t_net / t_disk:7.1f} x")
 
 
 def bench_training(steps: int = 5) -> None:
@@ -169,14 +142,11 @@ def _batches(data):
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--skip-sweep", action="store_true")
+    parser.add_argument("--skip-network", action="store_true")
     parser.add_argument("--skip-train", action="store_true")
     args = parser.parse_args()
-    bench_decision("cpu", (1, 19, 512, 1024))
-    if torch.cuda.is_available():
-        bench_decision("cuda", (1, 19, 1024, 2048))
-    if not args.skip_sweep:
-        bench_sweep()
+    if not args.skip_network:
+        bench_network_and_rules()
     if not args.skip_train:
         bench_training()
         if torch.cuda.is_available():

@@ -5,12 +5,11 @@ import json
 import numpy as np
 import pytest
 import torch
-import yaml
 from PIL import Image
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from costseg.checkpoints import find_checkpoint
-from costseg.classes import CLASS_NAMES, LABEL_ID_TO_TRAIN_ID
+from costseg.classes import LABEL_ID_TO_TRAIN_ID
 from costseg.cli import evaluate_main
 from costseg.costs import load_cost, mix_costs, save_cost
 from costseg.data.prior_maps import PriorMaps
@@ -159,11 +158,9 @@ def test_images_of_different_sizes_in_one_evaluation(tiny_run, cityscapes_root, 
     write_cityscapes_item(cityscapes_root, "val", "zurich_000000_000001", 3, size=(48, 80))
     write_cityscapes_item(cityscapes_root, "val", "zurich_000000_000002", 4, size=(16, 32))
     ckpt = str(find_checkpoint(None, runs_dir=tiny_run[2]))
-    results = evaluate_main(
-        ["--ckpt_path", ckpt, "--data_root", str(cityscapes_root), "--cost", "robotistic", "ml"]
-        + ["--output_dir", str(tmp_path / "out"), "--no-progress", "--num_examples", "5"]
-        + ["--batch_size", "5", "--save-predictions"]
-    )
+    args = ["--ckpt_path", ckpt, "--data_root", str(cityscapes_root), "--cost", "robotistic"]
+    args += ["ml", "--output_dir", str(tmp_path / "out"), "--no-progress", "--num_examples", "5"]
+    results = evaluate_main([*args, "--batch_size", "5", "--save-predictions"])
     assert results.num_images == 5
     sizes = {tuple(ex.label.shape) for ex in results.examples}
     assert sizes == {(32, 64), (48, 80), (16, 32)}

@@ -9,8 +9,8 @@ import pytest
 import torch
 from conftest import write_cityscapes_item
 
-from costseg.cli import evaluate_main
 from costseg.classes import CLASS_NAMES
+from costseg.cli import evaluate_main
 from costseg.networks import export_vainf_state
 from costseg.networks.vainf import vainf_deeplabv3plus
 

@@ -22,10 +22,9 @@ from costseg.report.figures import (
     plot_heatmap,
     plot_heatmap_grid,
     plot_masks,
-    plot_priors,
-    plot_roi_map,
 )
 from costseg.report.files import save_figure, write_csv, write_json, write_text
+from costseg.report.priors import plot_priors, plot_roi_map
 from costseg.report.tables import compare_with_paper, console_table, markdown_table, paper_table
 from costseg.report.tensorboard import log_figures, log_masks, log_scalars, log_table
 from costseg.report.ternary import barycentric_to_cartesian, plot_edge_tradeoffs, plot_ternary

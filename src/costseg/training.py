@@ -97,8 +97,8 @@ def _data_config(cli: LightningCLI) -> dict[str, Any]:
 
 def _compute_priors(model: SegmentationModule, data, trainer: Trainer) -> torch.Tensor:
     """Pixel-wise priors from the training labels, saved (with figures) in the run folder."""
-    from costseg.report.figures import plot_priors, plot_roi_map
     from costseg.report.files import save_figure
+    from costseg.report.priors import plot_priors, plot_roi_map
 
     labels = data.prior_labels()
     sigma = model.hparams.prior_sigma

@@ -10,8 +10,9 @@ from __future__ import annotations
 from torch.utils.tensorboard import SummaryWriter
 
 from costseg.classes import CLASS_NAMES
-from costseg.report.figures import plot_cost_matrix, plot_heatmap_grid, plot_masks, plot_roi_map
+from costseg.report.figures import plot_cost_matrix, plot_heatmap_grid, plot_masks
 from costseg.report.files import save_figure, write_csv, write_json, write_text
+from costseg.report.priors import plot_roi_map
 from costseg.report.tables import ROI_NAMES, compare_with_paper, console_table, paper_table
 from costseg.report.tensorboard import log_figures, log_masks, log_scalars, log_table
 from costseg.results import EvalResults, GroupResult

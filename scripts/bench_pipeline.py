@@ -1,0 +1,120 @@
+"""Speed of the evaluation pipeline, as ratios measured side by side in one run.
+
+    python scripts/bench_pipeline.py [--ckpt_path PATH] [--skip-full-resolution]
+
+Needs a trained checkpoint (default: the newest runs/**/last.ckpt, e.g. after `make demo`).
+Sections:
+
+1. start-up: `evaluate.py --help`, `train.py --help`, and a whole `evaluate.py` run on one image
+   (an upper bound of the time to the first image), each as a fresh process;
+2. the 231-point sweep (step 0.05) ÷ a single-rule evaluation on the toy validation set,
+   network included (the loop only, outputs not written);
+3. the same at full resolution on stand-in scenes written at 1024 × 2048 by
+   scripts/toy_as_cityscapes.py;
+4. figures: the share of an evaluation of 20 toy images spent writing tables and figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import torch
+
+from costseg.checkpoints import find_checkpoint
+from costseg.evaluation import plan, run
+from costseg.options import EvalOptions
+from costseg.report.evaluation import write_evaluation
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def process_seconds(args: list[str], repeats: int = 3) -> float:
+    """Best wall time of a fresh Python process running ``args``."""
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        subprocess.run([sys.executable, *args], cwd=ROOT, check=True, capture_output=True)
+        times.append(time.perf_counter() - start)
+    return min(times)
+
+
+def bench_startup(ckpt: str, out: Path) -> None:
+    t_eval_help = process_seconds(["evaluate.py", "--help"])
+    t_train_help = process_seconds(["train.py", "--help"])
+    one = ["evaluate.py", "--ckpt_path", ckpt, "--cost", "robotistic", "--limit", "1"]
+    one += ["--num_examples", "0", "--no-progress", "--overwrite", "--output_dir", str(out)]
+    t_one = process_seconds(one)
+    print("start-up (fresh processes, best of 3):")
+    print(f"  evaluate.py --help             {t_eval_help:8.2f} s   (target <= 1)")
+    print(f"  train.py --help                {t_train_help:8.2f} s   (target <= 1)")
+    print(f"  evaluate.py on 1 image, whole  {t_one:8.2f} s   (first image: target <= 4)")
+
+
+def evaluation_seconds(opts: EvalOptions) -> tuple[float, float]:
+    """(seconds of the loop, seconds of writing every output) of one evaluation."""
+    start = time.perf_counter()
+    results = run(plan(opts))
+    middle = time.perf_counter()
+    write_evaluation(results)
+    return middle - start, time.perf_counter() - middle
+
+
+def bench_sweep(name: str, out: Path, **options) -> None:
+    common = {"num_examples": 0, "progress": False, "overwrite": True, **options}
+    single = EvalOptions(cost=["robotistic"], output_dir=str(out / "single"), **common)
+    sweep = EvalOptions(cost=["robotistic"], sweep=0.05, output_dir=str(out / "sweep"), **common)
+    evaluation_seconds(single)  # warm-up: caches, thread pools
+    t_single = evaluation_seconds(single)[0]
+    t_sweep = evaluation_seconds(sweep)[0]
+    print(f"value-space sweep, {name} (network included, outputs not written):")
+    print(f"  single rule {t_single:7.1f} s   231-point sweep {t_sweep:7.1f} s")
+    print(f"  sweep / single rule            {t_sweep / t_single:8.2f}   (target <= 5)")
+
+
+def bench_full_resolution(ckpt: str, out: Path, images: int = 3) -> None:
+    tree = out / "standin"
+    script = [str(ROOT / "scripts" / "toy_as_cityscapes.py"), str(tree)]
+    subprocess.run([sys.executable, *script, "--train", "1", "--val", str(images)], check=True)
+    bench_sweep(f"{images} stand-in images of 1024 x 2048", out, ckpt_path=ckpt,
+                data_root=str(tree))  # fmt: skip
+
+
+def bench_figures(ckpt: str, out: Path) -> None:
+    for extra in ({}, {"sweep": 0.1}):
+        opts = EvalOptions(ckpt_path=ckpt, limit=20, progress=False, overwrite=True,
+                           output_dir=str(out / "figures"), **extra)  # fmt: skip
+        t_loop, t_write = evaluation_seconds(opts)
+        share = t_write / (t_loop + t_write)
+        label = "default rules" + (" + --sweep 0.1" if extra else "")
+        print(
+            f"figures and files, 20 toy images, {label}: loop {t_loop:.1f} s, writing "
+            f"{t_write:.1f} s = {100 * share:.0f} % of the wall time (target <= 25 %)"
+        )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--ckpt_path", default=None)
+    parser.add_argument("--skip-full-resolution", action="store_true")
+    args = parser.parse_args()
+    try:
+        ckpt = str(find_checkpoint(args.ckpt_path))
+    except FileNotFoundError as err:
+        sys.exit(f"error: {err}")
+    print(f"checkpoint {ckpt}; {torch.get_num_threads()} threads")
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp)
+        bench_startup(ckpt, out / "one")
+        bench_sweep("toy validation set (100 images)", out, ckpt_path=ckpt)
+        bench_figures(ckpt, out)
+        if not args.skip_full_resolution:
+            bench_full_resolution(ckpt, out)
+
+
+if __name__ == "__main__":
+    main()
