@@ -122,11 +122,15 @@ def load_source(
 
 
 def compute_counts(
-    args: argparse.Namespace, net: torch.nn.Module, roi: torch.Tensor | None, size: tuple[int, int]
+    args: argparse.Namespace,
+    net: torch.nn.Module,
+    roi: torch.Tensor | None,
+    size: tuple[int, int],
+    indices: range,
 ) -> dict[str, np.ndarray]:
-    """(pool, K, 2) int64 per-image counts of the target ("target") and --maximize ("maximize")."""
-    scenes = StreetScenes(args.split, args.test + args.cal_pool, size, args.seed)
-    loader = DataLoader(Subset(scenes, range(len(scenes))), args.batch_size, num_workers=1)
+    """(len(indices), K, 2) per-image counts of the target ("target") and of --maximize."""
+    scenes = StreetScenes(args.split, indices.stop, size, args.seed)
+    loader = DataLoader(Subset(scenes, indices), args.batch_size, num_workers=1)
     vertices = vertex_matrices(args.vertices, args.vertex_scaling)
     weights = barycentric_grid(args.step)
     device = next(net.parameters()).device
@@ -135,8 +139,7 @@ def compute_counts(
     with torch.inference_mode():
         for images, labels in tqdm(loader, "network and counts", unit="batch"):
             images, labels = images.to(device), labels.to(device)
-            probs = net(images).float().softmax(1)
-            preds = decide_mixtures(probs, vertices, weights)
+            preds = decide_mixtures(net(images).float().softmax(1), vertices, weights)
             for key, spec in (("target", args.target_spec), ("maximize", args.max_spec)):
                 counts = per_image_counts(preds, labels, roi, spec.cls, spec.roi, spec.metric)
                 out[key].append(counts.cpu())
@@ -144,26 +147,33 @@ def compute_counts(
 
 
 def cached_counts(args: argparse.Namespace) -> tuple[dict[str, np.ndarray], str, float]:
-    """The counts, from ``counts.npz`` if made with the same settings; network; seconds spent."""
+    """Counts of the pool's images; ``counts.npz`` in --output_dir keeps those of earlier runs
+    with the same settings (a larger pool computes only the images not yet counted).
+
+    Returns:
+        the counts, the network's name and the seconds spent computing.
+    """
     path = resolve_checkpoint(args)
     name = args.network or f"costseg:{path}"
-    stamp = None if path is None else path.stat().st_mtime
     keys = ("split", "seed", "size", "step", "vertices", "vertex_scaling")
     key = {k: getattr(args, k) for k in keys} | {"network": name, "checkpoint": str(path)}
-    key |= {"mtime": stamp, "pool": args.test + args.cal_pool}
+    key |= {"mtime": None if path is None else path.stat().st_mtime}
     key |= {"target": list(args.target_spec[:3]), "maximize": list(args.max_spec)}
-    key_text = json.dumps(key, sort_keys=True)
-    cache = args.output_dir / "counts.npz"
+    key_text, cache = json.dumps(key, sort_keys=True), args.output_dir / "counts.npz"
+    counts, need, seconds = None, args.test + args.cal_pool, 0.0
     if cache.is_file():
         with np.load(cache) as cached:
             if str(cached["key"]) == key_text:
-                return {"target": cached["target"], "maximize": cached["maximize"]}, name, 0.0
-    start = time.perf_counter()
-    counts = compute_counts(args, *load_source(args, path))
-    seconds = time.perf_counter() - start
-    args.output_dir.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(cache, key=np.array(key_text), **counts)
-    return counts, name, seconds
+                counts = {k: cached[k] for k in ("target", "maximize")}
+    have = 0 if counts is None else len(counts["target"])
+    if have < need:
+        start = time.perf_counter()
+        new = compute_counts(args, *load_source(args, path), range(have, need))
+        seconds = time.perf_counter() - start
+        counts = new if counts is None else {k: np.concatenate([counts[k], new[k]]) for k in new}
+        args.output_dir.mkdir(parents=True, exist_ok=True)
+        np.savez_compressed(cache, key=np.array(key_text), **counts)
+    return {k: v[:need] for k, v in counts.items()}, name, seconds
 
 
 def pooled(counts: np.ndarray) -> np.ndarray:

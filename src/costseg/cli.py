@@ -80,7 +80,7 @@ def print_train_help(args: Sequence[str]) -> None:
         "[--print_config] [--help_all]\n\n"
         "Train DeepLabv3+ with LightningCLI. Every key of the config can be overridden, e.g.\n"
         "  python train.py --trainer.max_steps 3000 --model.backbone resnet34\n"
-        "  python train.py --config configs/cityscapes.yaml --data.init_args.root /data/cityscapes\n"
+        "  python train.py --config configs/cityscapes.yaml --data.init_args.root DIR\n"
         "  python train.py --ckpt_path last        # resume the newest runs/**/last.ckpt\n"
         "--help_all lists every option of the trainer, model and data classes.\n\n"
         f"Keys of {path} and their values:"

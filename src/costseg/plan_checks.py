@@ -124,4 +124,6 @@ def source_priors(source, opts: EvalOptions, config: dict, cache_dir: Path) -> t
     )
     verb = "reused" if found.reused else "computed"
     print(f"priors {verb} from {found.num_labels} training labels of {root} (σ = {found.sigma} px)")
+    source.description["priors"] = {"labels": found.num_labels, "sigma_px": found.sigma,
+                                    "root": root, "split": "train"}  # fmt: skip
     return found.priors

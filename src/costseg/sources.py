@@ -90,7 +90,11 @@ def _costseg_source(path: Path, device: torch.device) -> Source:
         )
     return Source(
         "network",
-        {"network": f"costseg:{path}", "hparams": checkpoint.hparams},
+        {
+            "network": f"costseg:{path}",
+            "hparams": checkpoint.hparams,
+            "priors": checkpoint.extra.get("priors_info") or "stored in the checkpoint",
+        },
         network=checkpoint.network.to(device).eval(),
         priors=checkpoint.priors,
         data_config=checkpoint.data_config,
