@@ -15,11 +15,11 @@ from torchmetrics.functional.classification import multiclass_calibration_error
 
 from costseg.calibration import (
     TEMPERATURE_RANGE,
-    PixelSampler,
     Scaling,
     fit_temperature,
     fit_vector_scaling,
 )
+from costseg.calibration_sample import PixelSampler
 from costseg.metrics import CalibrationError
 
 # ---------------------------------------------------------------- ECE references and data

@@ -64,18 +64,19 @@ EVALUATE_CASES = {
     "unknown class": (["--classes", "unicorn"], ["unknown class 'unicorn'"]),
     "missing cuda": (["--device", "cuda"], ["cuda", "not available"]),
     "unknown device": (["--device", "tpu"], ["device 'tpu'"]),
-    "two sources": (["--network", "hf:x", "--probs", "y"], ["at most one"]),
-    "probs without data": (["--probs", "somewhere"], ["--probs needs --data_root"]),
+    "two sources": (["--network", "hf:x"], ["at most one"]),
+    "probs without data": (["--probs", "somewhere"], ["--probs needs --data_root"], False),
     "missing data root": (["--data_root", "no/such/cityscapes"], ["no/such/cityscapes"]),
 }
 
 
 @pytest.mark.parametrize("case", sorted(EVALUATE_CASES))
 def test_evaluate_bad_option(case, ckpt, capsys):
-    args, needles = EVALUATE_CASES[case]
+    args, needles, *with_checkpoint = EVALUATE_CASES[case]
     if case == "missing cuda" and torch.cuda.is_available():
         pytest.skip("this machine has CUDA")
-    _one_line(evaluate_main, ["--ckpt_path", ckpt, *args, "--no-progress"], capsys, *needles)
+    source = ["--ckpt_path", ckpt] if with_checkpoint != [False] else []
+    _one_line(evaluate_main, [*source, *args, "--no-progress"], capsys, *needles)
 
 
 def test_evaluate_bad_files(ckpt, tmp_path, capsys):
@@ -84,7 +85,7 @@ def test_evaluate_bad_files(ckpt, tmp_path, capsys):
     _one_line(evaluate_main, [*run, str(tmp_path)], capsys, "is a directory")
     text = tmp_path / "notes.ckpt"
     text.write_text("not a checkpoint")
-    _one_line(evaluate_main, [*run, str(text)], capsys, "cannot read checkpoint")
+    _one_line(evaluate_main, [*run, str(text)], capsys, "notes.ckpt", "not a readable torch file")
     _one_line(evaluate_main, [*run, str(tmp_path / "none.ckpt")], capsys, "not found")
     afile = tmp_path / "afile"
     afile.write_text("x")

@@ -1,29 +1,100 @@
-"""The decision layer against brute-force references."""
+"""The decision layer against float64 references, on random and adversarial inputs.
+
+The reference (module docstring of ``costseg.decision``): ``Cs = C - C.max(0)`` in float64,
+``q = p / π`` in float64, costs summed over k in ascending order, argmin with ties to the lowest
+index. The fast paths (float32 costs, certified gaps, float64 re-checks) must equal it on every
+pixel, so the inputs below aim at the places where float32 cannot decide: exact ties, ties
+within a few float32 ulps, low-precision probabilities and costs spanning 0.1 to 1000.
+"""
+
+from fractions import Fraction
 
 import pytest
 import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from costseg.costs import barycentric_grid, load_cost, mix_costs, ml_cost
-from costseg.decision import DecisionLayer, decide, decide_mixtures
+from costseg.costs import barycentric_grid, load_cost, mix_costs, symmetric_cost
+from costseg.decision import decide, decide_mixtures
 
 VERTICES = torch.stack([load_cost(n) for n in ("robotistic", "altruistic", "egoistic")])
+LOW_PRECISION = [torch.float32, torch.float16, torch.bfloat16]
 
 
-def brute_force(probs, cost, priors=None):
-    """The definition, one pixel at a time: argmin_k' Σ_k C[k',k] p_k/π_k, first index on ties."""
+def reference(probs, cost, priors=None):
+    """The float64 reference, vectorised over pixels (same operations in the same order)."""
     b, n, h, w = probs.shape
-    out = torch.empty(b, h, w, dtype=torch.long)
-    for i in range(b):
-        for y in range(h):
-            for x in range(w):
-                q = probs[i, :, y, x].double()
-                if priors is not None:
-                    q = q / (priors if priors.ndim == 1 else priors[:, y, x]).double()
-                costs = [sum(cost[j, k].item() * q[k].item() for k in range(n)) for j in range(n)]
-                out[i, y, x] = min(range(n), key=lambda j: (costs[j], j))
-    return out
+    cost = symmetric_cost(n) if cost is None else cost.double()
+    shifted = cost - cost.amax(0)
+    q = probs.double().permute(1, 0, 2, 3).reshape(n, b, h * w)
+    if priors is not None:
+        q = q / priors.double().reshape(n, 1, -1)
+    q = q.reshape(n, -1)
+    costs = torch.zeros(n, q.shape[1], dtype=torch.float64)
+    for k in range(n):
+        costs = costs + shifted[:, k : k + 1] * q[k]
+    first = (costs == costs.amin(0)).double().argmax(0)  # first minimum
+    return first.view(b, h, w)
+
+
+def python_reference(p, cost):
+    """The reference for one pixel in plain Python floats."""
+    n = len(p)
+    shifted = [[cost[j][k] - max(cost[i][k] for i in range(n)) for k in range(n)] for j in range(n)]
+    costs = []
+    for j in range(n):
+        total = 0.0
+        for k in range(n):
+            total = total + shifted[j][k] * p[k]
+        costs.append(total)
+    return min(range(n), key=lambda j: (costs[j], j))
+
+
+def ml_cost(priors, lam=1.0):
+    """Maximum-likelihood matrix ``C[k̂, k] = λ / π(k)`` for global priors."""
+    priors = torch.as_tensor(priors, dtype=torch.float64)
+    return (lam / priors).expand(len(priors), -1).clone().fill_diagonal_(0.0)
+
+
+def smooth(shape, seed, scale=6.0):
+    """Softmax of smooth random logits (the benchmark's recipe): unsure near borders."""
+    gen = torch.Generator().manual_seed(seed)
+    b, n, h, w = shape
+    coarse = torch.randn(b, n, max(1, h // 8), max(1, w // 8), generator=gen) * scale
+    logits = torch.nn.functional.interpolate(coarse, size=(h, w), mode="bilinear")
+    return logits.softmax(1)
+
+
+def near_ties(cost, count, seed):
+    """(1, N, H, W) float32 probabilities whose two best costs lie within a few float32 ulps.
+
+    For random classes a, b the expected costs tie exactly (in float64) at ``p0 + t (e_a - e_b)``;
+    rounding that to float32 and stepping p_a by -3 .. 3 ulps gives costs a hair apart.
+    """
+    gen = torch.Generator().manual_seed(seed)
+    n = cost.shape[0]
+    pixels = []
+    while len(pixels) < count:
+        a, b = torch.randperm(n, generator=gen)[:2].tolist()
+        p0 = torch.rand(n, generator=gen, dtype=torch.float64) ** 8
+        p0[a] += 1.0
+        p0[b] += 1.0
+        p0 /= p0.sum()
+        e = torch.zeros(n, dtype=torch.float64)
+        e[a], e[b] = 1.0, -1.0
+        c0, slope = cost @ p0, cost @ e
+        if slope[a] == slope[b]:
+            continue
+        tie = p0 + (c0[b] - c0[a]) / (slope[a] - slope[b]) * e
+        if (tie < 0).any() or (cost @ tie).argsort()[:2].sort().values.tolist() != sorted([a, b]):
+            continue
+        p = tie.float()
+        for step in range(-3, 4):
+            q = p.clone()
+            for _ in range(abs(step)):
+                q[a] = torch.nextafter(q[a], torch.tensor(2.0 if step > 0 else 0.0))
+            pixels.append(q)
+    return torch.stack(pixels, 1).view(1, n, 1, -1)  # groups of 7 consecutive pixels
 
 
 @st.composite
@@ -34,14 +105,14 @@ def probabilities(draw, max_classes=6):
     levels = draw(st.lists(st.sampled_from([0.0, 0.1, 0.25, 0.5, 1.0, 3.0]), min_size=1))
     raw = draw(st.lists(st.sampled_from(levels), min_size=b * n * h * w, max_size=b * n * h * w))
     raw = torch.tensor(raw, dtype=torch.float32).view(b, n, h, w) + 1e-3
-    dtype = draw(st.sampled_from([torch.float32, torch.float16, torch.bfloat16]))
+    dtype = draw(st.sampled_from(LOW_PRECISION))
     return (raw / raw.sum(1, keepdim=True)).to(dtype)
 
 
 @settings(max_examples=200, deadline=None)
 @given(probabilities(), st.floats(0.01, 100))
 def test_symmetric_rule_is_argmax_including_ties(probs, lam):
-    cost = lam * (1 - torch.eye(probs.shape[1]))
+    cost = lam * symmetric_cost(probs.shape[1])
     assert torch.equal(decide(probs, cost), probs.argmax(1))
     assert torch.equal(decide(probs, None), probs.argmax(1))
 
@@ -55,20 +126,73 @@ def test_scale_invariance(probs, mu, seed):
     assert torch.equal(decide(probs, mu * cost), decide(probs, cost))
 
 
-@settings(max_examples=60, deadline=None)
-@given(probabilities(), st.integers(0, 2**31))
-def test_random_cost_matches_brute_force(probs, seed):
+@settings(max_examples=100, deadline=None)
+@given(probabilities(), st.integers(0, 2**31), st.booleans())
+def test_random_costs_and_priors_match_the_reference(probs, seed, pixelwise):
+    _, n, h, w = probs.shape
+    gen = torch.Generator().manual_seed(seed)
+    cost = torch.randint(1, 5, (n, n), generator=gen).double() * (1 - torch.eye(n))
+    assert torch.equal(decide(probs, cost), reference(probs, cost))
+    priors = torch.randint(1, 4, (n, h, w) if pixelwise else (n,), generator=gen) / 4
+    assert torch.equal(decide(probs, cost, priors), reference(probs, cost, priors))
+
+
+@settings(max_examples=100, deadline=None)
+@given(probabilities(max_classes=4), st.integers(0, 2**31))
+def test_reference_is_exact_arithmetic_on_exact_inputs(probs, seed):
+    """Integer costs and probabilities of few levels: float64 sums are exact, ties included."""
+    probs = probs.float()
     n = probs.shape[1]
     gen = torch.Generator().manual_seed(seed)
     cost = torch.randint(1, 5, (n, n), generator=gen).double() * (1 - torch.eye(n))
-    assert torch.equal(decide(probs, cost), brute_force(probs, cost))
+    pixels = probs.permute(0, 2, 3, 1).reshape(-1, n)
+    decided = decide(probs, cost).flatten()
+    for p, label in zip(pixels.tolist(), decided.tolist(), strict=True):
+        exact = [
+            sum(Fraction(cost[j, k].item()) * Fraction(p[k]) for k in range(n)) for j in range(n)
+        ]
+        assert label == min(range(n), key=lambda j: (exact[j], j))
+        assert label == python_reference(p, cost.tolist())
 
 
-def test_paper_presets_match_brute_force():
-    probs = torch.rand(1, 19, 5, 6, generator=torch.Generator().manual_seed(0)).pow(4)
-    probs = probs / probs.sum(1, keepdim=True)
+@pytest.mark.parametrize("dtype", LOW_PRECISION)
+@pytest.mark.parametrize("name", ["altruistic", "egoistic"])
+def test_paper_matrices_match_the_reference(name, dtype):
+    cost = load_cost(name)
+    sharp = smooth((2, 19, 48, 64), 0, scale=12).to(dtype)
+    flat = smooth((1, 19, 48, 64), 1, scale=1).to(dtype)
+    for probs in (sharp, flat):
+        assert torch.equal(decide(probs, cost), reference(probs, cost))
+    priors = torch.rand(19, 48, 64, generator=torch.Generator().manual_seed(2)) + 1e-5
+    assert torch.equal(decide(flat, cost, priors), reference(flat, cost, priors))
+    assert torch.equal(decide(flat, cost, priors[:, 0, 0]), reference(flat, cost, priors[:, 0, 0]))
+
+
+@pytest.mark.parametrize("name", ["robotistic", "altruistic", "egoistic"])
+def test_near_ties_within_float32_ulps(name):
+    cost = load_cost(name)
+    probs = near_ties(cost, 1500, seed=3)
+    expected = reference(probs, cost)
+    assert torch.equal(decide(probs, cost), expected)
+    # The construction does produce decisions that flip within a few ulps.
+    assert (expected.view(-1, 7) != expected.view(-1, 7)[:, :1]).any()
+
+
+def test_exact_ties():
+    uniform = torch.full((1, 19, 2, 2), 1 / 19)
+    assert (decide(uniform, None) == 0).all()
+    # Wall (3) and fence (4) are both "static": with p_wall = p_fence their costs tie in exact
+    # arithmetic under every preset; the reference's float64 sums decide, the fast path follows.
+    probs = torch.zeros(1, 19, 1, 3)
+    probs[0, [3, 4], 0, :] = 0.4
+    probs[0, [0, 11, 13], 0, [0, 1, 2]] = 0.2
     for cost in VERTICES:
-        assert torch.equal(decide(probs, cost), brute_force(probs, cost))
+        assert torch.equal(decide(probs, cost), reference(probs, cost))
+    assert (decide(probs, VERTICES[0]) == 3).all()
+    for dtype in (torch.float16, torch.bfloat16):
+        ties = uniform.to(dtype)
+        for cost in VERTICES:
+            assert torch.equal(decide(ties, cost), reference(ties, cost))
 
 
 @pytest.mark.parametrize("pixelwise", [False, True])
@@ -85,56 +209,62 @@ def test_ml_is_argmax_of_p_over_prior(pixelwise):
         assert torch.equal(decide(probs, ml_cost(priors)), expected)
 
 
-def test_prior_adapted_rule_matches_brute_force():
-    gen = torch.Generator().manual_seed(2)
-    probs = torch.rand(1, 19, 4, 5, generator=gen).pow(3)
-    probs = probs / probs.sum(1, keepdim=True)
-    priors = torch.rand(19, 4, 5, generator=gen) + 0.05
-    alpha = 0.4
-    adapted = (1 - alpha) + alpha * priors / priors.sum(0)
+def test_prior_adapted_rule_matches_the_reference():
+    probs = smooth((1, 19, 20, 30), 4, scale=3)
+    priors = torch.rand(19, 20, 30, generator=torch.Generator().manual_seed(5)) + 0.05
+    adapted = 0.6 + 0.4 * priors / priors.sum(0)
     cost = VERTICES[1]
-    assert torch.equal(decide(probs, cost, adapted), brute_force(probs, cost, adapted))
-
-
-@pytest.mark.parametrize("step", [0.1, 0.05])
-def test_mixtures_equal_loop_over_mixed_matrices(step):
-    gen = torch.Generator().manual_seed(3)
-    # Sharp and flat pixels alike, so that pruning and full mixing are both exercised.
-    probs = (
-        torch.randn(2, 19, 24, 32, generator=gen) * torch.rand(2, 1, 24, 32, generator=gen) * 8
-    ).softmax(1)
-    weights = barycentric_grid(step)
-    mixed = decide_mixtures(probs, VERTICES, weights)
-    loop = torch.stack([decide(probs, c) for c in mix_costs(VERTICES, weights)], 1)
-    assert torch.equal(mixed, loop)
-    priors = torch.rand(19, 24, 32, generator=gen) + 0.01
-    mixed = decide_mixtures(probs, VERTICES, weights, priors)
-    loop = torch.stack([decide(probs, c, priors) for c in mix_costs(VERTICES, weights)], 1)
-    assert torch.equal(mixed, loop)
-
-
-def test_mixture_vertices_are_the_single_rules_with_ties():
-    probs = torch.full((1, 19, 3, 3), 1 / 19)  # every class tied
-    labels = decide_mixtures(probs, VERTICES, torch.eye(3, dtype=torch.float64))
-    for v in range(3):
-        assert torch.equal(labels[:, v], decide(probs, VERTICES[v]))
-    assert (labels[:, 0] == 0).all()
+    assert torch.equal(decide(probs, cost, adapted), reference(probs, cost, adapted))
 
 
 def test_chunks_larger_than_one_and_batch_order():
-    gen = torch.Generator().manual_seed(4)
-    probs = torch.rand(3, 19, 130, 140, generator=gen).softmax(1)  # > one CPU chunk per image
+    probs = smooth((3, 19, 200, 210), 6)  # more than one CPU chunk per image
     assert torch.equal(decide(probs, None), probs.argmax(1))
     expected = torch.stack([decide(probs[i : i + 1], VERTICES[2])[0] for i in range(3)])
     assert torch.equal(decide(probs, VERTICES[2]), expected)
+    assert torch.equal(expected, reference(probs, VERTICES[2]))
 
 
-def test_module_keeps_costs_out_of_the_state_dict():
-    layer = DecisionLayer(VERTICES)
-    assert layer.state_dict() == {}
-    probs = torch.rand(1, 19, 6, 7).softmax(1)
-    out = layer(probs)
-    assert torch.equal(out[:, 2], decide(probs, VERTICES[2]))
+def loop_of_decides(probs, weights, priors=None):
+    return torch.stack([decide(probs, c, priors) for c in mix_costs(VERTICES, weights)], 1)
+
+
+@pytest.mark.parametrize("step", [0.1, 0.05])
+def test_mixtures_equal_decide_on_each_mixed_matrix(step):
+    weights = barycentric_grid(step)
+    probs = torch.cat([smooth((1, 19, 40, 48), 7), smooth((1, 19, 40, 48), 8, scale=1)])
+    assert torch.equal(
+        decide_mixtures(probs, VERTICES, weights).long(), loop_of_decides(probs, weights)
+    )
+    for priors in (torch.rand(19, 40, 48) + 0.01, torch.rand(19) + 0.01):
+        mixed = decide_mixtures(probs, VERTICES, weights, priors).long()
+        assert torch.equal(mixed, loop_of_decides(probs, weights, priors))
+
+
+@pytest.mark.parametrize("dtype", LOW_PRECISION)
+def test_mixtures_on_ties_and_low_precision(dtype):
+    weights = barycentric_grid(0.1)
+    probs = torch.cat([smooth((1, 19, 24, 24), 9, scale=2), torch.full((1, 19, 24, 24), 1 / 19)])
+    probs = probs.to(dtype)
+    assert torch.equal(
+        decide_mixtures(probs, VERTICES, weights).long(), loop_of_decides(probs, weights)
+    )
+
+
+def test_mixtures_near_ties_of_a_mixed_matrix():
+    weights = barycentric_grid(0.1)
+    for k in (12, 40):  # ties constructed on one grid point's matrix
+        probs = near_ties(mix_costs(VERTICES, weights)[k], 700, seed=k)
+        mixed = decide_mixtures(probs, VERTICES, weights).long()
+        assert torch.equal(mixed, loop_of_decides(probs, weights))
+
+
+def test_mixture_vertices_are_the_single_rules():
+    probs = torch.cat([torch.full((1, 19, 3, 3), 1 / 19), smooth((1, 19, 3, 3), 10)])
+    labels = decide_mixtures(probs, VERTICES, torch.eye(3, dtype=torch.float64))
+    for v in range(3):
+        assert torch.equal(labels[:, v].long(), decide(probs, VERTICES[v]))
+    assert (labels[0, 0] == 0).all()
 
 
 def test_bad_inputs():
@@ -148,3 +278,7 @@ def test_bad_inputs():
         decide(torch.rand(1, 19, 4, 4), None, priors=torch.zeros(19))
     with pytest.raises(ValueError, match=r"weights \(K, V\)"):
         decide_mixtures(torch.rand(1, 19, 4, 4), VERTICES, torch.ones(5, 2))
+    with pytest.raises(ValueError, match="weights must be >= 0"):
+        decide_mixtures(torch.rand(1, 19, 4, 4), VERTICES, torch.tensor([[1.0, -0.5, 0.5]]))
+    with pytest.raises(ValueError, match="weights must be >= 0"):
+        decide_mixtures(torch.rand(1, 19, 4, 4), VERTICES, torch.zeros(1, 3))

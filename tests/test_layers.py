@@ -10,7 +10,7 @@ CHAIN = [
     {"classes", "checkpoints", "options"},
     {"costs"},
     {"decision"},
-    {"rules", "selection", "calibration", "guarantee"},
+    {"rules", "selection", "calibration", "calibration_sample", "guarantee"},
     {"data", "metrics", "models", "networks", "probs_files", "results"},
     {"scoring"},
     {"module"},
@@ -18,7 +18,8 @@ CHAIN = [
     {"evaluation", "callbacks", "training"},
     {"cli"},
 ]
-NO_LIGHTNING = {"costs", "decision", "rules", "selection", "calibration", "guarantee", "metrics",
+NO_LIGHTNING = {"costs", "decision", "rules", "selection", "calibration", "calibration_sample",
+                "guarantee", "metrics",
                 "results", "scoring", "sources", "calibration_set", "plan_checks", "report",
                 "evaluation", "networks", "probs_files"}  # fmt: skip
 NO_MODEL = {"costs", "decision", "rules", "selection", "metrics", "results", "scoring", "report"}

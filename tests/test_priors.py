@@ -12,7 +12,6 @@ from scipy.ndimage import gaussian_filter
 
 from costseg.classes import CLASS_NAMES, ROI_NAMES, class_index
 from costseg.data.priors import (
-    cached_priors,
     default_sigma,
     load_priors,
     pixel_priors,
@@ -20,6 +19,7 @@ from costseg.data.priors import (
     roi_map,
     save_priors,
 )
+from costseg.data.priors_cache import cached_priors
 
 
 def _brute_force(labels: list[torch.Tensor], n: int, eps: float) -> torch.Tensor:

@@ -12,7 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from costseg.calibration import PixelSampler, Scaling
+from costseg.calibration import Scaling
+from costseg.calibration_sample import PixelSampler
 from costseg.guarantee import LTTResult, learn_then_test
 from costseg.rules import RuleGroup
 from costseg.scoring import GroupMetrics

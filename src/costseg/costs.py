@@ -100,6 +100,12 @@ def load_cost(name_or_path: str | Path, class_names: Sequence[str] = CLASS_NAMES
     if "off_diagonal" in spec:
         cost = float(spec["off_diagonal"]) * symmetric_cost(len(class_names))
     elif "aggregates" in spec:
+        if not {"order", "matrix"} <= spec.keys():
+            raise ValueError(
+                f"{path} is an aggregate table (which class is in which aggregate), not a cost "
+                "matrix: a cost file names it under 'aggregates' with 'order' and 'matrix' "
+                "(see configs/costs/egoistic.yaml)"
+            )
         cost = _expand_aggregates(spec, path.parent, class_names)
     elif "classes" in spec:
         cost = _full_matrix(spec, class_names)

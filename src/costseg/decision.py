@@ -78,7 +78,8 @@ def decide(
         redo, q64 = [], []
         for s, q in fast.chunks(i):
             labels = out[i, s : s + q.shape[1]]
-            _, ambiguous = _top(fast.costs(q)[0], fast.gamma, fast.eps, True, labels)
+            costs = fast.costs(q)[0]
+            _, ambiguous = _top(costs, fast.gamma, fast.eps, fast.code, fast.low, True, labels)
             redo.append(ambiguous.nonzero()[:, 0] + s)
             q64.append(fast.exact_q(i, redo[-1]))  # while the chunk is in cache
         redo = torch.cat(redo)
@@ -131,19 +132,28 @@ def decide_mixtures(
     dtype = torch.uint8 if n <= 256 else torch.long  # K label maps add up
     out = torch.empty(b, k, h * w, dtype=dtype, device=probs.device)
     for i, (s, q) in ((j, c) for j in range(b) for c in fast.chunks(j)):
-        labels = out[i, :, s : s + q.shape[1]]
         costs = fast.costs(q)
-        winner, ambiguous = _top(costs, fast.gamma, fast.eps)
-        labels.copy_(winner[0].expand(k, -1))
+        winner, ambiguous = _top(costs, fast.gamma, fast.eps, fast.code, fast.low)
         contested = ((winner != winner[:1]).any(0) | ambiguous.any(0)).nonzero()[:, 0]
-        if len(contested):
-            decided, redo = mix(costs[:, :, contested], winner[:, contested].long())
-            grid, pixel = redo.nonzero().unbind(1)
-            if len(grid):
-                pixels, inverse = torch.unique(contested[pixel], return_inverse=True)
-                q64 = fast.exact_q(i, s + pixels)
-                decided[grid, pixel] = fast.settle(q64, mixed[grid], weights[grid], inverse)
-            labels[:, contested] = decided.to(dtype)
+        labels = out[i, :, s : s + q.shape[1]]
+        if not len(contested):
+            labels.copy_(winner[:1].expand(k, -1))
+            continue
+        picked = costs.view(-1, costs.shape[2]).index_select(1, contested)  # fast on 2-D views
+        # Labels of pixel p will sit in column source[p] of table = [winner-0 labels, mixed]:
+        # a gather, much faster than scattering K labels per contested pixel.
+        table = torch.empty(k, len(winner[0]) + len(contested), dtype=dtype, device=probs.device)
+        table[:, : len(winner[0])] = winner[:1]
+        order, grid, column = mix(picked.view(*costs.shape[:2], -1), winner[:, contested], table)
+        if len(grid):
+            pixels, inverse = torch.unique(contested[order[column]], return_inverse=True)
+            q64 = fast.exact_q(i, s + pixels)
+            table[grid, len(winner[0]) + column] = fast.settle(
+                q64, mixed, grid, weights, inverse
+            ).to(dtype)
+        source = torch.arange(len(winner[0]), device=probs.device)
+        source[contested[order]] = len(source) + torch.arange(len(order), device=probs.device)
+        torch.gather(table, 1, source.expand(k, -1), out=labels)
     return out.view(b, k, h, w)
 
 
@@ -184,6 +194,8 @@ class _Fast:
         self.gamma64 = (1 + U64) ** 3 * (1 + n * U64 / (1 - n * U64)) - 1
         self.eps, self.rows = eps, single.shape[:2]
         self.weight = single.reshape(-1, n)
+        self.code = torch.arange(n, dtype=torch.int32, device=probs.device).view(n, 1)
+        self.low = (1 << max(1, (n - 1).bit_length())) - 1  # index bits in _top
         self.pixel_priors = (
             self.priors if self.priors is not None and self.priors.ndim == 2 else None
         )
@@ -210,29 +222,29 @@ class _Fast:
                 q = q.float() / self.pixel_priors[:, s : s + step].float()
             yield s, q.float()
 
-    def settle(self, q: torch.Tensor, shifted: torch.Tensor, weights=None, inverse=None):
+    def settle(self, q: torch.Tensor, shifted: torch.Tensor, grid=None, weights=None, inverse=None):
         """Labels (R,) where float32 left it open: the same certificate in float64 (matmuls),
         then the reference where even that fails.
 
         Args:
             q: (U, N) float64 ``p / π`` of the pixels (:meth:`exact_q`).
-            shifted: (R or 1, N, N) the reference's shifted matrices.
-            weights: None (V = 1) or (R, V) float64 mixture weights.
+            shifted: (1, N, N) the reference's shifted matrix, or (K, N, N) with ``grid``.
+            grid: None or (R,) the mixture of each label; weights: (K, V) float64 mixture weights.
             inverse: None (R = U) or (R,) the pixel of each label.
         """
         costs = (q @ self.weight64.t()).view(len(q), *self.rows)
         if inverse is not None:
             q, costs = q[inverse], costs[inverse]
         gamma = self.gamma64
-        if weights is None:
+        if grid is None:
             costs = costs[:, 0]
         else:  # V more nonnegative terms
-            costs = (weights[:, :, None] * costs).sum(1)
+            costs = (weights[grid, :, None] * costs).sum(1)
             gamma = (1 + gamma) * (1 + len(weights[0]) * U64 / (1 - len(weights[0]) * U64)) - 1
         labels, unsure = _top64(costs, gamma, self.eps)
         unsure = unsure.nonzero()[:, 0]
         if len(unsure):
-            matrices = shifted[unsure] if len(shifted) > 1 else shifted
+            matrices = shifted if grid is None else shifted[grid[unsure]]
             labels[unsure] = _reference(q[unsure], matrices)
         return labels
 
@@ -246,26 +258,65 @@ class _Mixer:
         # float32, the matmul's inputs and a dot product of length V.
         dot = v * U32 / (1 - v * U32)
         self.gamma = (1 + fast.gamma) * (1 + U32) * (1 + fast.u_in) ** 2 * (1 + dot) - 1
+        # Mixed signed differences (_pair): g for the costs, h for V + 4 roundings and the inputs.
+        g = fast.gamma / (1 - fast.gamma)
+        h = (1 + U32) ** (v + 4) * (1 + fast.u_in) ** 2 - 1
+        self.slack = (1.25 * (g + 2 * h), 2.5 * fast.eps * (1 + g))
 
-    def __call__(self, costs: torch.Tensor, winner: torch.Tensor):
-        """Vertex costs (V, N + 1, P), winners (V, P) → labels (K, P), re-check mask (K, P)."""
-        candidate = self._candidates(costs, winner)
+    def __call__(self, costs: torch.Tensor, winner: torch.Tensor, table: torch.Tensor):
+        """Vertex costs (V, N + 1, P) and winners (V, P) of the contested pixels.
+
+        Writes the labels into the last P columns of ``table`` (K, ·), the pixels grouped by
+        their number of candidates. Returns that order (P,) and the (mixture, column) pairs to
+        re-check.
+        """
+        candidate = self._candidates(costs, winner.long())
         count = candidate.sum(0)
-        (k, v), n = self.weights.shape, costs.shape[1] - 1
-        labels = torch.empty(k, costs.shape[2], dtype=torch.long, device=costs.device)
-        redo = torch.zeros(k, costs.shape[2], dtype=torch.bool, device=costs.device)
+        (k, v), n, p = self.weights.shape, costs.shape[1] - 1, costs.shape[2]
+        order, redo, start = [], [], table.shape[1] - p
         for m in count.unique().tolist():
             sel = (count == m).nonzero()[:, 0]
-            classes = candidate[:, sel].t().nonzero()[:, 1].view(-1, m).t()  # (m, P') ascending
+            classes = candidate.index_select(1, sel).t().nonzero()[:, 1].view(-1, m).t()
+            columns = table[:, start : start + len(sel)]
             if m == 1:
-                labels[:, sel] = classes
-                continue
-            rows = torch.cat([classes, torch.full_like(classes[:1], n)])  # candidates, then T
-            picked = costs[:, :, sel].gather(1, rows.expand(v, -1, -1))
-            mixed = (self.weights @ picked.reshape(v, -1)).view(k, m + 1, -1)
-            position, redo[:, sel] = _top(mixed, self.gamma, self.fast.eps, True)
-            labels[:, sel] = classes.gather(0, position.long())
-        return labels, redo
+                columns.copy_(classes.expand(k, -1))
+            else:
+                rows = torch.cat([classes, torch.full_like(classes[:1], n)])  # candidates, T
+                picked = costs.view(v, -1).index_select(1, (rows * p + sel).flatten())
+                method = self._pair if m == 2 else self._many
+                labels, unsure = method(picked.view(v, m + 1, -1), classes)
+                columns.copy_(labels)
+                grid, column = unsure.nonzero().unbind(1)
+                redo.append(torch.stack([grid, column + start - (table.shape[1] - p)]))
+            order.append(sel)
+            start += len(sel)
+        redo = torch.cat(redo, 1) if redo else costs.new_zeros(2, 0, dtype=torch.long)
+        return torch.cat(order), redo[0], redo[1]
+
+    def _many(self, picked: torch.Tensor, classes: torch.Tensor):
+        """(V, m + 1, P) candidate costs and T, (m, P) classes → labels (K, P), re-check (K, P)."""
+        k, v = self.weights.shape
+        mixed = (self.weights @ picked.view(v, -1)).view(k, len(picked[0]), -1)
+        code = classes.int()  # the class itself rides in the low bits
+        return _top(mixed, self.gamma, self.fast.eps, code, self.fast.low, True)
+
+    def _pair(self, picked: torch.Tensor, classes: torch.Tensor):
+        """``_many`` for two candidates a < b: signs of the mixed difference ``x_b - x_a``.
+
+        ``lo = w · (d - s)`` and ``-hi = -w · (d + s)`` with ``d = x_b - x_a`` and the slack ``s``
+        covering the rounding of x (relative to ``x_a + x_b``), of these float32 operations and
+        the reference's (``eps T``): ``lo > 0`` certifies a, ``-hi > 0`` certifies b.
+        """
+        (k, v), (a, b, total) = self.weights.shape, picked.unbind(1)
+        slack = torch.add((a + b).mul_(self.slack[0]), total, alpha=self.slack[1]).add_(TINY)
+        d = b - a
+        rows = torch.stack([d - slack, (d + slack).neg_()], 1)
+        lo, nhi = (self.weights @ rows.view(v, -1)).view(k, 2, -1).unbind(1)
+        certain = torch.maximum(lo, nhi) > 0  # NaN: not certain
+        # b where -hi > 0 (bit pattern >= 1: positive; -0.0 is INT_MIN), else a.
+        pick_b = nhi.view(torch.int32).clamp(0, 1)
+        first, second = classes.int().unbind(0)
+        return pick_b.mul_(second - first).add_(first), ~certain
 
     def _candidates(self, costs: torch.Tensor, winner: torch.Tensor) -> torch.Tensor:
         """(N, P) bool: classes that no vertex winner beats in every vertex by a certain margin.
@@ -276,16 +327,24 @@ class _Mixer:
         """
         costs, total = costs[:, :-1], costs[:, -1:]
         slack = 2 * self.fast.gamma / (1 - self.fast.gamma) * 1.01
-        lead = costs * (1 - slack)
-        candidate = torch.ones(costs.shape[1:], dtype=torch.bool, device=costs.device)
+        extra = total * (4 * self.fast.eps) + TINY
+        beaten = None  # max over winners u of min over vertices of x_j - threshold_u (> 0: beaten)
         for best in winner:
             chosen = costs.gather(1, best.expand(costs.shape[0], 1, -1))
-            candidate &= ~(lead > chosen * (1 + slack) + 4 * self.fast.eps * total + TINY).all(0)
-        return candidate
+            threshold = (chosen * (1 + slack) + extra) / (1 - slack)
+            margin = (costs - threshold).amin(0)
+            beaten = margin if beaten is None else torch.maximum(beaten, margin)
+        return ~(beaten > 0)  # NaN: a candidate
 
 
 def _top(
-    costs: torch.Tensor, gamma: float, eps: float, inplace: bool = False, out=None
+    costs: torch.Tensor,
+    gamma: float,
+    eps: float,
+    code: torch.Tensor,
+    low: int,
+    inplace: bool = False,
+    out: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Argmin over dim -2 of float32 costs >= 0 whose last row is T, and where it is uncertain.
 
@@ -295,18 +354,16 @@ def _top(
     ``x_b - x_a > Δ x_b`` with ``Δ = 2.5γ / (1 - γ)`` (2γ for both roundings, γ/2 left for the
     reference's), ``x_b >= 10 eps T / γ`` and ``x_b >= 2**-60`` (underflow then negligible).
 
-    Nonnegative floats order like their int32 bit patterns, whose low ``bits`` carry the row
-    (lowest wins ties); n ulps above a value lies at least ``n · 2**-24`` times it, and clearing
-    the low bits moves a pattern by less than ``2**bits``.
+    Nonnegative floats order like their int32 bit patterns, whose low bits (``low``, a mask)
+    carry ``code``, (m, P) or (m, 1) int32 labels of the rows (lowest wins ties); n ulps above a
+    value lies at least ``n · 2**-24`` times it, and clearing the low bits moves a pattern by at
+    most ``low``.
 
     Returns:
-        (..., P) argmin rows (int32, or written to ``out``) and (..., P) bool: not certified
-        (also inf, NaN). With ``inplace``, ``costs`` is overwritten.
+        (..., P) ``code`` of the argmin (int32, or written to ``out``) and (..., P) bool: not
+        certified (also inf, NaN). With ``inplace``, ``costs`` is overwritten.
     """
     costs, total = costs[..., :-1, :], costs[..., -1, :]
-    m = costs.shape[-2]
-    low = (1 << max(1, (m - 1).bit_length())) - 1
-    code = torch.arange(m, dtype=torch.int32, device=costs.device).view(m, 1)
     packed = costs.view(torch.int32)
     packed = packed.bitwise_and_(INT_MAX - low) if inplace else packed & (INT_MAX - low)
     best = packed.bitwise_or_(code).amin(-2, keepdim=True)

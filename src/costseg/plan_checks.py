@@ -106,7 +106,7 @@ def source_priors(source, opts: EvalOptions, config: dict, cache_dir: Path) -> t
     if source.priors is not None:
         return source.priors
     from costseg.data.from_config import build_dataset
-    from costseg.data.priors import cached_priors
+    from costseg.data.priors_cache import cached_priors
 
     try:
         train = build_dataset(config, "train", opts.data_root)

@@ -133,13 +133,46 @@ def _matrix(cost: torch.Tensor | None, n: int) -> torch.Tensor:
     return symmetric_cost(n) if cost is None else cost
 
 
+@dataclass(frozen=True)
+class _NamedRules:
+    """``probs, priors → (B, K, H, W)`` for named rules (a class, not a closure: groups travel
+    to DDP worker processes with the LightningModule, so they must pickle)."""
+
+    rules: tuple[Rule, ...]
+
+    def __call__(self, probs: torch.Tensor, priors: torch.Tensor | None) -> torch.Tensor:
+        return apply_rules(probs, self.rules, priors)
+
+
+@dataclass(frozen=True)
+class _Mixtures:
+    vertices: torch.Tensor
+    weights: torch.Tensor
+
+    def __call__(self, probs: torch.Tensor, priors: torch.Tensor | None) -> torch.Tensor:
+        return decide_mixtures(probs, self.vertices, self.weights)
+
+
+@dataclass(frozen=True)
+class _PriorAdapted:
+    cost: torch.Tensor | None
+    alphas: tuple[float, ...]
+
+    def __call__(self, probs: torch.Tensor, priors: torch.Tensor | None) -> torch.Tensor:
+        if priors is None:
+            raise ValueError("the α sweep needs pixel-wise priors")
+        return torch.stack(
+            [decide(probs, self.cost, adapted_priors(priors, a)) for a in self.alphas], 1
+        )
+
+
 def rules_group(rules: Sequence[Rule]) -> RuleGroup:
     """The named rules of ``--cost`` as one group (with FP/FN location maps)."""
     rules = list(rules)
     return RuleGroup(
         "rules",
         [r.name for r in rules],
-        lambda probs, priors: apply_rules(probs, rules, priors),
+        _NamedRules(tuple(rules)),
         [{"matrix": r.name} for r in rules],
         heatmaps=True,
         rules=rules,
@@ -178,7 +211,7 @@ def grid_group(
     return RuleGroup(
         "grid",
         [point_name(w) for w in weights.tolist()],
-        lambda probs, priors: decide_mixtures(probs, vertices, weights),
+        _Mixtures(vertices, weights),
         [dict(zip(("alpha", "beta", "gamma"), w, strict=True)) for w in weights.tolist()],
         vertices=vertices,
         weights=weights,
@@ -207,16 +240,10 @@ def alpha_group(
         raise ValueError("--alpha_cost must be a cost matrix, not 'ml'")
     cost, label = (base.cost, base.name) if base else (None, "robotistic")
     alphas = alpha_grid(step)
-
-    def decide_all(probs: torch.Tensor, priors: torch.Tensor | None) -> torch.Tensor:
-        if priors is None:
-            raise ValueError("the α sweep needs pixel-wise priors")
-        return torch.stack([decide(probs, cost, adapted_priors(priors, a)) for a in alphas], 1)
-
     return RuleGroup(
         "alpha",
         [f"{label}@alpha={a:.2f}" for a in alphas],
-        decide_all,
+        _PriorAdapted(cost, tuple(alphas)),
         [{"prior_alpha": a} for a in alphas],
         note=f"{label} on p/π_α, π_α = (1-α) + απ",
     )

@@ -8,8 +8,8 @@ smoothed total, so locations that are often ignored weigh less; a location with 
 pixel within reach of the kernel gets the uniform distribution. The RoI map gives each location
 the class among road, sidewalk, building and sky with the highest prior there.
 
-:func:`cached_priors` computes priors once (for a network costseg did not train) and reuses
-the file while the settings it was made with stay the same.
+:func:`costseg.data.priors_cache.cached_priors` computes priors once (for a network costseg
+did not train) and reuses the file while its settings stay the same.
 """
 
 from __future__ import annotations
@@ -18,9 +18,9 @@ import itertools
 import json
 import os
 import tempfile
-from collections.abc import Callable, Iterable, Mapping, Sequence, Sized
+from collections.abc import Iterable, Mapping, Sequence, Sized
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -75,6 +75,11 @@ def pixel_priors(
     ([0.5, 0.5], [0.5, 0.5])
     """
     return _pixel_priors(labels, num_classes, sigma, eps, progress, max_labels)[0]
+
+
+def _normalise(settings: Mapping[str, Any]) -> dict[str, Any]:
+    """A JSON round trip: tuples become lists and paths strings, so equal settings compare equal."""
+    return json.loads(json.dumps(dict(settings), default=str, sort_keys=True))
 
 
 def _pixel_priors(
@@ -242,76 +247,3 @@ def _read(path: str | Path, class_names: Sequence[str]) -> dict[str, Any]:
             f"expected {list(class_names)}"
         )
     return payload
-
-
-def _normalise(settings: Mapping[str, Any]) -> dict[str, Any]:
-    """A JSON round trip: tuples become lists and paths strings, so equal settings compare equal."""
-    return json.loads(json.dumps(dict(settings), default=str, sort_keys=True))
-
-
-class CachedPriors(NamedTuple):
-    """What :func:`cached_priors` returns: the priors and how they were obtained."""
-
-    priors: Tensor
-    """(N, H, W) float32 priors."""
-    num_labels: int
-    """Training labels counted."""
-    sigma: float
-    """Smoothing σ in pixels actually used."""
-    reused: bool
-    """True when read from the cache file, False when computed now."""
-
-
-def cached_priors(
-    labels: Callable[[], Iterable[Tensor]],
-    cache_file: str | Path,
-    settings: Mapping[str, Any],
-    num_classes: int = NUM_CLASSES,
-    sigma: float | None = None,
-    eps: float = 1e-5,
-    class_names: Sequence[str] = CLASS_NAMES,
-    max_labels: int | None = None,
-    progress: bool = True,
-) -> CachedPriors:
-    """Priors from ``cache_file`` when it was made with the same settings, else computed and saved.
-
-    For a network costseg did not train: the priors come from the dataset's training labels
-    (SPEC §3, §8), computed once with a progress bar. The file records ``settings`` (say the
-    dataset root, split and label size) together with ``num_classes``, ``sigma``, ``eps`` and
-    ``max_labels``; any difference, an unreadable file or other classes mean a recomputation.
-
-    Args:
-        labels: Called only when computing; returns the (H, W) label maps (see
-            :func:`pixel_priors`).
-        cache_file: The ``.pt`` file (written atomically).
-        settings: JSON-like description of the label source; tuples and lists compare equal,
-            other objects by ``str``.
-        num_classes, sigma, eps, max_labels, progress: As for :func:`pixel_priors`.
-        class_names: Class name per channel, stored and checked.
-
-    Returns:
-        :class:`CachedPriors`.
-
-    >>> import tempfile
-    >>> folder = tempfile.mkdtemp()
-    >>> make = lambda: [torch.tensor([[0, 1]])]
-    >>> first = cached_priors(make, f"{folder}/p.pt", {"split": "train"}, num_classes=2)
-    >>> again = cached_priors(make, f"{folder}/p.pt", {"split": "train"}, num_classes=2)
-    >>> first.reused, again.reused, torch.equal(first.priors, again.priors), again.num_labels
-    (False, True, True, 1)
-    """
-    wanted = _normalise(
-        {**settings, "costseg": {"num_classes": num_classes, "sigma": sigma, "eps": eps,
-                                 "max_labels": max_labels}}
-    )  # fmt: skip
-    try:
-        payload = _read(cache_file, class_names)
-    except (FileNotFoundError, ValueError):
-        payload = None  # no usable cache: compute below
-    if payload is not None and (payload.get("settings") or {}).get("request") == wanted:
-        info = payload["settings"]
-        return CachedPriors(payload["priors"], info["num_labels"], info["sigma_px"], True)
-    pi, count, used_sigma = _pixel_priors(labels(), num_classes, sigma, eps, progress, max_labels)
-    record = {"request": wanted, "num_labels": count, "sigma_px": used_sigma}
-    save_priors(cache_file, pi, class_names, settings=record)
-    return CachedPriors(pi, count, used_sigma, False)

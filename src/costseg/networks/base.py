@@ -132,5 +132,7 @@ def read_torch_file(path: str | Path, mmap: bool = False) -> Any:
             f"{path} holds objects other than weights and plain data ({cause})"
         ) from None
     except Exception as err:  # torch raises several types for a truncated or foreign file
+        if mmap and "mmap can only be used" in str(err):  # a legacy or non-torch file
+            return read_torch_file(path, mmap=False)
         first = (str(err).strip().splitlines() or [type(err).__name__])[0]
         raise ValueError(f"{path} is not a readable torch file: {first}") from None

@@ -18,8 +18,8 @@ from torch.utils.tensorboard import SummaryWriter
 from costseg.classes import CLASS_NAMES
 from costseg.costs import mix_costs, save_cost
 from costseg.report.curves import plot_curves
-from costseg.report.files import save_figure, write_csv, write_json
-from costseg.report.tensorboard import log_figures
+from costseg.report.files import write_csv, write_json
+from costseg.report.tensorboard import save_and_log
 from costseg.results import EvalResults
 
 
@@ -35,9 +35,7 @@ def write_calibration(results: EvalResults, writer: SummaryWriter) -> None:
     )
     figures = {"reliability": plot_reliability(ece)} if ece else {}
     figures |= _temperature_sweep(results)
-    for tag, fig in figures.items():
-        save_figure(fig, out / "figures" / f"{tag}.png")
-    log_figures(writer, {f"calibration/{t}": f for t, f in figures.items()})
+    save_and_log(writer, figures, out / "figures", "calibration")
     if "certificate" in extra:
         _write_certificate(results)
 

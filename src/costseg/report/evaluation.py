@@ -11,10 +11,10 @@ from torch.utils.tensorboard import SummaryWriter
 
 from costseg.classes import CLASS_NAMES
 from costseg.report.figures import plot_cost_matrix, plot_heatmap_grid, plot_masks
-from costseg.report.files import save_figure, write_csv, write_json, write_text
+from costseg.report.files import write_csv, write_json, write_text
 from costseg.report.priors import plot_roi_map
 from costseg.report.tables import ROI_NAMES, compare_with_paper, console_table, paper_table
-from costseg.report.tensorboard import log_figures, log_masks, log_scalars, log_table
+from costseg.report.tensorboard import log_masks, log_scalars, log_table, save_and_log
 from costseg.results import EvalResults, GroupResult
 
 SUMMARY_COLUMNS = ("matrix", "class", "roi", "precision", "recall", "fp_segments", "fn_segments")
@@ -36,9 +36,6 @@ def write_evaluation(results: EvalResults) -> None:
     write_text(out / "table.md", tables)
     write_csv(out / "results.csv", rows)
     write_json(out / "results.json", _json(results, rows))
-    figures = _figures(results)
-    for tag, fig in figures.items():
-        save_figure(fig, out / "figures" / f"{tag}.png")
     with SummaryWriter(str(out)) as writer:
         log_table(writer, "evaluation/table", tables)
         log_scalars(writer, _scalars(rows, named))
@@ -50,7 +47,7 @@ def write_evaluation(results: EvalResults) -> None:
                 ex.label.numpy(),
                 {n: ex.preds[k].numpy() for k, n in enumerate(named.group.names)},
             )
-        log_figures(writer, {f"evaluation/{t}": f for t, f in figures.items()})
+        save_and_log(writer, _figures(results), out / "figures", "evaluation")
         write_sweeps(results, writer)
         write_calibration(results, writer)
     print(f"results written to {out}")

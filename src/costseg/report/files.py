@@ -134,3 +134,31 @@ def save_figure(fig: Figure, path: str | os.PathLike, dpi: float = 100) -> Path:
     # Render before opening the temp file so a drawing error leaves nothing behind.
     fig.savefig(buffer, format=fmt, dpi=dpi)
     return _atomic_write(path, buffer.getvalue())
+
+
+def render(fig: Figure, dpi: float = 100) -> np.ndarray:
+    """Draw a figure once into an (H, W, 3) uint8 RGB array (``figsize * dpi`` pixels).
+
+    >>> render(Figure(figsize=(2, 1)), dpi=10).shape
+    (10, 20, 3)
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    fig.set_dpi(dpi)
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    return np.asarray(canvas.buffer_rgba())[..., :3].copy()
+
+
+def save_png(image: np.ndarray, path: str | os.PathLike) -> Path:
+    """Write an (H, W, 3) uint8 array as a PNG file atomically.
+
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     save_png(np.zeros((2, 3, 3), np.uint8), Path(d) / "a.png").read_bytes()[:4]
+    b'\\x89PNG'
+    """
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    Image.fromarray(image).save(buffer, format="PNG", compress_level=1)
+    return _atomic_write(path, buffer.getvalue())

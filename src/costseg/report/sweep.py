@@ -12,8 +12,8 @@ from torch.utils.tensorboard import SummaryWriter
 from costseg.classes import CLASS_NAMES
 from costseg.costs import mix_costs, save_cost
 from costseg.report.curves import plot_curves
-from costseg.report.files import save_figure, write_csv, write_json
-from costseg.report.tensorboard import log_figures
+from costseg.report.files import write_csv, write_json
+from costseg.report.tensorboard import save_and_log
 from costseg.report.ternary import plot_edge_tradeoffs, plot_ternary
 from costseg.results import EvalResults, GroupResult
 from costseg.selection import choose
@@ -31,9 +31,7 @@ def write_sweeps(results: EvalResults, writer: SummaryWriter) -> None:
 
 
 def _save(results: EvalResults, writer: SummaryWriter, figures: dict, prefix: str) -> None:
-    for tag, fig in figures.items():
-        save_figure(fig, results.output_dir / "figures" / f"{tag}.png")
-    log_figures(writer, {f"{prefix}/{t}": f for t, f in figures.items()})
+    save_and_log(writer, figures, results.output_dir / "figures", prefix)
 
 
 def _write_grid(results: EvalResults, grid: GroupResult, writer: SummaryWriter) -> None:

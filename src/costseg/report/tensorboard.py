@@ -8,11 +8,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from matplotlib.figure import Figure
 
 from costseg.report.figures import ArrayLike, masks_side_by_side
+from costseg.report.files import render, save_png
 
 if TYPE_CHECKING:
     from torch.utils.tensorboard import SummaryWriter
@@ -92,3 +94,21 @@ def log_masks(
     """
     strip = masks_side_by_side(image, target, preds)
     writer.add_image(tag, strip, global_step=step, dataformats="HWC")
+
+
+def save_and_log(
+    writer: SummaryWriter, figures: Mapping[str, Figure], folder: Path, prefix: str
+) -> None:
+    """Draw each figure once: to ``folder/<tag>.png`` and to TensorBoard as ``prefix/<tag>``.
+
+    >>> import tempfile
+    >>> from torch.utils.tensorboard import SummaryWriter
+    >>> with tempfile.TemporaryDirectory() as d, SummaryWriter(d) as w:
+    ...     save_and_log(w, {"empty": Figure(figsize=(1, 1))}, Path(d) / "figures", "eval")
+    ...     sorted(p.name for p in (Path(d) / "figures").iterdir())
+    ['empty.png']
+    """
+    for tag, fig in figures.items():
+        image = render(fig)
+        save_png(image, folder / f"{tag.replace('/', '_')}.png")
+        writer.add_image(f"{prefix}/{tag}", image, dataformats="HWC")

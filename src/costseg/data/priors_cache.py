@@ -1,0 +1,80 @@
+"""Priors computed once and cached, for networks costseg did not train (SPEC §3, §8)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any, NamedTuple
+
+from torch import Tensor
+
+from costseg.classes import CLASS_NAMES, NUM_CLASSES
+from costseg.data.priors import _normalise, _pixel_priors, _read, save_priors
+
+
+class CachedPriors(NamedTuple):
+    """What :func:`cached_priors` returns: the priors and how they were obtained."""
+
+    priors: Tensor
+    """(N, H, W) float32 priors."""
+    num_labels: int
+    """Training labels counted."""
+    sigma: float
+    """Smoothing σ in pixels actually used."""
+    reused: bool
+    """True when read from the cache file, False when computed now."""
+
+
+def cached_priors(
+    labels: Callable[[], Iterable[Tensor]],
+    cache_file: str | Path,
+    settings: Mapping[str, Any],
+    num_classes: int = NUM_CLASSES,
+    sigma: float | None = None,
+    eps: float = 1e-5,
+    class_names: Sequence[str] = CLASS_NAMES,
+    max_labels: int | None = None,
+    progress: bool = True,
+) -> CachedPriors:
+    """Priors from ``cache_file`` when it was made with the same settings, else computed and saved.
+
+    For a network costseg did not train: the priors come from the dataset's training labels
+    (SPEC §3, §8), computed once with a progress bar. The file records ``settings`` (say the
+    dataset root, split and label size) together with ``num_classes``, ``sigma``, ``eps`` and
+    ``max_labels``; any difference, an unreadable file or other classes mean a recomputation.
+
+    Args:
+        labels: Called only when computing; returns the (H, W) label maps (see
+            :func:`pixel_priors`).
+        cache_file: The ``.pt`` file (written atomically).
+        settings: JSON-like description of the label source; tuples and lists compare equal,
+            other objects by ``str``.
+        num_classes, sigma, eps, max_labels, progress: As for :func:`pixel_priors`.
+        class_names: Class name per channel, stored and checked.
+
+    Returns:
+        :class:`CachedPriors`.
+
+    >>> import tempfile
+    >>> folder = tempfile.mkdtemp()
+    >>> make = lambda: [torch.tensor([[0, 1]])]
+    >>> first = cached_priors(make, f"{folder}/p.pt", {"split": "train"}, num_classes=2)
+    >>> again = cached_priors(make, f"{folder}/p.pt", {"split": "train"}, num_classes=2)
+    >>> first.reused, again.reused, torch.equal(first.priors, again.priors), again.num_labels
+    (False, True, True, 1)
+    """
+    wanted = _normalise(
+        {**settings, "costseg": {"num_classes": num_classes, "sigma": sigma, "eps": eps,
+                                 "max_labels": max_labels}}
+    )  # fmt: skip
+    try:
+        payload = _read(cache_file, class_names)
+    except (FileNotFoundError, ValueError):
+        payload = None  # no usable cache: compute below
+    if payload is not None and (payload.get("settings") or {}).get("request") == wanted:
+        info = payload["settings"]
+        return CachedPriors(payload["priors"], info["num_labels"], info["sigma_px"], True)
+    pi, count, used_sigma = _pixel_priors(labels(), num_classes, sigma, eps, progress, max_labels)
+    record = {"request": wanted, "num_labels": count, "sigma_px": used_sigma}
+    save_priors(cache_file, pi, class_names, settings=record)
+    return CachedPriors(pi, count, used_sigma, False)
