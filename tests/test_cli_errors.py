@@ -58,6 +58,31 @@ EVALUATE_CASES = {
     "unknown RoI": (_target("person:roi9:recall>=1"), ["unknown RoI 'roi9'"]),
     "unparsable target": (_target("person:roi1:recall about 1"), ["cannot parse"]),
     "unknown metric": (_target("person:roi1:sharpness>=1"), ["unknown metric 'sharpness'"]),
+    "guarantee above 1": (
+        [*_target("person:roi1:recall>=0.9"), "--guarantee", "1.5"],
+        ["--guarantee", "(0, 1)"],
+    ),
+    "guarantee without target": (["--sweep", "0.5", "--guarantee", "0.1"], ["needs --target"]),
+    "guarantee without sweep": (
+        [
+            "--target",
+            "person:roi1:recall>=0.9",
+            "--maximize",
+            "person:roi1:precision",
+            "--guarantee",
+            "0.1",
+        ],
+        ["--sweep or --alpha_sweep"],
+    ),  # fmt: skip
+    "too few calibration images": (
+        [*_target("person:roi1:recall>=0.9"), "--guarantee", "0.1"],
+        ["calibration images cannot certify anything", "at least"],
+    ),
+    "overlapping calibration": (
+        ["--calibrate", "temperature", "--calibration_split", "val"],
+        ["overlaps"],
+    ),
+    "unknown calibration": (["--calibrate", "platt"], ["--calibrate", "platt"]),
     "unknown split": (["--split", "holdout"], ["--split", "holdout"]),
     "unknown scaling": (["--vertex_scaling", "max"], ["--vertex_scaling"]),
     "unknown option": (["--costs", "egoistic"], ["unrecognized arguments"]),

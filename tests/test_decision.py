@@ -161,7 +161,10 @@ def test_paper_matrices_match_the_reference(name, dtype):
     cost = load_cost(name)
     sharp = smooth((2, 19, 48, 64), 0, scale=12).to(dtype)
     flat = smooth((1, 19, 48, 64), 1, scale=1).to(dtype)
-    for probs in (sharp, flat):
+    gen = torch.Generator().manual_seed(11)
+    logits = torch.randn(2, 19, 64, 80, generator=gen) * torch.rand(2, 1, 64, 80, generator=gen)
+    mixed = (logits * 8).softmax(1).to(dtype)  # bfloat16: many exact float64 ties
+    for probs in (sharp, flat, mixed):
         assert torch.equal(decide(probs, cost), reference(probs, cost))
     priors = torch.rand(19, 48, 64, generator=torch.Generator().manual_seed(2)) + 1e-5
     assert torch.equal(decide(flat, cost, priors), reference(flat, cost, priors))
@@ -176,6 +179,23 @@ def test_near_ties_within_float32_ulps(name):
     assert torch.equal(decide(probs, cost), expected)
     # The construction does produce decisions that flip within a few ulps.
     assert (expected.view(-1, 7) != expected.view(-1, 7)[:, :1]).any()
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_few_classes_near_ties(n):
+    """Few classes: few index bits, so the rounding bound itself must catch the near ties."""
+    gen = torch.Generator().manual_seed(n)
+    for _ in range(20):
+        cost = (torch.rand(n, n, generator=gen, dtype=torch.float64) * 3 + 0.1).fill_diagonal_(0)
+        probs = near_ties(cost, 140, seed=int(torch.randint(1 << 30, (1,), generator=gen)))
+        assert torch.equal(decide(probs, cost), reference(probs, cost))
+        vertices = (torch.rand(3, n, n, generator=gen, dtype=torch.float64) * 3 + 0.1).clone()
+        for v in vertices:
+            v.fill_diagonal_(0)
+        weights = barycentric_grid(0.1)
+        probs = near_ties(mix_costs(vertices, weights)[30], 140, seed=n)
+        loop = torch.stack([decide(probs, c) for c in mix_costs(vertices, weights)], 1)
+        assert torch.equal(decide_mixtures(probs, vertices, weights).long(), loop)
 
 
 def test_exact_ties():
