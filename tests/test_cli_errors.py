@@ -73,7 +73,7 @@ EVALUATE_CASES = {
             "0.1",
         ],
         ["--sweep or --alpha_sweep"],
-    ),  # fmt: skip
+    ),
     "too few calibration images": (
         [*_target("person:roi1:recall>=0.9"), "--guarantee", "0.1"],
         ["calibration images cannot certify anything", "at least"],
