@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import sys
 import warnings
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -79,6 +80,7 @@ def run_training(args: Sequence[str]) -> tuple[SegmentationModule, Trainer]:
         if ckpt_path:
             ckpt_path = str(find_checkpoint(ckpt_path))
             check_classes(ckpt_path, data.class_names)
+    _warn_slow_bf16(trainer)
     model.data_config = _data_config(cli)
     if ckpt_path:
         print(f"resuming from {ckpt_path}")
@@ -88,6 +90,19 @@ def run_training(args: Sequence[str]) -> tuple[SegmentationModule, Trainer]:
     if trainer.checkpoint_callback is not None:
         print(f"checkpoints: {trainer.checkpoint_callback.dirpath}")
     return model, trainer
+
+
+def _warn_slow_bf16(trainer: Trainer) -> None:
+    """bf16 autocast on a CPU without native bf16 (no AVX512-BF16 / AMX) is emulated: many
+    times slower than float32. Say so before hours are lost."""
+    on_cpu = trainer.accelerator.__class__.__name__ == "CPUAccelerator"
+    bf16 = on_cpu and "bf16" in str(trainer.precision)
+    if bf16 and not torch.ops.mkldnn._is_mkldnn_bf16_supported():
+        print(
+            f"warning: this CPU ({torch.backends.cpu.get_cpu_capability()}) has no native "
+            "bf16, so bf16 autocast is emulated and slow: pass --trainer.precision 32-true",
+            file=sys.stderr,
+        )
 
 
 def _data_config(cli: LightningCLI) -> dict[str, Any]:
