@@ -79,6 +79,7 @@ TINY_TRAIN = [
     "--data.init_args.test_length=2",
     "--data.init_args.prior_images=4",
     "--data.init_args.num_workers=0",
+    "--trainer.precision=32-true",  # bf16 autocast is emulated (slow) on CPUs without bf16
     "--trainer.max_steps=2",
     "--trainer.val_check_interval=2",
     "--trainer.enable_progress_bar=false",

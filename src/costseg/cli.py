@@ -73,8 +73,11 @@ def print_train_help(args: Sequence[str]) -> None:
     """
     import yaml
 
-    path = Path(args[args.index("--config") + 1] if "--config" in args else
-                next(a.split("=", 1)[1] for a in args if a.startswith("--config=")))  # fmt: skip
+    path = Path(
+        args[args.index("--config") + 1]
+        if "--config" in args
+        else next(a.split("=", 1)[1] for a in args if a.startswith("--config="))
+    )
     print(
         "usage: train.py [--config FILE] [--KEY VALUE ...] [--ckpt_path PATH|last] "
         "[--print_config] [--help_all]\n\n"

@@ -106,8 +106,9 @@ def run(plan: EvalPlan) -> EvalResults:
     opts, extra = plan.options, {}
     scaling = Scaling()
     if opts.calibrate:
-        scaling = fit_scaling(_calibration_batches(plan, "fit scaling"), opts.calibrate,
-                              plan.source.kind)  # fmt: skip
+        scaling = fit_scaling(
+            _calibration_batches(plan, "fit scaling"), opts.calibrate, plan.source.kind
+        )
         print(f"calibration: {scaling.describe()}")
         extra["scaling"] = scaling.to_dict()
         if opts.temperature_sweep and scaling.kind == "temperature":
@@ -131,10 +132,11 @@ def run(plan: EvalPlan) -> EvalResults:
 def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict) -> EvalResults:
     opts, device = plan.options, plan.device
     metrics = [
-        GroupMetrics(g, len(CLASS_NAMES), 4, None if g.temperature else plan.class_ids,
-                     plan.canvas).to(device)
+        GroupMetrics(
+            g, len(CLASS_NAMES), 4, None if g.temperature else plan.class_ids, plan.canvas
+        ).to(device)
         for g in plan.groups
-    ]  # fmt: skip
+    ]
     ece = {"raw": CalibrationError(len(CLASS_NAMES)).to(device)}
     if scaling.kind != "none":
         ece["scaled"] = CalibrationError(len(CLASS_NAMES)).to(device)
@@ -142,8 +144,9 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict) -> EvalResults:
     examples: list[Example] = []
     desc = "evaluate" if opts.progress and _rank() == 0 else None
     with torch.inference_mode():
-        for batch in batches(plan.source, plan.dataset, plan.indices, plan.batch_size, device,
-                             plan.num_workers, desc):  # fmt: skip
+        for batch in batches(
+            plan.source, plan.dataset, plan.indices, plan.batch_size, device, plan.num_workers, desc
+        ):
             probs = _probabilities(plan, batch, scaling)
             if opts.save_probs:  # evaluate exactly what is saved, so --probs reproduces it
                 probs = probs.half().float()
@@ -186,8 +189,9 @@ def _calibration_batches(plan: EvalPlan, what: str):
     dataset, indices = plan.calibration
     desc = f"{what} ({len(indices)} calibration images)" if plan.options.progress else None
     with torch.inference_mode():
-        yield from batches(plan.source, dataset, indices, plan.batch_size, plan.device,
-                           plan.num_workers, desc)  # fmt: skip
+        yield from batches(
+            plan.source, dataset, indices, plan.batch_size, plan.device, plan.num_workers, desc
+        )
 
 
 def _probabilities(plan: EvalPlan, batch: Batch, scaling: Scaling) -> torch.Tensor:

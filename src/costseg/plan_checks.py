@@ -124,6 +124,10 @@ def source_priors(source, opts: EvalOptions, config: dict, cache_dir: Path) -> t
     )
     verb = "reused" if found.reused else "computed"
     print(f"priors {verb} from {found.num_labels} training labels of {root} (σ = {found.sigma} px)")
-    source.description["priors"] = {"labels": found.num_labels, "sigma_px": found.sigma,
-                                    "root": root, "split": "train"}  # fmt: skip
+    source.description["priors"] = {
+        "labels": found.num_labels,
+        "sigma_px": found.sigma,
+        "root": root,
+        "split": "train",
+    }
     return found.priors

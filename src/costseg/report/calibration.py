@@ -102,8 +102,10 @@ def _write_certificate(results: EvalResults) -> None:
         "found": cert.chosen is not None,
     }
     if cert.chosen is None:
-        print(f"no value system is certified for {cert.target} at δ = {ltt.delta} "
-              f"with {cert.num_images} calibration images")  # fmt: skip
+        print(
+            f"no value system is certified for {cert.target} at δ = {ltt.delta} "
+            f"with {cert.num_images} calibration images"
+        )
         write_json(out / "guarantee.json", record)
         return
     k = cert.chosen
@@ -132,6 +134,8 @@ def _write_certificate(results: EvalResults) -> None:
 def _reported(results: EvalResults, kind: str, k: int) -> dict:
     """The chosen rule's precision and recall on the reported images (RoI 0-2, --classes)."""
     group = results.group(kind)
-    return {row["class"] + f"/roi{row['roi']}": {m: row[m] for m in ("precision", "recall")}
-            for row in group.rows(results.class_ids, (0, 1, 2))
-            if row | group.group.columns[k] == row}  # fmt: skip
+    return {
+        row["class"] + f"/roi{row['roi']}": {m: row[m] for m in ("precision", "recall")}
+        for row in group.rows(results.class_ids, (0, 1, 2))
+        if row | group.group.columns[k] == row
+    }
