@@ -1,6 +1,6 @@
 """Speed of the decision layer at Cityscapes scale, as ratios measured side by side in one run.
 
-    python scripts/bench_decision.py [--repeats 5] [--size 1024 2048]
+    python scripts/bench_decision.py [--repeats 5] [--size 1024 2048] [--threads N]
 
 On (1, 19, H, W) float32 probabilities (softmax of smooth random logits, the recipe of
 ``scripts/bench.py``), on the CPU and, when there is one, on the GPU: one read pass ``p.sum()``,
@@ -53,7 +53,7 @@ def bench(device: str, shape: tuple[int, int, int, int], repeats: int) -> None:
     t_sum = best_time(lambda: probs.sum(), repeats, sync)
     t_argmax = best_time(lambda: probs.argmax(1), repeats, sync)
     t_decide = best_time(lambda: decide(probs, VERTICES[2]), repeats, sync)
-    t_mix = best_time(lambda: decide_mixtures(probs, VERTICES, grid), max(1, repeats // 2), sync)
+    t_mix = best_time(lambda: decide_mixtures(probs, VERTICES, grid), max(1, repeats // 3), sync)
     threads = f", {torch.get_num_threads()} threads" if device == "cpu" else ""
     print(f"{device}{threads}, probabilities {tuple(shape)} float32:")
     print(f"  p.sum() (one read pass)        {1e3 * t_sum:8.1f} ms")
@@ -75,7 +75,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--size", type=int, nargs=2, default=(1024, 2048), metavar=("H", "W"))
+    parser.add_argument("--threads", type=int, help="CPU threads (default: torch's choice)")
     args = parser.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
     shape = (1, 19, *args.size)
     bench("cpu", shape, args.repeats)
     if torch.cuda.is_available():

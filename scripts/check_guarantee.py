@@ -2,16 +2,15 @@
 
     python scripts/check_guarantee.py [--ckpt_path PATH] [--n 50] [--trials 200] [--test 1000]
 
-Fresh procedural scenes (``--split test --seed 1000``, unrelated to training) form a pool: the
-first --test images are the test set, the next ones the calibration pool (--trials × --n images
-by default: disjoint, independent calibration sets). The network runs once per image; per image
-and grid point λ the counts of the target and of --maximize are kept in ``counts.npz`` in
---output_dir, so reruns are instant. Per calibration set, Learn-then-Test at δ picks the
-certified λ with the best pooled --maximize (or nothing), and the naive rule (``evaluate.py
---target``) the λ meeting the target on the pooled calibration images with the best --maximize.
-The test risk of λ is its mean per-image loss on the test set (images with an undefined loss
-left out and counted); a violation is ``R_test(λ̂) > α``, allowed in a δ fraction of the sets up
-to sampling error. Writes ``guarantee_check.json`` and ``guarantee_check.png``.
+Fresh procedural scenes (split "test", --seed 1000: unrelated to training) form a pool: the first
+--test images are the test set, the next ones the calibration pool (--trials × --n images by
+default: disjoint, independent calibration sets). The network runs once per image; the per-image
+counts of the target and of --maximize under every grid point λ are kept in ``counts.npz`` in
+--output_dir (reruns are instant). Per calibration set, Learn-then-Test at δ picks the certified
+λ with the best pooled --maximize (or nothing), and the naive rule (``evaluate.py --target``) the
+λ meeting the target on the pooled calibration images with the best --maximize. The test risk of
+λ is its mean per-image loss on the test set (images with an undefined loss left out, counted); a
+violation is ``R_test(λ̂) > α``. Writes ``guarantee_check.json`` and ``guarantee_check.png``.
 """
 
 from __future__ import annotations
@@ -59,12 +58,10 @@ def build_parser() -> argparse.ArgumentParser:
     add("--n", type=int, default=50, help="images per calibration set")
     add("--trials", type=int, default=200, help="calibration sets drawn")
     add("--test", type=int, default=1000, help="images of the fresh test set")
-    add("--cal_pool", type=int, help="calibration pool (default --trials × --n: disjoint sets; "
-        "smaller: sets drawn at random from it, overlapping)")  # fmt: skip
+    add("--cal_pool", type=int, help="default --trials × --n; smaller: sets overlap")
     add("--step", type=float, default=0.1, help="barycentric grid step (0.1: 66 points)")
     add("--vertices", nargs=3, default=["robotistic", "altruistic", "egoistic"])
     add("--vertex_scaling", default="none", choices=("none", "mean"))
-    add("--split", default="test", choices=("train", "val", "test"), help="scene stream")
     add("--seed", type=int, default=1000, help="scene seed (training uses 0)")
     add("--draw_seed", type=int, default=0, help="seed of the calibration-set draws")
     add("--size", type=int, nargs=2, metavar=("H", "W"), help="default: the checkpoint's")
@@ -83,8 +80,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     if not 0 < args.alpha < 1 or not 0 < args.delta < 1:
         raise ValueError(f"need α = {args.alpha:g} and δ = {args.delta:g} in (0, 1)")
     if min(args.n, args.trials, args.test, args.batch_size) < 1 or args.n > args.cal_pool:
-        raise ValueError(f"need n, trials, test, batch_size >= 1 and n <= cal_pool "
-                         f"({args.cal_pool}); got n = {args.n}")  # fmt: skip
+        raise ValueError(f"need n, trials, test, batch_size >= 1, n <= cal_pool = {args.cal_pool}")
     return args
 
 
@@ -98,9 +94,7 @@ def resolve_checkpoint(args: argparse.Namespace) -> Path | None:
         return None
 
 
-def load_source(
-    args: argparse.Namespace, path: Path | None
-) -> tuple[torch.nn.Module, torch.Tensor | None, tuple[int, int]]:
+def load_source(args: argparse.Namespace, path: Path | None) -> tuple[Any, Any, tuple[int, int]]:
     """(network, RoI map or None, image size) of the checkpoint or --network."""
     ckpt = None if path is None else load_costseg_checkpoint(path)
     config = (ckpt.data_config or {}).get("init_args", {}) if ckpt else {}
@@ -120,7 +114,7 @@ def compute_counts(args: argparse.Namespace, source: tuple, indices: range) -> d
     """(len(indices), K, 2) per-image counts of the target ("target") and of --maximize, with
     ``source`` = (network, RoI map, size) from :func:`load_source`."""
     net, roi, size = source
-    scenes = StreetScenes(args.split, indices.stop, size, args.seed)
+    scenes = StreetScenes("test", indices.stop, size, args.seed)
     loader = DataLoader(Subset(scenes, indices), args.batch_size, num_workers=1)
     vertices = vertex_matrices(args.vertices, args.vertex_scaling)
     weights, device = barycentric_grid(args.step), next(net.parameters()).device
@@ -130,8 +124,7 @@ def compute_counts(args: argparse.Namespace, source: tuple, indices: range) -> d
             images, labels = images.to(device), labels.to(device)
             preds = decide_mixtures(net(images).float().softmax(1), vertices, weights)
             for key, spec in (("target", args.target_spec), ("maximize", args.max_spec)):
-                counts = per_image_counts(preds, labels, roi, spec.cls, spec.roi, spec.metric)
-                out[key].append(counts.cpu())
+                out[key].append(per_image_counts(preds, labels, roi, *spec[:3]).cpu())
     return {k: torch.cat(v).numpy() for k, v in out.items()}
 
 
@@ -140,9 +133,8 @@ def cached_counts(args: argparse.Namespace) -> tuple[dict[str, np.ndarray], str,
     keeps those of earlier runs with the same settings, so only new images are counted."""
     path = resolve_checkpoint(args)
     name = args.network or f"costseg:{path}"
-    keys = ("split", "seed", "size", "step", "vertices", "vertex_scaling")
-    key = {k: getattr(args, k) for k in keys} | {"network": name, "checkpoint": str(path)}
-    key |= {"mtime": None if path is None else path.stat().st_mtime}
+    key = {k: getattr(args, k) for k in ("seed", "size", "step", "vertices", "vertex_scaling")}
+    key |= {"network": name, "checkpoint": str(path), "mtime": path and path.stat().st_mtime}
     key |= {"target": list(args.target_spec[:3]), "maximize": list(args.max_spec)}
     key_text, cache = json.dumps(key, sort_keys=True), args.output_dir / "counts.npz"
     counts, need, seconds = None, args.test + args.cal_pool, 0.0
@@ -212,6 +204,7 @@ def summarise(args: argparse.Namespace, counts: dict[str, np.ndarray]) -> dict[s
         out[rule] = rule_summary(args, [t[rule] for t in trials], test, pooled_ok)
     out["ltt"]["mean_certified"] = float(np.mean([t["certified"] for t in trials]))
     out["calibration_left_out_mean"] = float(np.mean([t["left_out"] for t in trials]))
+    out["minimum_n"] = minimum_n(args, len(risk))
     return out
 
 
@@ -231,6 +224,14 @@ def rule_summary(
             "mean_test_maximize": float(np.nanmean(values)) if len(values) else None}  # fmt: skip
 
 
+def minimum_n(args: argparse.Namespace, candidates: int) -> int:
+    """Fewest calibration images with which a zero empirical risk is certified."""
+    level = args.delta / (candidates if args.method == "bonferroni" else 1)
+    if args.bound == "hoeffding":  # p = exp(−2 n α²)
+        return math.ceil(-math.log(level) / (2 * args.alpha**2))
+    return math.ceil(math.log(level) / math.log1p(-args.alpha))  # p = (1 − α)ⁿ
+
+
 def report(out: dict[str, Any]) -> None:
     """Print the findings."""
     s, t = out["settings"], out["test"]
@@ -242,14 +243,14 @@ def report(out: dict[str, Any]) -> None:
     print(f"undefined loss, left out: {lo}-{hi} test images per λ; on average "
           f"{out['calibration_left_out_mean']:.1f} of {s['n']} calibration images")  # fmt: skip
     print(f"grid points with test risk <= α: {t['meeting_alpha']} of {len(t['risk'])}")
+    if s["n"] < out["minimum_n"]:
+        print(f"note: LTT cannot certify anything with n < {out['minimum_n']} (even at zero risk)")
     for rule, name in RULES.items():
         r = out[rule]
         mean = "n/a" if r["mean_test_maximize"] is None else f"{r['mean_test_maximize']:.4f}"
-        print(
-            f"{name:16s} R_test > α in {r['violations']}/{trials} = {r['violation_rate']:.3f}"
-            f" ± {r['violation_se']:.3f} (pooled test target missed {r['pooled_violations']}),"
-            f" nothing chosen {r['nothing_chosen']}, mean test {s['maximize']} {mean}"
-        )
+        print(f"{name:16s} R_test > α in {r['violations']}/{trials} = {r['violation_rate']:.3f}"
+              f" ± {r['violation_se']:.3f} (pooled test target missed {r['pooled_violations']}),"
+              f" nothing chosen {r['nothing_chosen']}, mean {s['maximize']} {mean}")  # fmt: skip
     bound = delta + 2 * math.sqrt(delta * (1 - delta) / trials)
     verdict = "holds" if out["ltt"]["violation_rate"] <= bound else "FAILS"
     print(f"P(R_test(λ̂) > α) <= δ {verdict}: LTT rate vs δ + 2 SE(δ) = {bound:.3f}")
@@ -267,8 +268,8 @@ def plot(out: dict[str, Any], path: Path) -> None:
         r = out[rule]
         label = f"{name} ({r['violation_rate']:.0%} of sets violate)"
         left.hist(risks[rule], bins=edges, alpha=0.6, color=colour, label=label)
-        picked, freq = np.unique([c for c in r["chosen"] if c is not None], return_counts=True)
-        picked = picked.astype(np.int64)
+        picked, freq = np.unique(np.array([c for c in r["chosen"] if c is not None], np.int64),
+                                 return_counts=True)  # fmt: skip
         right.scatter(t["risk"][picked], t["maximize"][picked], s=300 * freq / s["trials"],
                       color=colour, alpha=0.5, label=f"{name}'s choices")  # fmt: skip
     for ax in (left, right):
@@ -287,8 +288,7 @@ def main(argv: list[str] | None = None) -> int:
     except (FileNotFoundError, ValueError) as err:
         print(f"check_guarantee.py: error: {err}", file=sys.stderr)
         return 2
-    out = summarise(args, counts)
-    out["network"], out["count_seconds"] = name, seconds
+    out = summarise(args, counts) | {"network": name, "count_seconds": seconds}
     write_json(args.output_dir / "guarantee_check.json", out)
     plot(out, args.output_dir / "guarantee_check.png")
     report(out)

@@ -11,9 +11,9 @@ from costseg.costs import (
     barycentric_grid,
     load_cost,
     mix_costs,
-    ml_cost,
     rescale,
     save_cost,
+    symmetric_cost,
     validate_cost,
 )
 
@@ -167,13 +167,11 @@ def test_unknown_preset_and_missing_file(tmp_path):
         load_cost(tmp_path / "broken.yaml")
 
 
-def test_ml_cost_columns():
-    pi = torch.tensor([0.5, 0.3, 0.2], dtype=torch.float64)
-    cost = ml_cost(pi, lam=2.0)
-    expected = torch.tensor([[0, 2 / 0.3, 2 / 0.2], [2 / 0.5, 0, 2 / 0.2], [2 / 0.5, 2 / 0.3, 0]])
-    assert torch.allclose(cost, expected.double())
-    with pytest.raises(ValueError, match="positive 1-D"):
-        ml_cost(torch.tensor([0.5, 0.0]))
+def test_symmetric_cost():
+    cost = symmetric_cost(4, dtype=torch.float32)
+    assert cost.dtype == torch.float32
+    assert torch.equal(cost, torch.ones(4, 4) - torch.eye(4))
+    assert torch.equal(symmetric_cost(19), load_cost("robotistic"))
 
 
 @pytest.mark.parametrize(("step", "count"), [(1.0, 3), (0.5, 6), (0.1, 66), (0.05, 231)])

@@ -198,6 +198,21 @@ def test_few_classes_near_ties(n):
         assert torch.equal(decide_mixtures(probs, vertices, weights).long(), loop)
 
 
+def test_costs_spanning_fourteen_orders_of_magnitude():
+    """Two tiny costs near a tie next to huge columns: the float64 reference's own rounding
+    (relative to the huge shifted costs) decides there, and the fast path must follow it."""
+    gen = torch.Generator().manual_seed(12)
+    cost = torch.tensor([[0, 3e-7, 1e-7], [7e-7, 0, 1e-7], [1e7, 1e7, 0]], dtype=torch.float64)
+    q0 = torch.rand(20000, generator=gen, dtype=torch.float64) * 1e-3 + 1e-3
+    q1 = q0 * 7 / 3 * (1 + (torch.rand(20000, generator=gen, dtype=torch.float64) - 0.5) * 2e-3)
+    probs = torch.stack([q0, q1, 1 - q0 - q1]).float().view(1, 3, 100, 200)
+    assert torch.equal(decide(probs, cost), reference(probs, cost))
+    weights = barycentric_grid(0.25)
+    vertices = torch.stack([cost, cost.T.contiguous(), symmetric_cost(3)])
+    loop = torch.stack([decide(probs, c) for c in mix_costs(vertices, weights)], 1)
+    assert torch.equal(decide_mixtures(probs, vertices, weights).long(), loop)
+
+
 def test_exact_ties():
     uniform = torch.full((1, 19, 2, 2), 1 / 19)
     assert (decide(uniform, None) == 0).all()
@@ -302,3 +317,14 @@ def test_bad_inputs():
         decide_mixtures(torch.rand(1, 19, 4, 4), VERTICES, torch.tensor([[1.0, -0.5, 0.5]]))
     with pytest.raises(ValueError, match="weights must be >= 0"):
         decide_mixtures(torch.rand(1, 19, 4, 4), VERTICES, torch.zeros(1, 3))
+
+
+def test_decisions_ignore_autocast():
+    """Validation runs under bf16 autocast: the decision layer keeps its own precision."""
+    probs = torch.rand(2, 19, 16, 24, generator=torch.Generator().manual_seed(3)).softmax(1)
+    vertices = torch.stack([load_cost(n) for n in ("robotistic", "altruistic", "egoistic")])
+    grid = barycentric_grid(0.25)
+    plain = decide(probs, vertices[2]), decide_mixtures(probs, vertices, grid)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        autocast = decide(probs, vertices[2]), decide_mixtures(probs, vertices, grid)
+    assert torch.equal(plain[0], autocast[0]) and torch.equal(plain[1], autocast[1])

@@ -9,6 +9,7 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "costseg"
 CHAIN = [
     {"classes", "checkpoints", "options"},
     {"costs"},
+    {"decision_certified"},
     {"decision"},
     {"rules", "selection", "calibration", "calibration_sample", "guarantee"},
     {"data", "metrics", "models", "networks", "probs_files", "results"},
@@ -18,11 +19,37 @@ CHAIN = [
     {"evaluation", "callbacks", "training"},
     {"cli"},
 ]
-NO_LIGHTNING = {"costs", "decision", "rules", "selection", "calibration", "calibration_sample",
-                "guarantee", "metrics",
-                "results", "scoring", "sources", "calibration_set", "plan_checks", "report",
-                "evaluation", "networks", "probs_files"}  # fmt: skip
-NO_MODEL = {"costs", "decision", "rules", "selection", "metrics", "results", "scoring", "report"}
+NO_LIGHTNING = {
+    "costs",
+    "decision",
+    "decision_certified",
+    "rules",
+    "selection",
+    "calibration",
+    "calibration_sample",
+    "guarantee",
+    "metrics",
+    "results",
+    "scoring",
+    "sources",
+    "calibration_set",
+    "plan_checks",
+    "report",
+    "evaluation",
+    "networks",
+    "probs_files",
+}
+NO_MODEL = {
+    "costs",
+    "decision",
+    "decision_certified",
+    "rules",
+    "selection",
+    "metrics",
+    "results",
+    "scoring",
+    "report",
+}
 
 
 def _imports() -> dict[str, set[str]]:

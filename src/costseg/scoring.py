@@ -13,7 +13,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-import torch
 from torch import Tensor, nn
 
 from costseg.metrics import RoIPrecisionRecall, SegmentErrors
@@ -87,9 +86,7 @@ def score_batch(
     Returns:
         per group the (B, K, H, W) label maps.
     """
-    # Validation runs under mixed-precision autocast; decisions must see the real precision.
-    with torch.autocast(probs.device.type, enabled=False):
-        preds = [g.decide(probs, priors) for g in groups]
+    preds = [g.decide(probs, priors) for g in groups]
     for m, p in zip(metrics, preds, strict=True):
         m.update(p, labels, roi)
     return preds
