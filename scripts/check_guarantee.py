@@ -120,7 +120,7 @@ def compute_counts(args: argparse.Namespace, source: tuple, indices: range) -> d
     weights, device = barycentric_grid(args.step), next(net.parameters()).device
     out: dict[str, list[torch.Tensor]] = {"target": [], "maximize": []}
     with torch.inference_mode():
-        for images, labels in tqdm(loader, "network and counts", unit="batch"):
+        for images, labels in tqdm(loader, f"images {indices.start}-{indices.stop}", unit="batch"):
             images, labels = images.to(device), labels.to(device)
             preds = decide_mixtures(net(images).float().softmax(1), vertices, weights)
             for key, spec in (("target", args.target_spec), ("maximize", args.max_spec)):
@@ -142,14 +142,14 @@ def cached_counts(args: argparse.Namespace) -> tuple[dict[str, np.ndarray], str,
         with np.load(cache) as cached:
             if str(cached["key"]) == key_text:
                 counts = {k: cached[k] for k in ("target", "maximize")}
-    have = 0 if counts is None else len(counts["target"])
-    if have < need:
-        start = time.perf_counter()
-        new = compute_counts(args, load_source(args, path), range(have, need))
-        seconds = time.perf_counter() - start
+    have, start = 0 if counts is None else len(counts["target"]), time.perf_counter()
+    source = load_source(args, path) if have < need else None
+    for lo in range(have, need, 256):  # saved every 256 images: an interrupted run resumes
+        new = compute_counts(args, source, range(lo, min(lo + 256, need)))
         counts = new if counts is None else {k: np.concatenate([counts[k], new[k]]) for k in new}
         args.output_dir.mkdir(parents=True, exist_ok=True)
         np.savez_compressed(cache, key=np.array(key_text), **counts)
+        seconds = time.perf_counter() - start
     return {k: v[:need] for k, v in counts.items()}, name, seconds
 
 
@@ -259,8 +259,7 @@ def report(out: dict[str, Any]) -> None:
 def plot(out: dict[str, Any], path: Path) -> None:
     """Test risk of the chosen λ (histogram) and every λ's test risk and --maximize."""
     s, t = out["settings"], out["test"]
-    fig = Figure(figsize=(11, 4))
-    left, right = fig.subplots(1, 2)
+    left, right = (fig := Figure(figsize=(11, 4))).subplots(1, 2)
     risks = {rule: out[rule]["test_risk"][np.isfinite(out[rule]["test_risk"])] for rule in RULES}
     edges = np.histogram_bin_edges([s["alpha"], *risks["ltt"], *risks["naive"]], 30)
     right.scatter(t["risk"], t["maximize"], s=8, color="0.6", label="every grid point")
@@ -275,7 +274,8 @@ def plot(out: dict[str, Any], path: Path) -> None:
     for ax in (left, right):
         ax.axvline(s["alpha"], color="k", ls="--", lw=1, label="α")
         ax.legend(fontsize=8)
-    left.set(xlabel="test risk of the chosen λ", ylabel="calibration sets")
+    title = f"{s['target']}: α = {s['alpha']:.3g}, δ = {s['delta']:g}, n = {s['n']}"
+    left.set(xlabel="test risk of the chosen λ", ylabel="calibration sets", title=title)
     right.set(xlabel="test risk", ylabel=f"test {s['maximize']}", title="area: how often chosen")
     fig.tight_layout()
     save_figure(fig, path)

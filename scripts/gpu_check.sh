@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The GPU figures of the README, on a machine with one CUDA GPU, from the repository root:
 #   bash scripts/gpu_check.sh [OUT_DIR]
-# 1. scripts/bench.py: decision layer at (1, 19, 1024, 2048) with GB/s, and the Cityscapes
-#    config's training step (crop 768, batch 8, bf16) on random data;
+# 1. scripts/bench_decision.py: the decision layer at (1, 19, 1024, 2048) on the CPU and the GPU;
+#    scripts/bench.py: the Cityscapes config's training step (crop 768, batch 8, bf16);
 # 2. `python train.py --config configs/cityscapes.yaml` end to end (full-resolution PNG loading,
 #    augmentation, bf16, validation) for 200 steps on procedural scenes written in Cityscapes'
 #    layout, and its images/s between logged steps.
@@ -11,7 +11,8 @@ out=${1:-gpu_check}
 mkdir -p "$out"
 export PYTHONUNBUFFERED=1
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader
-python scripts/bench.py --skip-sweep | tee "$out/bench.txt"
+python scripts/bench_decision.py | tee "$out/bench.txt"
+python scripts/bench.py --skip-network | tee -a "$out/bench.txt"
 python scripts/toy_as_cityscapes.py /tmp/toy_cityscapes --train 320 --val 16
 start=$(date +%s)
 python train.py --config configs/cityscapes.yaml --data.init_args.root /tmp/toy_cityscapes \
