@@ -1,5 +1,6 @@
 """The step shared by validation and evaluation: probabilities → rule groups → metrics.
 
+>>> import torch
 >>> from costseg.rules import parse_rules, rules_group
 >>> groups = [rules_group(parse_rules(["robotistic", "egoistic"]))]
 >>> metrics = GroupMetrics(groups[0], num_classes=19, num_rois=0)

@@ -55,7 +55,7 @@ def cached_priors(
     Returns:
         :class:`CachedPriors`.
 
-    >>> import tempfile
+    >>> import tempfile, torch
     >>> folder = tempfile.mkdtemp()
     >>> make = lambda: [torch.tensor([[0, 1]])]
     >>> first = cached_priors(make, f"{folder}/p.pt", {"split": "train"}, num_classes=2)
