@@ -18,27 +18,14 @@ from __future__ import annotations
 
 import argparse
 import tempfile
-import time
 from collections.abc import Callable
 from pathlib import Path
 
 import torch
 import yaml
+from bench_decision import best_time  # the same timer as the decision benchmark
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def best_time(fn: Callable[[], object], repeats: int = 5, sync: Callable = lambda: None) -> float:
-    """Best wall time of ``repeats`` calls, after one warm-up call."""
-    fn()
-    sync()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        sync()
-        times.append(time.perf_counter() - start)
-    return min(times)
 
 
 def bench_network_and_rules(steps: int = 2) -> None:

@@ -111,26 +111,25 @@ class OneLineParser(argparse.ArgumentParser):
         fail(f"{self.prog}: {message}")
 
 
-def positive_int(text: str) -> int:
-    """argparse type: an integer >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {value}")
-    return value
+def whole_number(minimum: int):
+    """argparse type: an integer >= ``minimum``.
 
+    >>> whole_number(1)("3"), whole_number(0).__name__
+    (3, 'integer >= 0')
+    """
 
-def nonnegative_int(text: str) -> int:
-    """argparse type: an integer >= 0."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {value}")
-    return value
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = None
+        if value is None or value < minimum:
+            shown = repr(text) if value is None else value
+            raise argparse.ArgumentTypeError(f"expected a whole number >= {minimum}, got {shown}")
+        return value
+
+    parse.__name__ = f"integer >= {minimum}"
+    return parse
 
 
 def step_size(text: str) -> float:
@@ -165,8 +164,8 @@ def evaluate_parser() -> argparse.ArgumentParser:
     add("--classes", nargs="+", default=d.classes, help="classes of the table and segment maps")
     add("--output_dir", help="default: a new <run>/evaluation/version_<n>")
     add("--overwrite", action="store_true", help="allow an --output_dir that holds results")
-    add("--limit", type=positive_int, help="evaluate only the first N images")
-    add("--batch_size", type=positive_int)
+    add("--limit", type=whole_number(1), help="evaluate only the first N images")
+    add("--batch_size", type=whole_number(1))
     add("--device", default=d.device, help="auto, cpu, cuda, cuda:1, ...")
     add(
         "--save-predictions",
@@ -182,7 +181,7 @@ def evaluate_parser() -> argparse.ArgumentParser:
     )
     add(
         "--num_examples",
-        type=nonnegative_int,
+        type=whole_number(0),
         default=d.num_examples,
         help="images in the mask figures",
     )
