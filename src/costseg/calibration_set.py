@@ -9,14 +9,15 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numpy as np
 import torch
 
 from costseg.calibration import Scaling
 from costseg.calibration_sample import PixelSampler
+from costseg.classes import CLASS_NAMES
 from costseg.guarantee import LTTResult, learn_then_test
+from costseg.metrics.per_image import per_image_counts, per_image_loss
 from costseg.rules import RuleGroup
-from costseg.scoring import GroupMetrics
+from costseg.scoring import GroupMetrics, score_batch
 from costseg.selection import metric_values, parse_metric, parse_target, risk_level
 from costseg.sources import Batch
 
@@ -93,24 +94,20 @@ def certify(
         delta: δ; method: ``bonferroni`` or ``fixed_sequence`` (along the group's order).
         class_ids: classes of the segment metrics.
     """
-    from costseg.metrics.per_image import per_image_counts, per_image_loss
-
     t, goal = parse_target(target), parse_metric(maximize)
     alpha = risk_level(t)
     segments = sorted({*class_ids, t.cls} | ({goal.cls} if "rate" in goal.metric else set()))
-    metrics = GroupMetrics(group, 19, 4, segments)
+    metrics = GroupMetrics(group, len(CLASS_NAMES), 4, segments)
     counts, n = [], 0
     for batch in batches:
         priors, roi = priors_at(tuple(batch.labels.shape[-2:]))
-        preds = group.decide(probabilities(batch), priors)
-        metrics.to(preds.device).update(preds, batch.labels, roi)
+        metrics.to(batch.labels.device)  # a no-op after the first batch
+        (preds,) = score_batch([group], [metrics], probabilities(batch), batch.labels, priors, roi)
         counts.append(per_image_counts(preds, batch.labels, roi, t.cls, t.roi, t.metric).cpu())
         n += len(batch.labels)
     losses = per_image_loss(torch.cat(counts), t.metric).numpy()
     ltt = learn_then_test(losses, alpha, delta, method)
     pooled = metrics.compute()
     objective = metric_values(pooled["pixels"], pooled["segments"], goal, segments)
-    chosen = ltt.best(np.nan_to_num(objective.cpu().numpy(), nan=-np.inf))
-    if chosen is not None and not math.isfinite(float(objective[chosen])):
-        chosen = None
+    chosen = ltt.best(objective.cpu().numpy())  # None unless a certified λ has a finite value
     return Certificate(group, ltt, chosen, objective, target, maximize, n)

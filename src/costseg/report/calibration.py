@@ -133,9 +133,11 @@ def _write_certificate(results: EvalResults) -> None:
 
 def _reported(results: EvalResults, kind: str, k: int) -> dict:
     """The chosen rule's precision and recall on the reported images (RoI 0-2, --classes)."""
-    group = results.group(kind)
+    pixels = results.group(kind).pixels
     return {
-        row["class"] + f"/roi{row['roi']}": {m: row[m] for m in ("precision", "recall")}
-        for row in group.rows(results.class_ids, (0, 1, 2))
-        if row | group.group.columns[k] == row
+        f"{CLASS_NAMES[cls]}/roi{roi}": {
+            m: pixels[m][k, roi, cls].item() for m in ("precision", "recall")
+        }
+        for cls in results.class_ids
+        for roi in (0, 1, 2)
     }
