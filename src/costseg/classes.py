@@ -1,6 +1,7 @@
 """The 19 Cityscapes train classes, their colours and the label-id ↔ train-id tables.
 
-Everything is read from torchvision's ``Cityscapes.classes`` so that nothing is retyped.
+The table is cityscapesScripts' ``labels.py`` (also torchvision's ``Cityscapes.classes``; a test
+checks that they agree), kept here so that the classes load without importing torchvision.
 
 >>> NUM_CLASSES, CLASS_NAMES[11], class_index("person")
 (19, 'person', 11)
@@ -13,36 +14,46 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 
 import numpy as np
-from torchvision.datasets import Cityscapes
 
 IGNORE_INDEX = 255
 
-_TRAIN = sorted(
-    (c for c in Cityscapes.classes if 0 <= c.train_id < IGNORE_INDEX), key=lambda c: c.train_id
+# (name, label id, RGB colour) of each train class, in train-id order.
+_TRAIN: tuple[tuple[str, int, tuple[int, int, int]], ...] = (
+    ("road", 7, (128, 64, 128)),
+    ("sidewalk", 8, (244, 35, 232)),
+    ("building", 11, (70, 70, 70)),
+    ("wall", 12, (102, 102, 156)),
+    ("fence", 13, (190, 153, 153)),
+    ("pole", 17, (153, 153, 153)),
+    ("traffic light", 19, (250, 170, 30)),
+    ("traffic sign", 20, (220, 220, 0)),
+    ("vegetation", 21, (107, 142, 35)),
+    ("terrain", 22, (152, 251, 152)),
+    ("sky", 23, (70, 130, 180)),
+    ("person", 24, (220, 20, 60)),
+    ("rider", 25, (255, 0, 0)),
+    ("car", 26, (0, 0, 142)),
+    ("truck", 27, (0, 0, 70)),
+    ("bus", 28, (0, 60, 100)),
+    ("train", 31, (0, 80, 100)),
+    ("motorcycle", 32, (0, 0, 230)),
+    ("bicycle", 33, (119, 11, 32)),
 )
-CLASS_NAMES: tuple[str, ...] = tuple(c.name for c in _TRAIN)
+CLASS_NAMES: tuple[str, ...] = tuple(name for name, _, _ in _TRAIN)
 NUM_CLASSES = len(CLASS_NAMES)
-PALETTE = np.array([c.color for c in _TRAIN], dtype=np.uint8)
+PALETTE = np.array([color for _, _, color in _TRAIN], dtype=np.uint8)
 """(19, 3) uint8 RGB colour of each train id (Cityscapes' palette)."""
 
+VALID_LABEL_IDS = frozenset(range(34)) | {255}
+"""Label ids that may occur in a ``*_gtFine_labelIds.png``: 0 (unlabeled) … 33 (bicycle), and
+license plate's id -1, which reads as 255 from the uint8 PNGs."""
 
-def _label_to_train_table() -> np.ndarray:
-    # Label ids are stored as uint8 in the PNGs; license plate's id -1 reads as 255.
-    table = np.full(256, IGNORE_INDEX, dtype=np.uint8)
-    for c in Cityscapes.classes:
-        if 0 <= c.train_id < IGNORE_INDEX:
-            table[c.id % 256] = c.train_id
-    return table
-
-
-LABEL_ID_TO_TRAIN_ID = _label_to_train_table()
-"""(256,) uint8 lookup: Cityscapes label id → train id (255 for void and ignored classes)."""
-
-VALID_LABEL_IDS = frozenset(c.id % 256 for c in Cityscapes.classes)
-"""Label ids that may occur in a ``*_gtFine_labelIds.png`` (license plate's -1 as 255)."""
-
-TRAIN_ID_TO_LABEL_ID = np.array([c.id for c in _TRAIN], dtype=np.uint8)
+TRAIN_ID_TO_LABEL_ID = np.array([label_id for _, label_id, _ in _TRAIN], dtype=np.uint8)
 """(19,) uint8: train id → Cityscapes label id, for files the official evaluator reads."""
+
+LABEL_ID_TO_TRAIN_ID = np.full(256, IGNORE_INDEX, dtype=np.uint8)
+"""(256,) uint8 lookup: Cityscapes label id → train id (255 for void and ignored classes)."""
+LABEL_ID_TO_TRAIN_ID[TRAIN_ID_TO_LABEL_ID] = np.arange(NUM_CLASSES)
 
 ROI_NAMES: tuple[str, ...] = ("image", "street", "sidewalk", "building", "sky")
 """Names of the RoI ids 0 (whole image) … 4 (SPEC §3)."""

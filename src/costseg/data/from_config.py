@@ -17,8 +17,6 @@ from typing import Any
 
 from torch.utils.data import Dataset
 
-from costseg.data.cityscapes import CityscapesSegmentation
-
 SPLITS = ("train", "val", "test")
 
 
@@ -55,6 +53,8 @@ def build_dataset(config: dict[str, Any], split: str, root: str | Path | None = 
         length = args.get(f"{split}_length", {"train": 2000, "val": 100, "test": 100}[split])
         return StreetScenes(split, length, tuple(args.get("size", (256, 512))), args.get("seed", 0))
     if kind == "CityscapesDataModule":
+        from costseg.data.cityscapes import CityscapesSegmentation  # torchvision: only here
+
         folder = args.get("test_split", "val") if split == "test" else split
         return CityscapesSegmentation(args.get("root", "data/cityscapes"), folder)
     raise ValueError(f"unknown dataset {config.get('class_path')!r} in the data configuration")
