@@ -16,9 +16,9 @@ from torch.utils.tensorboard import SummaryWriter
 
 from costseg.classes import CLASS_NAMES, colorize
 from costseg.report import files
+from costseg.report.cost_matrix import plot_cost_matrix
 from costseg.report.figures import (
     masks_side_by_side,
-    plot_cost_matrix,
     plot_heatmap,
     plot_heatmap_grid,
     plot_masks,

@@ -7,10 +7,14 @@ theirs (:mod:`costseg.report.sweep`).
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
+from matplotlib.figure import Figure
 from torch.utils.tensorboard import SummaryWriter
 
 from costseg.classes import CLASS_NAMES
-from costseg.report.figures import plot_cost_matrix, plot_heatmap_grid, plot_masks
+from costseg.report.cost_matrix import cost_matrix_figures
+from costseg.report.figures import heatmap_grid_figures, mask_figures
 from costseg.report.files import write_csv, write_json, write_text
 from costseg.report.priors import plot_roi_map
 from costseg.report.tables import ROI_NAMES, compare_with_paper, console_table, paper_table
@@ -110,26 +114,30 @@ def _scalars(rows: list[dict], named: GroupResult) -> dict[str, float]:
     return scalars
 
 
-def _figures(results: EvalResults) -> dict:
+def _figures(results: EvalResults) -> Iterator[tuple[str, Figure]]:
+    """(tag, figure) of the named rules; figures of one kind are one figure redrawn."""
     named = results.groups[0]
     names, segments = named.group.names, named.segments
-    figures = {}
+    grids = []
     for kind, key in (("FP", "fp_map"), ("FN", "fn_map")):
         maps = {
             (n, CLASS_NAMES[cls]): segments[key][k, c].cpu().numpy()
             for k, n in enumerate(names)
             for c, cls in enumerate(results.class_ids)
         }
-        figures[f"{kind.lower()}_segments"] = plot_heatmap_grid(maps, kind=kind)
-    for i, ex in enumerate(results.examples):
-        figures[f"masks_{i}"] = plot_masks(
+        grids.append((f"{kind.lower()}_segments", maps, kind))
+    yield from heatmap_grid_figures(grids)
+    examples = (
+        (
+            f"masks_{i}",
             ex.image.permute(1, 2, 0).numpy(),
             ex.label.numpy(),
             {n: ex.preds[k].numpy() for k, n in enumerate(names)},
         )
-    for rule in named.group.rules:
-        if rule.cost is not None:
-            figures[f"cost_{rule.name}"] = plot_cost_matrix(rule.cost, CLASS_NAMES, rule.name)
+        for i, ex in enumerate(results.examples)
+    )
+    yield from mask_figures(examples)
+    costs = [(f"cost_{r.name}", r.cost, r.name) for r in named.group.rules if r.cost is not None]
+    yield from cost_matrix_figures(costs, CLASS_NAMES)
     if results.roi is not None:
-        figures["roi_map"] = plot_roi_map(results.roi)
-    return figures
+        yield "roi_map", plot_roi_map(results.roi)

@@ -1,19 +1,23 @@
-"""Figures of the paper: masks per decision rule, FP/FN heatmaps, cost matrices, RoIs, priors.
+"""Figures of the paper: masks per decision rule, FP/FN heatmaps, RoIs, priors.
 
 Each function returns a :class:`matplotlib.figure.Figure` built without pyplot, so nothing needs
 a display or a global backend; save it with :func:`costseg.report.files.save_figure` or send it to
 TensorBoard with :func:`costseg.report.tensorboard.log_figures`. The image is ``figsize * dpi``
 pixels. Arrays may be numpy arrays or (CPU or GPU) tensors.
+
+Figures of one kind and layout (the mask figures of several images, the FP and FN grids) come
+from generators that build the figure once and redraw it with each one's data
+(:func:`mask_figures`, :func:`heatmap_grid_figures`): building the axes and the layout, which
+measures every text, cost more than drawing. Draw each figure before taking the next.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 import torch
-from matplotlib import colormaps
-from matplotlib.colors import LogNorm
+from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
@@ -21,6 +25,24 @@ from costseg.classes import CLASS_NAMES, IGNORE_INDEX, PALETTE, colorize
 
 ArrayLike = np.ndarray | torch.Tensor
 PANEL = 3.0  # inches: width of one image panel
+
+
+def freeze_layout(fig: Figure) -> Figure:
+    """Run the figure's layout engine once and keep the positions it chose.
+
+    A figure redrawn with new data of the same shape then skips the layout, which measures every
+    text and takes about as long as drawing.
+
+    >>> fig = Figure(layout="constrained")
+    >>> ax = fig.subplots()
+    >>> type(freeze_layout(fig).get_layout_engine()).__name__  # keeps positions, lays out nothing
+    'PlaceHolderLayoutEngine'
+    """
+    engine = fig.get_layout_engine()
+    if engine is not None:
+        engine.execute(fig)
+        fig.set_layout_engine("none")
+    return fig
 
 
 def _numpy(x: ArrayLike) -> np.ndarray:
@@ -100,24 +122,53 @@ def plot_masks(
     >>> [ax.get_title() for ax in fig.axes], [t.get_text() for t in fig.legends[0].texts]
     (['image', 'ground truth', 'ml'], ['road', 'sidewalk'])
     """
-    img, gt, masks = _masks(image, target, preds)
-    panels = {"image": img, "ground truth": colorize(gt)}
-    panels |= {name: colorize(m) for name, m in masks.items()}
-    height, width = gt.shape
-    fig = Figure(figsize=(PANEL * len(panels), PANEL * height / width + 0.8), layout="constrained")
-    for ax, (title, rgb) in zip(fig.subplots(1, len(panels)), panels.items(), strict=True):
-        ax.imshow(rgb, interpolation="nearest")
-        ax.set_title(title)
-        ax.set_axis_off()
-    handles = _legend_handles([gt, *masks.values()], class_names)
+    return next(mask_figures([("", image, target, preds)], class_names))[1]
+
+
+def mask_figures(
+    examples: Iterable[tuple[str, ArrayLike, ArrayLike, Mapping[str, ArrayLike]]],
+    class_names: Sequence[str] = CLASS_NAMES,
+) -> Iterator[tuple[str, Figure]]:
+    """:func:`plot_masks` of each ``(tag, image, target, preds)``, as ``(tag, figure)``.
+
+    Examples of one size, the same rules and a legend of as many rows share one figure, which
+    is redrawn for each: draw it before taking the next.
+
+    >>> examples = [(str(i), np.zeros((4, 8, 3), np.uint8), np.full((4, 8), i), {}) for i in (0, 1)]
+    >>> [(tag, fig.legends[0].texts[0].get_text()) for tag, fig in mask_figures(examples)]
+    [('0', 'road'), ('1', 'sidewalk')]
+    """
+    fig, layout, images = None, None, []
+    for tag, image, target, preds in examples:
+        img, gt, masks = _masks(image, target, preds)
+        panels = {"image": img, "ground truth": colorize(gt)}
+        panels |= {name: colorize(m) for name, m in masks.items()}
+        handles = _legend_handles([gt, *masks.values()], class_names)
+        ncols = max(1, min(len(handles), 10))
+        if layout != (gt.shape, tuple(panels), -(-len(handles) // ncols)):
+            layout = (gt.shape, tuple(panels), -(-len(handles) // ncols))
+            height, width = gt.shape
+            size = (PANEL * len(panels), PANEL * height / width + 0.8)
+            fig = Figure(figsize=size, layout="constrained")
+            images = []
+            for ax, (title, rgb) in zip(fig.subplots(1, len(panels)), panels.items(), strict=True):
+                images.append(ax.imshow(rgb, interpolation="nearest"))
+                ax.set_title(title)
+                ax.set_axis_off()
+            _mask_legend(fig, handles, ncols)
+            freeze_layout(fig)
+        else:
+            for im, rgb in zip(images, panels.values(), strict=True):
+                im.set_data(rgb)
+            fig.legends[0].remove()
+            _mask_legend(fig, handles, ncols)
+        yield tag, fig
+
+
+def _mask_legend(fig: Figure, handles: list[Patch], ncols: int) -> None:
     fig.legend(
-        handles=handles,
-        loc="outside lower center",
-        ncols=min(len(handles), 10),
-        fontsize="small",
-        frameon=False,
+        handles=handles, loc="outside lower center", ncols=ncols, fontsize="small", frameon=False
     )
-    return fig
 
 
 def _heat(heat: ArrayLike) -> np.ndarray:
@@ -162,68 +213,70 @@ def plot_heatmap_grid(maps: Mapping[tuple[str, str], ArrayLike], kind: str = "FP
     >>> len(fig.axes)  # 2 x 2 panels and the colour bar
     5
     """
-    if not maps:
-        raise ValueError("expected at least one (rule, class) heatmap, got an empty mapping")
-    arrays = {key: _heat(m) for key, m in maps.items()}
-    rules = list(dict.fromkeys(rule for rule, _ in arrays))
-    classes = list(dict.fromkeys(cls for _, cls in arrays))
-    # An all-zero set of maps still needs a non-empty colour range.
-    vmax = max(float(np.nanmax(a, initial=0.0)) for a in arrays.values()) or 1.0
-    height, width = next(iter(arrays.values())).shape
-    size = (PANEL * len(rules) + 1.0, PANEL * height / width * len(classes) + 0.6)
-    fig = Figure(figsize=size, layout="constrained")
-    axes = fig.subplots(len(classes), len(rules), squeeze=False)
-    for (i, cls), (j, rule) in ((c, r) for c in enumerate(classes) for r in enumerate(rules)):
-        ax = axes[i, j]
-        ax.set_xticks([])
-        ax.set_yticks([])
-        if (rule, cls) in arrays:
-            im = ax.imshow(arrays[rule, cls], cmap="inferno", vmin=0, vmax=vmax)
-        else:
-            ax.text(0.5, 0.5, "not computed", ha="center", va="center", transform=ax.transAxes)
-        if i == 0:
-            ax.set_title(rule)
-        if j == 0:
-            ax.set_ylabel(cls)
-    fig.suptitle(f"{kind} segments")
-    fig.colorbar(im, ax=axes, label=f"{kind} segment frequency", shrink=0.9)
-    return fig
+    return next(heatmap_grid_figures([("", maps, kind)]))[1]
 
 
-def plot_cost_matrix(
-    C: ArrayLike, class_names: Sequence[str] = CLASS_NAMES, title: str = ""
-) -> Figure:
-    """A cost matrix on a log colour scale; rows = predicted class, columns = true class.
+def heatmap_grid_figures(
+    grids: Iterable[tuple[str, Mapping[tuple[str, str], ArrayLike], str]],
+) -> Iterator[tuple[str, Figure]]:
+    """:func:`plot_heatmap_grid` of each ``(tag, maps, kind)``, as ``(tag, figure)``.
 
-    The zero diagonal has no logarithm: it is drawn white and marked "0".
+    Grids of the same (rule, class) panels and map size share one figure, redrawn for each:
+    draw it before taking the next.
 
-    Args:
-        C: (N, N) costs.
-        class_names: N names for the ticks.
-        title: e.g. "egoistic".
-
-    >>> plot_cost_matrix(np.ones((2, 2)) - np.eye(2), ["a", "b"]).axes[0].get_ylabel()
-    'predicted class k̂'
+    >>> grids = [(kind, {("ml", "car"): np.eye(2)}, kind) for kind in ("FP", "FN")]
+    >>> [fig.get_suptitle() for _, fig in heatmap_grid_figures(grids)]
+    ['FP segments', 'FN segments']
     """
-    cost = _numpy(C).astype(np.float64)
-    n = len(class_names)
-    if cost.shape != (n, n):
-        raise ValueError(f"expected a ({n}, {n}) cost matrix for {n} class names, got {cost.shape}")
-    shown = np.ma.masked_where(~(np.isfinite(cost) & (cost > 0)), cost)
-    lo, hi = float(shown.min()), float(shown.max())
-    if lo == hi:  # e.g. the robotistic matrix: a log colour bar needs a non-empty range
-        lo, hi = lo / 10, hi * 10
-    side = max(4.0, 0.3 * n + 2.5)
-    fig = Figure(figsize=(side + 1.0, side), layout="constrained")
-    ax = fig.subplots()
-    cmap = colormaps["viridis"].with_extremes(bad="white")
-    im = ax.imshow(shown, cmap=cmap, norm=LogNorm(lo, hi), interpolation="nearest")
-    for i in np.flatnonzero(np.diag(cost) == 0):
-        ax.text(i, i, "0", ha="center", va="center", fontsize="x-small")
-    ax.set_xticks(range(n), class_names, rotation=90)
-    ax.set_yticks(range(n), class_names)
-    ax.set_xlabel("true class k")
-    ax.set_ylabel("predicted class k̂")
-    ax.set_title(title)
-    fig.colorbar(im, ax=ax, label="cost (log scale)", shrink=0.8)
-    return fig
+    layout = grid = None
+    for tag, maps, kind in grids:
+        if not maps:
+            raise ValueError("expected at least one (rule, class) heatmap, got an empty mapping")
+        arrays = {key: _heat(m) for key, m in maps.items()}
+        # An all-zero set of maps still needs a non-empty colour range.
+        vmax = max(float(np.nanmax(a, initial=0.0)) for a in arrays.values()) or 1.0
+        shape = next(iter(arrays.values())).shape
+        if layout != (tuple(arrays), shape):
+            layout, grid = (tuple(arrays), shape), _HeatmapGrid(arrays, vmax, kind)
+            freeze_layout(grid.fig)
+        else:
+            grid.show(arrays, vmax, kind)
+        yield tag, grid.fig
+
+
+class _HeatmapGrid:
+    """A grid of heatmap panels (rows: classes, columns: rules) with one shared colour bar."""
+
+    def __init__(self, arrays: Mapping[tuple[str, str], np.ndarray], vmax: float, kind: str):
+        rules = list(dict.fromkeys(rule for rule, _ in arrays))
+        classes = list(dict.fromkeys(cls for _, cls in arrays))
+        height, width = next(iter(arrays.values())).shape
+        size = (PANEL * len(rules) + 1.0, PANEL * height / width * len(classes) + 0.6)
+        self.fig = Figure(figsize=size, layout="constrained")
+        self.norm = Normalize(0, vmax)
+        self.images = {}
+        axes = self.fig.subplots(len(classes), len(rules), squeeze=False)
+        for (i, cls), (j, rule) in ((c, r) for c in enumerate(classes) for r in enumerate(rules)):
+            ax = axes[i, j]
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if (rule, cls) in arrays:
+                image = ax.imshow(arrays[rule, cls], cmap="inferno", norm=self.norm)
+                self.images[rule, cls] = image
+            else:
+                ax.text(0.5, 0.5, "not computed", ha="center", va="center", transform=ax.transAxes)
+            if i == 0:
+                ax.set_title(rule)
+            if j == 0:
+                ax.set_ylabel(cls)
+        self.title = self.fig.suptitle(f"{kind} segments")
+        label = f"{kind} segment frequency"
+        self.bar = self.fig.colorbar(image, ax=axes, label=label, shrink=0.9)
+
+    def show(self, arrays: Mapping[tuple[str, str], np.ndarray], vmax: float, kind: str) -> None:
+        """The same panels with new maps, colour scale and kind."""
+        self.norm.vmax = vmax
+        for key, image in self.images.items():
+            image.set_data(arrays[key])
+        self.title.set_text(f"{kind} segments")
+        self.bar.set_label(f"{kind} segment frequency")

@@ -137,7 +137,10 @@ def save_figure(fig: Figure, path: str | os.PathLike, dpi: float = 100) -> Path:
 
 
 def render(fig: Figure, dpi: float = 100) -> np.ndarray:
-    """Draw a figure once into an (H, W, 3) uint8 RGB array (``figsize * dpi`` pixels).
+    """Draw a figure into an (H, W, 3) uint8 RGB array (``figsize * dpi`` pixels).
+
+    A figure drawn again (with new data) keeps its canvas, and with it the renderer's cache of
+    text sizes.
 
     >>> render(Figure(figsize=(2, 1)), dpi=10).shape
     (10, 20, 3)
@@ -145,20 +148,26 @@ def render(fig: Figure, dpi: float = 100) -> np.ndarray:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
     fig.set_dpi(dpi)
-    canvas = FigureCanvasAgg(fig)
+    canvas = fig.canvas if isinstance(fig.canvas, FigureCanvasAgg) else FigureCanvasAgg(fig)
     canvas.draw()
     return np.asarray(canvas.buffer_rgba())[..., :3].copy()
 
 
-def save_png(image: np.ndarray, path: str | os.PathLike) -> Path:
-    """Write an (H, W, 3) uint8 array as a PNG file atomically.
+def png_bytes(image: np.ndarray) -> bytes:
+    """An (H, W, 3) uint8 array as PNG (fast compression: figures are mostly flat colour).
 
+    >>> png = png_bytes(np.zeros((2, 3, 3), np.uint8))
     >>> with tempfile.TemporaryDirectory() as d:
-    ...     save_png(np.zeros((2, 3, 3), np.uint8), Path(d) / "a.png").read_bytes()[:4]
+    ...     write_bytes(Path(d) / "a.png", png).read_bytes()[:4]
     b'\\x89PNG'
     """
     from PIL import Image
 
     buffer = io.BytesIO()
     Image.fromarray(image).save(buffer, format="PNG", compress_level=1)
-    return _atomic_write(path, buffer.getvalue())
+    return buffer.getvalue()
+
+
+def write_bytes(path: str | os.PathLike, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically and return the path."""
+    return _atomic_write(path, data)

@@ -7,6 +7,8 @@ triangles; ``figures/edges_*.png`` the precision–recall trade-off along each e
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 from torch.utils.tensorboard import SummaryWriter
 
 from costseg.classes import CLASS_NAMES
@@ -14,7 +16,7 @@ from costseg.costs import mix_costs, save_cost
 from costseg.report.curves import plot_curves
 from costseg.report.files import write_csv, write_json
 from costseg.report.tensorboard import save_and_log
-from costseg.report.ternary import plot_edge_tradeoffs, plot_ternary
+from costseg.report.ternary import edge_tradeoff_figures, ternary_figures
 from costseg.results import EvalResults, GroupResult
 from costseg.selection import choose
 
@@ -30,7 +32,7 @@ def write_sweeps(results: EvalResults, writer: SummaryWriter) -> None:
         _write_alpha(results, alpha, writer)
 
 
-def _save(results: EvalResults, writer: SummaryWriter, figures: dict, prefix: str) -> None:
+def _save(results: EvalResults, writer: SummaryWriter, figures: Iterable, prefix: str) -> None:
     save_and_log(writer, figures, results.output_dir / "figures", prefix)
 
 
@@ -41,27 +43,22 @@ def _write_grid(results: EvalResults, grid: GroupResult, writer: SummaryWriter) 
     write_json(
         out / "sweep.json", {"note": note, "probabilities": results.probabilities, "rows": rows}
     )
-    vertices = results.options["vertices"]
-    labels = tuple(v.capitalize() for v in vertices)
+    labels = tuple(v.capitalize() for v in results.options["vertices"])
     pixels, segments = grid.pixels, grid.segments
-    figures = {}
+    ternary, edges = [], []
     for c, cls in enumerate(results.class_ids):
         name = CLASS_NAMES[cls]
         for roi in (1, 2):
             precision, recall = pixels["precision"][:, roi, cls], pixels["recall"][:, roi, cls]
             for metric, values in (("precision", precision), ("recall", recall)):
-                figures[f"ternary_{name}_roi{roi}_{metric}"] = plot_ternary(
-                    weights, values, labels, f"{metric} of {name}, RoI {roi}", metric, note=note
-                )
-            figures[f"edges_{name}_roi{roi}"] = plot_edge_tradeoffs(
-                weights, precision, recall, labels, note=note
-            )
+                title = f"{metric} of {name}, RoI {roi}"
+                ternary.append((f"ternary_{name}_roi{roi}_{metric}", values, title, metric))
+            edges.append((f"edges_{name}_roi{roi}", precision, recall))
         for metric in ("fp_rate", "fn_rate"):
             title = f"{metric.replace('_', ' ')} of {name} segments"
-            figures[f"ternary_{name}_{metric}"] = plot_ternary(
-                weights, segments[metric][:, c, 0], labels, title, metric, note=note
-            )
-    _save(results, writer, figures, "sweep")
+            ternary.append((f"ternary_{name}_{metric}", segments[metric][:, c, 0], title, metric))
+    _save(results, writer, ternary_figures(weights, ternary, labels, note=note), "sweep")
+    _save(results, writer, edge_tradeoff_figures(weights, edges, labels, note=note), "sweep")
     if results.options.get("target"):
         _write_choice(results, grid)
 

@@ -7,14 +7,14 @@ Every helper takes a ``torch.utils.tensorboard.SummaryWriter``; under Lightning 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from matplotlib.figure import Figure
 
 from costseg.report.figures import ArrayLike, masks_side_by_side
-from costseg.report.files import render, save_png
+from costseg.report.files import png_bytes, render, write_bytes
 
 if TYPE_CHECKING:
     from torch.utils.tensorboard import SummaryWriter
@@ -93,13 +93,20 @@ def log_masks(
     ...     log_masks(w, "masks", np.zeros((2, 2, 3), np.uint8), np.zeros((2, 2)), {})
     """
     strip = masks_side_by_side(image, target, preds)
-    writer.add_image(tag, strip, global_step=step, dataformats="HWC")
+    log_png(writer, tag, png_bytes(strip), strip.shape, step)
 
 
 def save_and_log(
-    writer: SummaryWriter, figures: Mapping[str, Figure], folder: Path, prefix: str
+    writer: SummaryWriter,
+    figures: Mapping[str, Figure] | Iterable[tuple[str, Figure]],
+    folder: Path,
+    prefix: str,
 ) -> None:
     """Draw each figure once: to ``folder/<tag>.png`` and to TensorBoard as ``prefix/<tag>``.
+
+    ``figures`` may be a generator of ``(tag, figure)`` that redraws one figure with new data
+    (e.g. :func:`costseg.report.ternary.ternary_figures`): each is drawn before the next is
+    taken.
 
     >>> import tempfile
     >>> from torch.utils.tensorboard import SummaryWriter
@@ -108,7 +115,23 @@ def save_and_log(
     ...     sorted(p.name for p in (Path(d) / "figures").iterdir())
     ['empty.png']
     """
-    for tag, fig in figures.items():
+    for tag, fig in figures.items() if isinstance(figures, Mapping) else figures:
         image = render(fig)
-        save_png(image, folder / f"{tag.replace('/', '_')}.png")
-        writer.add_image(f"{prefix}/{tag}", image, dataformats="HWC")
+        png = png_bytes(image)
+        write_bytes(folder / f"{tag.replace('/', '_')}.png", png)
+        log_png(writer, f"{prefix}/{tag}", png, image.shape)
+
+
+def log_png(
+    writer: SummaryWriter, tag: str, png: bytes, shape: tuple[int, ...], step: int = 0
+) -> None:
+    """Log an image already encoded as PNG, of ``shape`` (H, W, 3).
+
+    ``SummaryWriter.add_image`` would convert, resample and encode the pixels again; this
+    writes the same image record with the bytes as they are.
+    """
+    from tensorboard.compat.proto.summary_pb2 import Summary
+
+    height, width, channels = shape
+    image = Summary.Image(height=height, width=width, colorspace=channels, encoded_image_string=png)
+    writer.file_writer.add_summary(Summary(value=[Summary.Value(tag=tag, image=image)]), step)

@@ -3,20 +3,26 @@
 A grid point ``(α, β, γ)`` (``α + β + γ = 1``) stands for the mixture ``α C_0 + β C_1 + γ C_2`` of
 three vertex matrices, by default ``C_R, C_A, C_E``. Mixing is not scale invariant, so every
 figure carries a ``note`` line that should say how the vertices were scaled.
+
+A sweep draws many metrics over one grid: :func:`ternary_figures` and
+:func:`edge_tradeoff_figures` build the figure once and redraw it with each metric's values.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Iterator, Sequence
 
 import numpy as np
 import torch
 from matplotlib import colormaps
+from matplotlib.axes import Axes
 from matplotlib.collections import PolyCollection
-from matplotlib.colors import Normalize
+from matplotlib.colors import Colormap, Normalize
 from matplotlib.figure import Figure
 from matplotlib.patches import Polygon
 from scipy.spatial import cKDTree
+
+from costseg.report.figures import freeze_layout
 
 ArrayLike = np.ndarray | torch.Tensor
 LABELS = ("Robotistic", "Altruistic", "Egoistic")
@@ -101,17 +107,63 @@ def plot_ternary(
     >>> fig.axes[0].collections[0].get_array().mask.tolist()
     [False, False, True, False]
     """
+    panels = [("", values, title, cbar_label)]
+    return next(ternary_figures(weights, panels, vertex_labels, cmap, vmin, vmax, note))[1]
+
+
+def ternary_figures(
+    weights: ArrayLike,
+    panels: Iterable[tuple[str, ArrayLike, str, str]],
+    vertex_labels: Sequence[str] = LABELS,
+    cmap: str = "RdYlBu",
+    vmin: float = 0.0,
+    vmax: float = 1.0,
+    note: str = "",
+) -> Iterator[tuple[str, Figure]]:
+    """:func:`plot_ternary` of each ``(tag, values, title, cbar_label)``, as ``(tag, figure)``.
+
+    All share one figure, redrawn for each: draw it before taking the next.
+
+    >>> w = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    >>> panels = [("p", [0.1, 0.2, 0.3], "precision", ""), ("r", [0.4, 0.5, 0.6], "recall", "")]
+    >>> [fig.axes[0].get_title() for _, fig in ternary_figures(w, panels)]
+    ['precision', 'recall']
+    """
     w = _weights(weights)
-    v = _values(values, len(w), "values")
-    fig = Figure(figsize=(5.5, 4.5), layout="constrained")
-    ax = fig.subplots()
+    fig = None
+    for tag, values, title, cbar_label in panels:
+        v = np.ma.masked_invalid(_values(values, len(w), "values"))
+        first = fig is None
+        if first:
+            fig = Figure(figsize=(5.5, 4.5), layout="constrained")
+            ax = fig.subplots()
+            cells = _triangle(ax, w, v, vertex_labels, colormaps[cmap], Normalize(vmin, vmax))
+            bar = fig.colorbar(cells, ax=ax, shrink=0.8)
+            fig.supxlabel(note, fontsize="small")
+        cells.set_array(v)
+        ax.set_title(title)
+        bar.set_label(cbar_label)
+        if first:
+            freeze_layout(fig)
+        yield tag, fig
+
+
+def _triangle(
+    ax: Axes,
+    w: np.ndarray,
+    v: np.ma.MaskedArray,
+    vertex_labels: Sequence[str],
+    cmap: Colormap,
+    norm: Normalize,
+) -> PolyCollection:
+    """Draw the outline, the cells of the grid points and the vertex labels into ``ax``."""
     outline = Polygon(CORNERS, closed=True, fill=False, edgecolor="black", linewidth=1.0)
     ax.add_patch(outline)
     cells = PolyCollection(
         _cells(w @ CORNERS),
-        array=np.ma.masked_invalid(v),
-        cmap=colormaps[cmap].with_extremes(bad="lightgrey"),
-        norm=Normalize(vmin, vmax),
+        array=v,
+        cmap=cmap.with_extremes(bad="lightgrey"),
+        norm=norm,
         edgecolors="face",
         linewidths=0.2,
     )
@@ -123,10 +175,7 @@ def plot_ternary(
     ax.set_ylim(-0.1, 0.95)
     ax.set_aspect("equal")
     ax.set_axis_off()
-    ax.set_title(title)
-    fig.colorbar(cells, ax=ax, label=cbar_label, shrink=0.8)
-    fig.supxlabel(note, fontsize="small")
-    return fig
+    return cells
 
 
 def plot_edge_tradeoffs(
@@ -153,27 +202,61 @@ def plot_edge_tradeoffs(
     >>> fig.axes[0].lines[0].get_xydata().tolist()  # precision from Robotistic to Altruistic
     [[0.0, 90.0], [0.5, 60.0], [1.0, 40.0]]
     """
+    return next(edge_tradeoff_figures(weights, [("", precision, recall)], vertex_labels, note))[1]
+
+
+def edge_tradeoff_figures(
+    weights: ArrayLike,
+    panels: Iterable[tuple[str, ArrayLike, ArrayLike]],
+    vertex_labels: Sequence[str] = LABELS,
+    note: str = "",
+) -> Iterator[tuple[str, Figure]]:
+    """:func:`plot_edge_tradeoffs` of each ``(tag, precision, recall)``, as ``(tag, figure)``.
+
+    All share one figure, redrawn for each: draw it before taking the next.
+
+    >>> w = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    >>> panels = [(tag, [0.5, 0.5, 0.5], [p, p, p]) for tag, p in (("a", 0.2), ("b", 0.4))]
+    >>> figures = edge_tradeoff_figures(w, panels)  # recall from Robotistic to Altruistic:
+    >>> [(tag, fig.axes[0].lines[1].get_ydata().tolist()) for tag, fig in figures]
+    [('a', [20.0, 20.0]), ('b', [40.0, 40.0])]
+    """
     w = _weights(weights)
-    metrics = {
-        "precision": _values(precision, len(w), "precision"),
-        "recall": _values(recall, len(w), "recall"),
-    }
-    fig = Figure(figsize=(12.0, 3.8), layout="constrained")
-    axes = fig.subplots(1, 3, sharey=True)
-    for ax, (i, j) in zip(axes, EDGES, strict=True):
-        on_edge = np.abs(w[:, 3 - i - j]) < 1e-9
-        order = np.argsort(w[on_edge, j], kind="stable")
-        x = w[on_edge, j][order]
-        for (name, values), marker in zip(metrics.items(), "os", strict=True):
-            ax.plot(x, 100 * values[on_edge][order], marker=marker, label=name)
-        if not on_edge.any():
-            ax.text(0.5, 50, "no grid points on this edge", ha="center", va="center")
-        ax.set_title(f"{vertex_labels[i]} → {vertex_labels[j]}")
-        ax.set_xlabel(f"weight of {vertex_labels[j]}")
-        ax.set_xlim(-0.03, 1.03)
-        ax.set_ylim(0, 102)
-        ax.grid(alpha=0.3)
-    axes[0].set_ylabel("%")
-    axes[0].legend(loc="lower left")
-    fig.supxlabel(note, fontsize="small")
-    return fig
+    edges = []  # (points on the edge in order of the weight of j, precision line, recall line)
+    fig = None
+    for tag, precision, recall in panels:
+        metrics = {
+            "precision": _values(precision, len(w), "precision"),
+            "recall": _values(recall, len(w), "recall"),
+        }
+        first = fig is None
+        if first:
+            fig = Figure(figsize=(12.0, 3.8), layout="constrained")
+            axes = fig.subplots(1, 3, sharey=True)
+            for ax, (i, j) in zip(axes, EDGES, strict=True):
+                points = np.flatnonzero(np.abs(w[:, 3 - i - j]) < 1e-9)
+                points = points[np.argsort(w[points, j], kind="stable")]
+                lines = [
+                    ax.plot(w[points, j], 100 * values[points], marker=marker, label=name)[0]
+                    for (name, values), marker in zip(metrics.items(), "os", strict=True)
+                ]
+                edges.append((points, lines))
+                _edge_axes(ax, i, j, vertex_labels, len(points) > 0)
+            axes[0].set_ylabel("%")
+            axes[0].legend(loc="lower left")
+            fig.supxlabel(note, fontsize="small")
+            freeze_layout(fig)
+        for points, lines in edges:
+            for line, values in zip(lines, metrics.values(), strict=True):
+                line.set_ydata(100 * values[points])
+        yield tag, fig
+
+
+def _edge_axes(ax: Axes, i: int, j: int, vertex_labels: Sequence[str], has_points: bool) -> None:
+    if not has_points:
+        ax.text(0.5, 50, "no grid points on this edge", ha="center", va="center")
+    ax.set_title(f"{vertex_labels[i]} → {vertex_labels[j]}")
+    ax.set_xlabel(f"weight of {vertex_labels[j]}")
+    ax.set_xlim(-0.03, 1.03)
+    ax.set_ylim(0, 102)
+    ax.grid(alpha=0.3)

@@ -1,0 +1,93 @@
+"""Figures of cost matrices: log colour scale, rows = predicted class, columns = true class.
+
+The matrices of several rules share one figure (:func:`cost_matrix_figures`): its 19 × 2 class
+ticks and the layout around them are built once, and only the image, the colour scale, the
+zeros of the diagonal and the title change.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator, Sequence
+
+import numpy as np
+from matplotlib import colormaps
+from matplotlib.colors import LogNorm
+from matplotlib.figure import Figure
+
+from costseg.classes import CLASS_NAMES
+from costseg.report.figures import ArrayLike, _numpy, freeze_layout
+
+
+def plot_cost_matrix(
+    C: ArrayLike, class_names: Sequence[str] = CLASS_NAMES, title: str = ""
+) -> Figure:
+    """A cost matrix on a log colour scale; rows = predicted class, columns = true class.
+
+    The zero diagonal has no logarithm: it is drawn white and marked "0".
+
+    Args:
+        C: (N, N) costs.
+        class_names: N names for the ticks.
+        title: e.g. "egoistic".
+
+    >>> plot_cost_matrix(np.ones((2, 2)) - np.eye(2), ["a", "b"]).axes[0].get_ylabel()
+    'predicted class k̂'
+    """
+    return next(cost_matrix_figures([("", C, title)], class_names))[1]
+
+
+def cost_matrix_figures(
+    matrices: Iterable[tuple[str, ArrayLike, str]], class_names: Sequence[str] = CLASS_NAMES
+) -> Iterator[tuple[str, Figure]]:
+    """:func:`plot_cost_matrix` of each ``(tag, C, title)``, as ``(tag, figure)``.
+
+    All share one figure, redrawn for each: draw it before taking the next.
+
+    >>> eye = np.eye(2)
+    >>> figures = cost_matrix_figures([("a", 1 - eye, "a"), ("b", 2 - eye, "b")], ["x", "y"])
+    >>> [(tag, fig.axes[0].images[0].norm.vmax) for tag, fig in figures]
+    [('a', 10.0), ('b', 2.0)]
+    """
+    fig = image = None
+    n = len(class_names)
+    for tag, C, title in matrices:
+        cost = _numpy(C).astype(np.float64)
+        if cost.shape != (n, n):
+            raise ValueError(
+                f"expected a ({n}, {n}) cost matrix for {n} class names, got {cost.shape}"
+            )
+        shown = np.ma.masked_where(~(np.isfinite(cost) & (cost > 0)), cost)
+        lo, hi = float(shown.min()), float(shown.max())
+        if lo == hi:  # e.g. the robotistic matrix: a log colour bar needs a non-empty range
+            lo, hi = lo / 10, hi * 10
+        first = fig is None
+        if first:
+            fig, image = _figure(shown, LogNorm(lo, hi), class_names)
+        else:
+            image.set_data(shown)
+            image.set_norm(LogNorm(lo, hi))
+        ax = image.axes
+        for text in list(ax.texts):
+            text.remove()
+        for i in np.flatnonzero(np.diag(cost) == 0):
+            ax.text(i, i, "0", ha="center", va="center", fontsize="x-small")
+        ax.set_title(title)
+        if first:
+            freeze_layout(fig)
+        yield tag, fig
+
+
+def _figure(shown: np.ma.MaskedArray, norm: LogNorm, class_names: Sequence[str]):
+    """The figure, axes, ticks and colour bar of an N × N cost matrix; returns (figure, image)."""
+    n = len(class_names)
+    side = max(4.0, 0.3 * n + 2.5)
+    fig = Figure(figsize=(side + 1.0, side), layout="constrained")
+    ax = fig.subplots()
+    cmap = colormaps["viridis"].with_extremes(bad="white")
+    image = ax.imshow(shown, cmap=cmap, norm=norm, interpolation="nearest")
+    ax.set_xticks(range(n), class_names, rotation=90)
+    ax.set_yticks(range(n), class_names)
+    ax.set_xlabel("true class k")
+    ax.set_ylabel("predicted class k̂")
+    fig.colorbar(image, ax=ax, label="cost (log scale)", shrink=0.8)
+    return fig, image
