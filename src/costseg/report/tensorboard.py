@@ -93,7 +93,7 @@ def log_masks(
     ...     log_masks(w, "masks", np.zeros((2, 2, 3), np.uint8), np.zeros((2, 2)), {})
     """
     strip = masks_side_by_side(image, target, preds)
-    log_png(writer, tag, png_bytes(strip), strip.shape, step)
+    writer.add_image(tag, strip, global_step=step, dataformats="HWC")
 
 
 def save_and_log(
@@ -128,7 +128,8 @@ def log_png(
     """Log an image already encoded as PNG, of ``shape`` (H, W, 3).
 
     ``SummaryWriter.add_image`` would convert, resample and encode the pixels again; this
-    writes the same image record with the bytes as they are.
+    writes the same image record with the bytes as they are, through the writer's
+    ``file_writer`` (so ``writer`` must be a ``torch.utils.tensorboard.SummaryWriter``).
     """
     from tensorboard.compat.proto.summary_pb2 import Summary
 
