@@ -3,7 +3,8 @@ calibration error.
 
 Pure functions live in :mod:`costseg.metrics.functional` (and
 :func:`costseg.metrics.calibration.calibration_bins`); the classes here are thin
-``torchmetrics.Metric`` wrappers whose states are count sums.
+stateful wrappers (:class:`costseg.metrics.base.SumMetric`, torchmetrics' pattern without its
+import cost) whose states are count sums.
 """
 
 from costseg.metrics.calibration import CalibrationError

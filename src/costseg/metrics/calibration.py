@@ -11,13 +11,13 @@ processes merge exactly; the ECE and the reliability-diagram numbers are derived
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Literal
 
 import torch
 from torch import Tensor
-from torchmetrics import Metric
 
 from costseg.classes import IGNORE_INDEX, NUM_CLASSES
+from costseg.metrics.base import SumMetric
 
 Norm = Literal["top", "class"]
 _DTYPES = (torch.long, torch.float64, torch.long)  # count, confidence, hits: ints stay exact
@@ -86,7 +86,7 @@ def calibration_bins(
     return out[0], out[1], out[2]
 
 
-class CalibrationError(Metric):
+class CalibrationError(SumMetric):
     """Expected calibration error over pixels, top-label or class-wise (SPEC §6).
 
     Top-label: ``ECE = Σ_b (n_b / n) |acc_b − conf_b|`` over the bins of ``max_k p_k``.
@@ -111,7 +111,6 @@ class CalibrationError(Metric):
         n_bins: Number of equal-width bins over [0, 1].
         norm: ``"top"`` (top-label ECE) or ``"class"`` (class-wise ECE).
         ignore_index: Target value that counts nowhere.
-        kwargs: Passed to ``torchmetrics.Metric``.
 
     >>> m = CalibrationError(num_classes=2, n_bins=2)
     >>> m.update(torch.tensor([[[[0.9]], [[0.1]]]]), torch.tensor([[[0]]]))
@@ -121,19 +120,14 @@ class CalibrationError(Metric):
     (0.25, [0, 2], [nan, 0.5])
     """
 
-    is_differentiable = False
-    higher_is_better = False
-    full_state_update = False
-
     def __init__(
         self,
         num_classes: int = NUM_CLASSES,
         n_bins: int = 15,
         norm: Norm = "top",
         ignore_index: int = IGNORE_INDEX,
-        **kwargs: Any,
     ) -> None:
-        super().__init__(**kwargs)
+        super().__init__()
         if not isinstance(num_classes, int) or not isinstance(n_bins, int):
             raise ValueError(
                 f"num_classes and n_bins must be integers; got {num_classes!r}, {n_bins!r}"
@@ -147,7 +141,7 @@ class CalibrationError(Metric):
         self.ignore_index = ignore_index
         shape = (1 if norm == "top" else num_classes, n_bins)
         for name, dtype in zip(("count", "confidence", "hits"), _DTYPES, strict=True):
-            self.add_state(name, torch.zeros(shape, dtype=dtype), dist_reduce_fx="sum")
+            self.add_state(name, torch.zeros(shape, dtype=dtype))
 
     def update(self, probs: Tensor, target: Tensor) -> None:
         """Add a batch: probs (B, N, H, W) probabilities, target (B, H, W) labels."""
@@ -163,7 +157,7 @@ class CalibrationError(Metric):
         self.confidence += confidence
         self.hits += hits
 
-    def compute(self) -> dict[str, Tensor]:
+    def _compute(self) -> dict[str, Tensor]:
         """ECE and per-bin numbers (keys and shapes in the class docstring)."""
         count = self.count.double()
         pixels = count.sum(dim=1)  # (R,): every row counts every labelled pixel once

@@ -158,11 +158,6 @@ def iou_from_confusion(cm: Tensor) -> Tensor:
     return tp / (tp + fp + fn)
 
 
-def restore_ndims(out: dict[str, Tensor], ndims: dict[str, int]) -> dict[str, Tensor]:
-    """Give one-element tensors that torchmetrics squeezed to 0-d their documented ndim back."""
-    return {k: v.reshape((1,) * ndims[k]) if v.ndim < ndims[k] else v for k, v in out.items()}
-
-
 class Segments(NamedTuple):
     """The 8-connected components of one (H, W) mask."""
 

@@ -2,27 +2,20 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from functools import wraps
-from typing import Any
-
 import torch
 from torch import Tensor
-from torchmetrics import Metric
 
 from costseg.classes import IGNORE_INDEX, NUM_CLASSES
+from costseg.metrics.base import SumMetric
 from costseg.metrics.functional import (
     as_rules,
     iou_from_confusion,
     precision_recall,
-    restore_ndims,
     roi_confusion,
 )
 
-_NDIMS = {"confmat": 4, "precision": 3, "recall": 3, "iou": 2, "miou": 1}
 
-
-class RoIPrecisionRecall(Metric):
+class RoIPrecisionRecall(SumMetric):
     """Confusion matrices of K decision rules over the whole image and each RoI.
 
     The only state is the int64 (K, R+1, N, N) confusion count (``cm[k, r, t, p]``, r = 0: whole
@@ -33,7 +26,6 @@ class RoIPrecisionRecall(Metric):
         num_rules: K, the number of decision rules in each ``preds``.
         num_rois: R.
         ignore_index: target value that counts nowhere.
-        kwargs: passed to ``torchmetrics.Metric``.
 
     ``compute()`` returns "confmat" (K, R+1, N, N) int64; "precision", "recall" (K, R+1, N)
     float64, NaN for 0/0; "iou" (K, N) float64 over the whole image, NaN for a class absent from
@@ -52,19 +44,14 @@ class RoIPrecisionRecall(Metric):
     ([0.5, 0.5, nan], [0.5])
     """
 
-    is_differentiable = False
-    higher_is_better = True
-    full_state_update = False
-
     def __init__(
         self,
         num_classes: int = NUM_CLASSES,
         num_rules: int = 1,
         num_rois: int = 4,
         ignore_index: int = IGNORE_INDEX,
-        **kwargs: Any,
     ) -> None:
-        super().__init__(**kwargs)
+        super().__init__()
         if num_classes < 1 or num_rules < 1 or num_rois < 0:
             raise ValueError(
                 "expected num_classes >= 1, num_rules >= 1, num_rois >= 0, "
@@ -73,7 +60,7 @@ class RoIPrecisionRecall(Metric):
         self.num_classes, self.num_rules, self.num_rois = num_classes, num_rules, num_rois
         self.ignore_index = ignore_index
         shape = (num_rules, num_rois + 1, num_classes, num_classes)
-        self.add_state("confmat", torch.zeros(shape, dtype=torch.long), dist_reduce_fx="sum")
+        self.add_state("confmat", torch.zeros(shape, dtype=torch.long))
 
     def update(self, preds: Tensor, target: Tensor, roi: Tensor | None = None) -> None:
         """Add a batch: preds (B, K, H, W) (or (B, H, W) when K = 1), target (B, H, W), roi
@@ -109,7 +96,7 @@ class RoIPrecisionRecall(Metric):
         rest_roi = None if roi is None else roi[other].view(1, 1, -1)
         return rest, target[other].view(1, 1, -1), rest_roi
 
-    def compute(self) -> dict[str, Tensor]:
+    def _compute(self) -> dict[str, Tensor]:
         """Confusion counts, precision, recall, IoU and mIoU (shapes in the class docstring)."""
         precision, recall = precision_recall(self.confmat)
         iou = iou_from_confusion(self.confmat[:, 0])
@@ -120,8 +107,3 @@ class RoIPrecisionRecall(Metric):
             "iou": iou,
             "miou": iou.nanmean(-1),
         }
-
-    def _wrap_compute(self, compute: Callable) -> Callable:
-        # torchmetrics squeezes one-element results to 0-d; keep the documented shapes.
-        wrapped = super()._wrap_compute(compute)
-        return wraps(compute)(lambda: restore_ndims(wrapped(), _NDIMS))

@@ -2,28 +2,24 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from functools import wraps
-from typing import Any
+from collections.abc import Sequence
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 from scipy import ndimage
 from torch import Tensor
-from torchmetrics import Metric
 
 from costseg.classes import IGNORE_INDEX
+from costseg.metrics.base import SumMetric
 from costseg.metrics.functional import (
     as_rules,
     check_batch,
     label_segments,
     mask_segment_errors,
-    restore_ndims,
 )
 
 _COUNTS = ("fp", "fn", "n_pred", "n_gt")
-_NDIMS = dict.fromkeys((*_COUNTS, "fp_rate", "fn_rate"), 3) | {"fp_map": 4, "fn_map": 4}
 
 
 def _distinct(masks: np.ndarray) -> tuple[list[int], np.ndarray]:
@@ -82,7 +78,7 @@ def _distinct_errors(
     return counts, np.stack([e.fp_mask for e in errors]), np.stack([e.fn_mask for e in errors])
 
 
-class SegmentErrors(Metric):
+class SegmentErrors(SumMetric):
     """Counts of false-positive / false-negative 8-connected segments and their location maps.
 
     Per decision rule k, class c and RoI r (r = 0: whole image) the states sum the numbers of FP
@@ -100,7 +96,6 @@ class SegmentErrors(Metric):
             it, so images of any size accumulate into one map. None takes the label size of
             the first update (under DDP pass it explicitly, so every process agrees); (0, 0)
             turns the maps off (for sweeps over many rules).
-        kwargs: passed to ``torchmetrics.Metric``.
 
     ``compute()`` returns int64 (K, C, R+1) "fp", "fn", "n_pred", "n_gt"; float64 "fp_rate" =
     fp / n_pred and "fn_rate" = fn / n_gt (NaN for 0/0); float64 (K, C, h, w) "fp_map" and
@@ -113,10 +108,6 @@ class SegmentErrors(Metric):
     ([[[1]]], [[[2]]], [[0.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     """
 
-    is_differentiable = False
-    higher_is_better = None  # error counts fall, segment totals are neutral
-    full_state_update = False
-
     def __init__(
         self,
         classes: Sequence[int] = (11, 2),
@@ -124,9 +115,8 @@ class SegmentErrors(Metric):
         num_rois: int = 4,
         ignore_index: int = IGNORE_INDEX,
         heatmap_size: tuple[int, int] | None = None,
-        **kwargs: Any,
     ) -> None:
-        super().__init__(**kwargs)
+        super().__init__()
         classes = tuple(int(c) for c in classes)
         if not classes or len(set(classes)) != len(classes) or ignore_index in classes:
             raise ValueError(
@@ -144,14 +134,14 @@ class SegmentErrors(Metric):
         self.ignore_index, self.heatmap_size = ignore_index, heatmap_size
         for name in _COUNTS:
             default = torch.zeros(num_rules, len(classes), num_rois + 1, dtype=torch.long)
-            self.add_state(name, default, dist_reduce_fx="sum")
+            self.add_state(name, default)
         # With heatmap_size None the (1, 1) zero default broadcasts against the first label size,
         # which keeps forward() and merge_state() (both add states) working.
         size = (1, 1) if heatmap_size is None else heatmap_size
         for name in ("fp_map", "fn_map"):
             default = torch.zeros(num_rules, len(classes), *size, dtype=torch.float64)
-            self.add_state(name, default, dist_reduce_fx="sum")
-        self.add_state("n_images", torch.zeros((), dtype=torch.long), dist_reduce_fx="sum")
+            self.add_state(name, default)
+        self.add_state("n_images", torch.zeros((), dtype=torch.long))
 
     @property
     def _maps_on(self) -> bool:
@@ -201,7 +191,7 @@ class SegmentErrors(Metric):
         resized = F.interpolate(maps.unsqueeze(1).float(), size, mode="bilinear", antialias=True)
         return resized.squeeze(1)
 
-    def compute(self) -> dict[str, Tensor]:
+    def _compute(self) -> dict[str, Tensor]:
         """Counts, rates and maps of everything seen so far (shapes in the class docstring)."""
         out = {name: getattr(self, name) for name in _COUNTS}
         out["fp_rate"] = self.fp.double() / self.n_pred
@@ -209,8 +199,3 @@ class SegmentErrors(Metric):
         out["fp_map"] = self.fp_map / self.n_images
         out["fn_map"] = self.fn_map / self.n_images
         return out
-
-    def _wrap_compute(self, compute: Callable) -> Callable:
-        # torchmetrics squeezes one-element results to 0-d; keep the documented shapes.
-        wrapped = super()._wrap_compute(compute)
-        return wraps(compute)(lambda: restore_ndims(wrapped(), _NDIMS))
