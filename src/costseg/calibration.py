@@ -16,7 +16,6 @@ from dataclasses import dataclass
 from typing import Literal
 
 import torch
-from scipy.optimize import brentq
 from torch import Tensor
 
 from costseg.classes import IGNORE_INDEX
@@ -94,6 +93,8 @@ def fit_temperature(logits: Tensor, target: Tensor, ignore_index: int = IGNORE_I
         return TEMPERATURE_RANGE[1]
     if slope(high) <= 0:
         return TEMPERATURE_RANGE[0]
+    from scipy.optimize import brentq  # ~0.4 s to import: only when a temperature is fitted
+
     return math.exp(-brentq(slope, low, high, xtol=1e-12, rtol=1e-12))
 
 

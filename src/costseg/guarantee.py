@@ -21,8 +21,6 @@ from typing import Literal
 import numpy as np
 import torch
 from numpy.typing import ArrayLike, NDArray
-from scipy.special import xlogy
-from scipy.stats import binom
 from torch import Tensor
 
 Method = Literal["bonferroni", "fixed_sequence"]
@@ -85,6 +83,9 @@ def hoeffding_bentkus_pvalue(
     >>> p.round(6).tolist()          # R̂ = 0: Hoeffding's 0.8⁵⁰; R̂ = 0.1: e·P(Bin(50, 0.2) ≤ 5)
     [1.4e-05, 0.130552, 1.0]
     """
+    from scipy.special import xlogy  # scipy.stats takes ~0.5 s to import: only when needed
+    from scipy.stats import binom
+
     risk, count = _pvalue_inputs(risk_hat, n, alpha)
     defined = count > 0
     r = np.where(defined, risk, 0.0)
