@@ -20,7 +20,6 @@ from matplotlib.collections import PolyCollection
 from matplotlib.colors import Colormap, Normalize
 from matplotlib.figure import Figure
 from matplotlib.patches import Polygon
-from scipy.spatial import cKDTree
 
 from costseg.report.figures import freeze_layout
 
@@ -69,6 +68,8 @@ def barycentric_to_cartesian(weights: ArrayLike) -> np.ndarray:
 def _cells(xy: np.ndarray) -> np.ndarray:
     # Each point gets the hexagon of the triangular lattice around it (its Voronoi cell);
     # the spacing is the nearest-neighbour distance, i.e. the grid step h on the unit triangle.
+    from scipy.spatial import cKDTree  # imported only for a sweep's figures
+
     spacing = cKDTree(xy).query(xy, k=2)[0][:, 1].min() if len(xy) > 1 else 1.0
     angles = np.deg2rad(30 + 60 * np.arange(6))
     hexagon = spacing / np.sqrt(3) * np.stack([np.cos(angles), np.sin(angles)], axis=1)
