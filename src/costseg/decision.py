@@ -28,6 +28,7 @@ ties go to stages 2 and 3 on the mixed matrix of ``mix_costs``: the result equal
 from __future__ import annotations
 
 import functools
+import os
 
 import torch
 
@@ -80,6 +81,15 @@ def decide(
     )  # eps: the reference's rounding per T
     b, _, h, w = probs.shape
     out = torch.empty(b, h * w, dtype=torch.long, device=probs.device)
+    if kernel := _gpu_kernel(fast):
+        one = torch.ones(1, 1, dtype=torch.float64, device=probs.device)
+        for i in range(b):
+            labels = out[i : i + 1]
+            redo = kernel.certified_argmin(fast.probs[i], fast.folded, one, fast.eps, labels)
+            redo = redo[0].nonzero()[:, 0]
+            if len(redo):
+                out[i, redo] = fast.settle(fast.exact_q(i, redo), _shift(cost))
+        return out.view(b, h, w)
     for i in range(b):
         redo, q64 = [], []
         for s, q in fast.chunks(i):
@@ -136,11 +146,34 @@ def decide_mixtures(
     b, _, h, w = probs.shape
     dtype = torch.uint8 if n <= 256 else torch.long  # K label maps add up
     out = torch.empty(b, len(weights), h * w, dtype=dtype, device=probs.device)
+    if kernel := _gpu_kernel(fast):
+        weights = weights.to(probs.device, torch.float64)
+        for i in range(b):
+            opened = kernel.certified_argmin(fast.probs[i], fast.folded, weights, fast.eps, out[i])
+            grid, pixel = opened.nonzero().unbind(1)
+            if len(grid):
+                pixels, inverse = torch.unique(pixel, return_inverse=True)
+                settled = fast.settle(fast.exact_q(i, pixels), mixed, grid, weights, inverse)
+                out[i, grid, pixel] = settled.to(dtype)
+        return out.view(b, len(weights), h, w)
     for i in range(b):
         for s, q in fast.chunks(i):
             exact_q = lambda pixels, i=i, s=s: fast.exact_q(i, s + pixels)  # noqa: E731
             mix.chunk(fast.costs(q), exact_q, out[i, :, s : s + q.shape[1]])
     return out.view(b, len(weights), h, w)
+
+
+def _gpu_kernel(fast: _Fast):
+    """:mod:`costseg.decision_triton` where it runs: a CUDA tensor (or Triton's interpreter, which
+    runs kernels on the CPU: tests) and no pixel-wise priors; None otherwise (the chunked path)."""
+    device, interpret = fast.probs.device.type, os.environ.get("TRITON_INTERPRET") == "1"
+    if fast.pixel_priors is not None or not (device == "cuda" or interpret):
+        return None
+    try:
+        from costseg import decision_triton
+    except ImportError:  # a CUDA build of torch without Triton
+        return None
+    return decision_triton
 
 
 def _check(probs: torch.Tensor) -> int:

@@ -53,7 +53,7 @@ class _Fast:
         self.gamma = (1 + rho) * (1 + self.u_in) ** 2 * (1 + U32) ** 3 * (1 + dot) - 1
         # float64: one rounding of the matrix (minus C.min), one of q, the dot product.
         self.gamma64 = (1 + U64) ** 3 * (1 + n * U64 / (1 - n * U64)) - 1
-        self.eps, self.weight = eps, single.reshape(-1, n)
+        self.eps, self.weight, self.folded = eps, single.reshape(-1, n), weight
         low = (1 << max(1, (n - 1).bit_length())) - 1  # the bits that carry a class in _top
         self.code = torch.arange(n, dtype=torch.int32, device=probs.device).view(n, 1), low
         self.pixel_priors = None if priors is None or self.priors.ndim == 1 else self.priors
