@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import functools
+import os
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import torch
@@ -33,6 +36,11 @@ def _distinct(masks: np.ndarray) -> tuple[list[int], np.ndarray]:
         if inverse[k] == len(reps):
             reps.append(k)
     return reps, inverse
+
+
+@functools.cache
+def _threads() -> ThreadPoolExecutor:
+    return ThreadPoolExecutor(len(os.sched_getaffinity(0)), thread_name_prefix="segments")
 
 
 def _rule_errors(
@@ -71,7 +79,11 @@ def _distinct_errors(
 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """Counts (U, 4, R+1) and, if ``maps``, FP / FN masks (U, H, W) of U masks; see above."""
     gt = label_segments(gt_mask, roi, num_rois)  # does not depend on the rule
-    errors = [mask_segment_errors(m, gt_mask, roi, num_rois, gt) for m in pred_masks]
+    # One labelling per mask, on threads: scipy's labelling and numpy's large-array work run
+    # without the GIL for the most part.
+    errors = list(
+        _threads().map(lambda m: mask_segment_errors(m, gt_mask, roi, num_rois, gt), pred_masks)
+    )
     counts = np.stack([e.counts for e in errors])
     if not maps:
         return counts, None, None
