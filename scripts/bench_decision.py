@@ -54,12 +54,15 @@ def bench(device: str, shape: tuple[int, int, int, int], repeats: int) -> None:
     t_argmax = best_time(lambda: probs.argmax(1), repeats, sync)
     t_decide = best_time(lambda: decide(probs, VERTICES[2]), repeats, sync)
     t_mix = best_time(lambda: decide_mixtures(probs, VERTICES, grid), max(1, repeats // 3), sync)
+    fine = barycentric_grid(0.05)
+    t_fine = best_time(lambda: decide_mixtures(probs, VERTICES, fine), 1, sync)
     threads = f", {torch.get_num_threads()} threads" if device == "cpu" else ""
     print(f"{device}{threads}, probabilities {tuple(shape)} float32:")
-    print(f"  p.sum() (one read pass)        {1e3 * t_sum:8.1f} ms")
-    print(f"  torch.argmax(p, 1)             {1e3 * t_argmax:8.1f} ms")
-    print(f"  decide (egoistic)              {1e3 * t_decide:8.1f} ms")
-    print(f"  decide_mixtures, {len(grid)} points    {1e3 * t_mix:8.1f} ms")
+    print(f"  p.sum() (one read pass)        {1e3 * t_sum:8.3f} ms")
+    print(f"  torch.argmax(p, 1)             {1e3 * t_argmax:8.3f} ms")
+    print(f"  decide (egoistic)              {1e3 * t_decide:8.3f} ms")
+    print(f"  decide_mixtures, {len(grid)} points    {1e3 * t_mix:8.3f} ms")
+    print(f"  decide_mixtures, {len(fine)} points   {1e3 * t_fine:8.3f} ms")
     print(f"  decide / p.sum()               {t_decide / t_sum:8.2f}   (target <= 5)")
     print(f"  decide / argmax                {t_decide / t_argmax:8.2f}")
     print(f"  decide_mixtures / decide       {t_mix / t_decide:8.2f}   (target <= 10)")
@@ -76,13 +79,14 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--size", type=int, nargs=2, default=(1024, 2048), metavar=("H", "W"))
     parser.add_argument("--threads", type=int, help="CPU threads (default: torch's choice)")
+    parser.add_argument("--devices", nargs="+", default=["cpu", "cuda"], choices=["cpu", "cuda"])
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
     shape = (1, 19, *args.size)
-    bench("cpu", shape, args.repeats)
-    if torch.cuda.is_available():
-        bench("cuda", shape, args.repeats)
+    for device in args.devices:
+        if device == "cpu" or torch.cuda.is_available():
+            bench(device, shape, args.repeats)
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 """Speed of the evaluation pipeline, as ratios measured side by side in one run.
 
-    python scripts/bench_pipeline.py [--ckpt_path PATH] [--skip-full-resolution]
+    python scripts/bench_pipeline.py [--ckpt_path PATH] [--sections ...] [--images 3]
 
 Needs a trained checkpoint (default: the newest runs/**/last.ckpt, e.g. after `make demo`).
 Sections:
@@ -10,9 +10,9 @@ Sections:
    images), each as a fresh process;
 2. the 231-point sweep (step 0.05) ÷ a single-rule evaluation on the toy validation set,
    network included (the loop only, outputs not written);
-3. the same at full resolution on stand-in scenes written at 1024 × 2048 by
-   scripts/toy_as_cityscapes.py;
-4. figures: the share of an evaluation of 20 toy images spent writing tables and figures.
+3. figures: the share of an evaluation of 20 toy images spent writing tables and figures;
+4. full-resolution: section 2 on ``--images`` stand-in scenes written at 1024 × 2048 by
+   scripts/toy_as_cityscapes.py, and the sweep's seconds per image.
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ from costseg.options import EvalOptions
 from costseg.report.evaluation import write_evaluation
 
 ROOT = Path(__file__).resolve().parents[1]
+SECTIONS = ["startup", "sweep", "figures", "full-resolution"]
 
 
 def process_seconds(args: list[str], repeats: int = 3) -> float:
@@ -89,7 +90,7 @@ def evaluation_seconds(opts: EvalOptions) -> tuple[float, float]:
     return middle - start, time.perf_counter() - middle
 
 
-def bench_sweep(name: str, out: Path, **options) -> None:
+def bench_sweep(name: str, out: Path, images: int | None = None, **options) -> None:
     common = {"num_examples": 0, "progress": False, "overwrite": True, **options}
     single = EvalOptions(cost=["robotistic"], output_dir=str(out / "single"), **common)
     sweep = EvalOptions(cost=["robotistic"], sweep=0.05, output_dir=str(out / "sweep"), **common)
@@ -99,13 +100,15 @@ def bench_sweep(name: str, out: Path, **options) -> None:
     print(f"value-space sweep, {name} (network included, outputs not written):")
     print(f"  single rule {t_single:7.1f} s   231-point sweep {t_sweep:7.1f} s")
     print(f"  sweep / single rule            {t_sweep / t_single:8.2f}   (target <= 5)")
+    if images:
+        print(f"  sweep per image                {t_sweep / images:8.2f} s   (GPU: target <= 1 s)")
 
 
-def bench_full_resolution(ckpt: str, out: Path, images: int = 3) -> None:
+def bench_full_resolution(ckpt: str, out: Path, images: int) -> None:
     tree = out / "standin"
     script = [str(ROOT / "scripts" / "toy_as_cityscapes.py"), str(tree)]
     subprocess.run([sys.executable, *script, "--train", "1", "--val", str(images)], check=True)
-    bench_sweep(f"{images} stand-in images of 1024 x 2048", out, ckpt_path=ckpt,
+    bench_sweep(f"{images} stand-in images of 1024 x 2048", out, images, ckpt_path=ckpt,
                 data_root=str(tree))  # fmt: skip
 
 
@@ -125,7 +128,10 @@ def bench_figures(ckpt: str, out: Path) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--ckpt_path", default=None)
-    parser.add_argument("--skip-full-resolution", action="store_true")
+    parser.add_argument(
+        "--sections", nargs="+", default=SECTIONS, choices=SECTIONS, help="default: all"
+    )
+    parser.add_argument("--images", type=int, default=3, help="full-resolution stand-in images")
     args = parser.parse_args()
     try:
         ckpt = str(find_checkpoint(args.ckpt_path))
@@ -134,11 +140,14 @@ def main() -> None:
     print(f"checkpoint {ckpt}; {torch.get_num_threads()} threads")
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp)
-        bench_startup(ckpt, out / "one")
-        bench_sweep("toy validation set (100 images)", out, ckpt_path=ckpt)
-        bench_figures(ckpt, out)
-        if not args.skip_full_resolution:
-            bench_full_resolution(ckpt, out)
+        if "startup" in args.sections:
+            bench_startup(ckpt, out / "one")
+        if "sweep" in args.sections:
+            bench_sweep("toy validation set (100 images)", out, ckpt_path=ckpt)
+        if "figures" in args.sections:
+            bench_figures(ckpt, out)
+        if "full-resolution" in args.sections:
+            bench_full_resolution(ckpt, out, args.images)
 
 
 if __name__ == "__main__":

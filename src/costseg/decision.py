@@ -75,20 +75,20 @@ def decide(
     cost = symmetric_cost(n) if cost is None else cost
     if cost.shape != (n, n):
         raise ValueError(f"cost matrix must be {n}x{n} for {n} classes, got {tuple(cost.shape)}")
-    cost = cost.to(device=probs.device, dtype=torch.float64)[None]
+    cost = cost.to(torch.float64).cpu()[None]  # small: prepared on the CPU
     fast = _Fast(
         cost, probs, _priors(priors, n, *probs.shape[2:], probs), eps=(n + 4) * U64
     )  # eps: the reference's rounding per T
     b, _, h, w = probs.shape
     out = torch.empty(b, h * w, dtype=torch.long, device=probs.device)
     if kernel := _gpu_kernel(fast):
-        one = torch.ones(1, 1, dtype=torch.float64, device=probs.device)
+        one = torch.ones(1, 1, dtype=torch.float64)
         for i in range(b):
             labels = out[i : i + 1]
             redo = kernel.certified_argmin(fast.probs[i], fast.folded, one, fast.eps, labels)
             redo = redo[0].nonzero()[:, 0]
             if len(redo):
-                out[i, redo] = fast.settle(fast.exact_q(i, redo), _shift(cost))
+                out[i, redo] = fast.settle(fast.exact_q(i, redo), _shift(cost).to(probs.device))
         return out.view(b, h, w)
     for i in range(b):
         redo, q64 = [], []
@@ -99,7 +99,7 @@ def decide(
             q64.append(fast.exact_q(i, redo[-1]))  # while the chunk is in cache
         redo = torch.cat(redo)
         if len(redo):
-            out[i, redo] = fast.settle(torch.cat(q64), _shift(cost))
+            out[i, redo] = fast.settle(torch.cat(q64), _shift(cost).to(probs.device))
     return out.view(b, h, w)
 
 
@@ -141,19 +141,20 @@ def decide_mixtures(
     mixed = _shift(mix_costs(vertices, weights).to(probs.device))  # the reference's matrices
     # eps: the reference's rounding on a mixed matrix (and that of mix_costs), per T.
     priors = _priors(priors, n, *probs.shape[2:], probs)
-    fast = _Fast(vertices.to(probs.device, torch.float64), probs, priors, (n + 8) * U64)
+    fast = _Fast(vertices.double(), probs, priors, (n + 8) * U64)
     mix = _Mixer(weights.to(probs.device, torch.float64), fast, mixed)
     b, _, h, w = probs.shape
     dtype = torch.uint8 if n <= 256 else torch.long  # K label maps add up
     out = torch.empty(b, len(weights), h * w, dtype=dtype, device=probs.device)
     if kernel := _gpu_kernel(fast):
-        weights = weights.to(probs.device, torch.float64)
+        weights = weights.to(torch.float64)
         for i in range(b):
             opened = kernel.certified_argmin(fast.probs[i], fast.folded, weights, fast.eps, out[i])
             grid, pixel = opened.nonzero().unbind(1)
             if len(grid):
                 pixels, inverse = torch.unique(pixel, return_inverse=True)
-                settled = fast.settle(fast.exact_q(i, pixels), mixed, grid, weights, inverse)
+                q = fast.exact_q(i, pixels)
+                settled = fast.settle(q, mixed, grid, weights.to(probs.device), inverse)
                 out[i, grid, pixel] = settled.to(dtype)
         return out.view(b, len(weights), h, w)
     for i in range(b):

@@ -36,11 +36,12 @@ class _Fast:
     def __init__(self, matrices: torch.Tensor, probs: torch.Tensor, priors, eps: float) -> None:
         b, n, h, w = probs.shape
         self.probs, self.priors = probs.reshape(b, n, h * w), priors  # validated: (N,) or (N, H·W)
+        matrices = matrices.cpu().double()  # small: prepared on the CPU, no GPU round trips
         low, high = matrices.amin(-2, keepdim=True), matrices.amax(-2, keepdim=True)
         weight = torch.cat([matrices - low, high - low + matrices.abs().amax(-2, True)], -2)
         self.weight64, self.rows = weight.reshape(-1, n), weight.shape[:2]  # for q = p / π
         if self.priors is not None and self.priors.ndim == 1:
-            weight = weight / self.priors.double()
+            weight = weight / self.priors.double().cpu()
         top = weight.max().item()
         weight = weight * 2.0 ** -math.frexp(top)[1] if top > 0 else weight  # exact
         single = weight.float()
@@ -53,7 +54,9 @@ class _Fast:
         self.gamma = (1 + rho) * (1 + self.u_in) ** 2 * (1 + U32) ** 3 * (1 + dot) - 1
         # float64: one rounding of the matrix (minus C.min), one of q, the dot product.
         self.gamma64 = (1 + U64) ** 3 * (1 + n * U64 / (1 - n * U64)) - 1
-        self.eps, self.weight, self.folded = eps, single.reshape(-1, n), weight
+        self.eps, self.folded = eps, weight  # folded: on the CPU, for decision_triton
+        self.weight = single.reshape(-1, n).to(probs.device)
+        self.weight64 = self.weight64.to(probs.device)
         low = (1 << max(1, (n - 1).bit_length())) - 1  # the bits that carry a class in _top
         self.code = torch.arange(n, dtype=torch.int32, device=probs.device).view(n, 1), low
         self.pixel_priors = None if priors is None or self.priors.ndim == 1 else self.priors

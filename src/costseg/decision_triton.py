@@ -18,7 +18,7 @@ import triton
 import triton.language as tl
 
 U32, U64 = 2.0**-24, 2.0**-53
-BLOCK = 64  # pixels per program: V x rows x BLOCK partial costs live in registers
+BLOCK = 128  # pixels per program: V x rows x BLOCK partial costs live in registers
 
 
 @triton.jit
@@ -76,8 +76,9 @@ def certified_argmin(
 
     Args:
         probs: (N, P) probabilities (float16 / bfloat16 / float32), contiguous.
-        weight: (V, N + 1, N) float64 nonnegative rows and T (``_Fast``: priors folded, scaled).
-        mix: (K, V) float64 mixture weights >= 0 (``[[1.0]]`` for one matrix).
+        weight: (V, N + 1, N) float64 nonnegative rows and T (``_Fast.folded``: priors folded,
+            scaled), best on the CPU.
+        mix: (K, V) float64 mixture weights >= 0 (``[[1.0]]`` for one matrix), best on the CPU.
         eps: the reference's rounding per T.
         labels: (K, P) integer output.
 
@@ -85,6 +86,7 @@ def certified_argmin(
         (K, P) bool: open pairs (their labels are meaningless).
     """
     (v, rows, n), k, probs = weight.shape, len(mix), probs.contiguous()
+    weight, mix = weight.cpu(), mix.cpu()  # small: prepared on the CPU, no GPU round trips
     dtype, u = (torch.float64, U64) if float64 else (torch.float32, U32)
     vp, r = triton.next_power_of_2(v), max(16, triton.next_power_of_2(rows))
     padded = weight.new_zeros(vp, r, n, dtype=dtype)
@@ -99,6 +101,7 @@ def certified_argmin(
     gamma = (1 + rho + 4 * U64) * (1 + u) ** 2 * (1 + dot) - 1
     g = gamma / (1 - gamma)
     tiny = 2.0**-900 if float64 else 2.0**-60  # far above the sums' underflow
+    padded, mixing = padded.to(probs.device), mixing.to(probs.device)
     opened = torch.empty(labels.shape, dtype=torch.int8, device=probs.device)
     grid = (triton.cdiv(probs.shape[1], BLOCK),)
     _certified_argmin[grid](
