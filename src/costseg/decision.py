@@ -10,10 +10,12 @@ matrix into ``-λI``, whose costs ``-λ q`` keep every tie of q: the robotistic 
 
 **The fast path**, in three stages, each deciding only what the previous one left open:
 
-1. float32 costs, one matmul per chunk of pixels (CPU: chunks that stay in cache; GPU: whole
-   images) with ``C - C.min(0) >= 0`` plus a row ``T`` bounding the reference's costs: sums of
-   nonnegative terms err by at most ``γ`` times their own value, so the gap between the best two
-   certifies the reference's decision, or not (``_Fast``, ``_top``);
+1. on the CPU, float32 costs, one matmul per chunk of pixels that stays in cache, with
+   ``C - C.min(0) >= 0`` plus a row ``T`` bounding the reference's costs: sums of nonnegative
+   terms err by at most ``γ`` times their own value, so the gap between the best two certifies
+   the reference's decision, or not (``_Fast``, ``_top``); on a GPU, one Triton kernel
+   (:mod:`costseg.decision_triton`) sums the same costs in float64 in registers and certifies
+   them the same way, K mixtures in the same read of the probabilities;
 2. the same certificate in float64 (matmuls again) for the few pixels left open (``_top64``);
 3. the reference itself for the float64 near ties (``_reference``).
 

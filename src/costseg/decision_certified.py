@@ -99,13 +99,10 @@ class _Fast:
         v, n = self.rows[0], q.shape[1]
         gamma = (1 + self.gamma64) * (1 + v * U64 / (1 - v * U64)) - 1
         mixed = (weights @ self.weight64.view(v, -1)).view(len(weights), -1, n)
-        labels = torch.empty_like(grid)
-        order = torch.argsort(grid, stable=True)
-        counts = torch.bincount(grid, minlength=len(weights)).tolist()
-        for k, part in enumerate(order.split(counts)):
+        labels, counts = torch.empty_like(grid), torch.bincount(grid, minlength=len(weights))
+        for k, part in enumerate(torch.argsort(grid, stable=True).split(counts.tolist())):
             if len(part):
-                pixels = q[inverse[part]]
-                labels[part] = self._settle(pixels, mixed[k], gamma, shifted[k : k + 1])
+                labels[part] = self._settle(q[inverse[part]], mixed[k], gamma, shifted[k : k + 1])
         return labels
 
     def _settle(self, q: torch.Tensor, weight64: torch.Tensor, gamma: float, shifted):
