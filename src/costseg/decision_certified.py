@@ -15,6 +15,7 @@ import torch
 
 CPU_CHUNK = 32768  # pixels per chunk on the CPU: (V·N x chunk) float32 costs stay in cache
 GPU_CHUNK = 1 << 21  # one 1024 x 2048 image
+SETTLE_BLOCK = 1 << 16  # (mixture, pixel) pairs re-checked at once: (block x V x N) float64
 U32, U64 = 2.0**-24, 2.0**-53  # unit roundoffs
 INT_MAX, INF = 0x7FFFFFFF, 0x7F800000  # INF: bit pattern of float32 +inf (NaN lies above)
 TINY = 2.0**-120  # absolute slack: covers float32 underflow (below N · 2**-149 per cost)
@@ -89,28 +90,28 @@ class _Fast:
         Args:
             q: (U, N) float64 ``p / π`` of the pixels (:meth:`exact_q`).
             shifted: (1, N, N) the reference's shifted matrix, or (K, N, N) with ``grid``.
-            grid: None or (R,) the mixture of each label; weights: (K, V) float64 mixture weights.
-            inverse: None (R = U) or (R,) the pixel of each label.
+            grid, inverse: None (R = U), or (R,) the mixture and the pixel of each label;
+            weights: (K, V) float64 mixture weights.
         """
+        costs = (q @ self.weight64.t()).view(len(q), *self.rows)
         if grid is None:
-            return self._settle(q, self.weight64[: self.rows[1]], self.gamma64, shifted)
-        # Per mixture k, its float64 matrix Σ_v w_kv W_v (V more nonnegative terms per entry):
-        # one matmul per mixture over its pixels, no (pairs x V x N) temporaries.
-        v, n = self.rows[0], q.shape[1]
+            return self._settle(q, costs[:, 0], self.gamma64, shifted)
+        v = self.rows[0]  # V more nonnegative terms
         gamma = (1 + self.gamma64) * (1 + v * U64 / (1 - v * U64)) - 1
-        mixed = (weights @ self.weight64.view(v, -1)).view(len(weights), -1, n)
-        labels, counts = torch.empty_like(grid), torch.bincount(grid, minlength=len(weights))
-        for k, part in enumerate(torch.argsort(grid, stable=True).split(counts.tolist())):
-            if len(part):
-                labels[part] = self._settle(q[inverse[part]], mixed[k], gamma, shifted[k : k + 1])
+        labels = torch.empty_like(grid)
+        for s in range(0, len(grid), SETTLE_BLOCK):
+            k, pixel = grid[s : s + SETTLE_BLOCK], inverse[s : s + SETTLE_BLOCK]
+            mixed = (weights[k, :, None] * costs[pixel]).sum(1)
+            labels[s : s + SETTLE_BLOCK] = self._settle(q[pixel], mixed, gamma, shifted, k)
         return labels
 
-    def _settle(self, q: torch.Tensor, weight64: torch.Tensor, gamma: float, shifted):
-        """Stage 2 then 3 for (R, N) float64 q and one (N + 1, N) float64 weight and matrix."""
-        labels, unsure = _top64(q @ weight64.t(), gamma, self.eps)
+    def _settle(self, q, costs, gamma: float, shifted, grid=None):
+        """Stage 2 then 3 for (R, N) float64 q and their (R, N + 1) float64 costs and T."""
+        labels, unsure = _top64(costs, gamma, self.eps)
         unsure = unsure.nonzero()[:, 0]
         if len(unsure):
-            labels[unsure] = _reference(q[unsure], shifted)
+            matrices = shifted if grid is None else shifted[grid[unsure]]
+            labels[unsure] = _reference(q[unsure], matrices)
         return labels
 
 
@@ -244,11 +245,11 @@ def _top(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Argmin over dim -2 of float32 costs >= 0 whose last row is T, and where it is open.
 
-    With computed costs x, exact y, ``|x - y| <= γ y`` (so ``|x - y| <= g x``, ``g = γ / (1 - γ)``)
-    and the reference within ``eps T`` of y (up to a per-pixel constant), the argmin a and the
-    runner-up b satisfy ``y_b - y_a > 2 eps T`` -- so the reference decides a, uniquely -- when
-    ``x_b - x_a - g (x_a + x_b) > 2 eps T (1 + g)`` (as in ``_top64``); 1.25 and ``1 - 2**-20``
-    absorb the float32 rounding of the test itself, ``2**-60`` underflow.
+    With computed costs x, exact y, ``|x - y| <= γ y`` and the reference within ``eps T`` of y
+    (up to a per-pixel constant), the argmin a and the runner-up b satisfy
+    ``y_b - y_a > 2 eps T`` -- so the reference decides a, uniquely -- when
+    ``x_b - x_a > Δ x_b`` with ``Δ = 2.5γ / (1 - γ)`` (2γ for both roundings, γ/2 left for the
+    reference's), ``x_b >= 10 eps T / γ`` and ``x_b >= 2**-60`` (underflow then negligible).
 
     Nonnegative floats order like their int32 bit patterns, whose low bits (mask ``low``) carry
     ``code``, the rows' labels ((m, 1) or (m, P) int32 <= low; lowest wins ties). n ulps above a
@@ -266,12 +267,12 @@ def _top(
     # packed - best - 1 >= 0 except at the best (-1, masked to INT_MAX): the gap minus one.
     gap = torch.sub(packed, best + 1, out=packed).bitwise_and_(INT_MAX).amin(-2)
     best = best.squeeze(-2)
-    # Every other cost's bits are >= best + gap + 1 - low, and x_a's <= best | low.
+    delta = 2.5 * gamma / (1 - gamma)
+    limit = math.ceil(delta * 2**24 / (1 - delta)) + 2 * low + 1
+    # Every other cost's bits are >= best + gap + 1 - low: a lower bound, inf or NaN past INF.
     lower = best + torch.minimum(gap, INF - best) + (1 - low)
-    xa, xb = (best | low).view(torch.float32), lower.view(torch.float32)
-    g = gamma / (1 - gamma)
-    need = torch.add(xa, xb).mul_(1.25 * g).add_(total, alpha=2.5 * eps * (1 + g)).add_(2.0**-60)
-    certain = (xb - xa).mul_(1 - 2.0**-20).gt(need) & (lower < INF - low)
+    floor = torch.add(2.0**-60, total, alpha=10 * eps / gamma)
+    certain = (gap >= limit) & (lower.view(torch.float32) >= floor) & (lower < INF - low)
     return torch.bitwise_and(best, low, out=out), ~certain
 
 
