@@ -96,9 +96,8 @@ class _Fast:
         costs = (q @ self.weight64.t()).view(len(q), *self.rows)
         if grid is None:
             return self._settle(q, costs[:, 0], self.gamma64, shifted)
-        v = self.rows[0]  # V more nonnegative terms
-        gamma = (1 + self.gamma64) * (1 + v * U64 / (1 - v * U64)) - 1
-        labels = torch.empty_like(grid)
+        v, labels = self.rows[0], torch.empty_like(grid)
+        gamma = (1 + self.gamma64) * (1 + v * U64 / (1 - v * U64)) - 1  # V more nonnegative terms
         for s in range(0, len(grid), SETTLE_BLOCK):
             k, pixel = grid[s : s + SETTLE_BLOCK], inverse[s : s + SETTLE_BLOCK]
             mixed = (weights[k, :, None] * costs[pixel]).sum(1)
