@@ -144,7 +144,6 @@ def decide_mixtures(
     # eps: the reference's rounding on a mixed matrix (and that of mix_costs), per T.
     priors = _priors(priors, n, *probs.shape[2:], probs)
     fast = _Fast(vertices.double(), probs, priors, (n + 8) * U64)
-    mix = _Mixer(weights.to(probs.device, torch.float64), fast, mixed)
     b, _, h, w = probs.shape
     dtype = torch.uint8 if n <= 256 else torch.long  # K label maps add up
     out = torch.empty(b, len(weights), h * w, dtype=dtype, device=probs.device)
@@ -159,6 +158,7 @@ def decide_mixtures(
                 settled = fast.settle(q, mixed, grid, weights.to(probs.device), inverse)
                 out[i, grid, pixel] = settled.to(dtype)
         return out.view(b, len(weights), h, w)
+    mix = _Mixer(weights.to(probs.device, torch.float64), fast, mixed)
     for i in range(b):
         for s, q in fast.chunks(i):
             exact_q = lambda pixels, i=i, s=s: fast.exact_q(i, s + pixels)  # noqa: E731
