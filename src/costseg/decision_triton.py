@@ -45,10 +45,13 @@ def _certified_argmin(
     rows = tl.arange(0, R)
     verts = tl.arange(0, VP)
     costs = tl.zeros((VP, R, BLOCK), dtype)
+    row = probs + offs  # pointers step by P (64-bit: K x P may pass 2**31)
     for k in range(N):
-        x = tl.load(probs + k * P + offs, mask=inside, other=0.0).to(dtype)
+        x = tl.load(row, mask=inside, other=0.0).to(dtype)
         w = tl.load(weight + (verts[:, None] * R + rows[None, :]) * N + k)
         costs += w[:, :, None] * x[None, None, :]
+        row += P
+    out, flag = labels + offs, opened + offs
     for m in range(K):
         w = tl.load(mix + m * VP + verts)
         mixed = tl.sum(w[:, None, None] * costs, axis=0)  # (R, BLOCK)
@@ -60,8 +63,10 @@ def _certified_argmin(
         lo, hi, t = best.to(tl.float64), second.to(tl.float64), total.to(tl.float64)
         need = 1.25 * (g * (lo + hi) + slack * t) + tiny
         ok = ((hi - lo) * (1 - 2.0**-51) > need) & (t < float("inf"))
-        tl.store(labels + m * P + offs, arg.to(labels.dtype.element_ty), mask=inside)
-        tl.store(opened + m * P + offs, (~ok).to(tl.int8), mask=inside)
+        tl.store(out, arg.to(labels.dtype.element_ty), mask=inside)
+        tl.store(flag, (~ok).to(tl.int8), mask=inside)
+        out += P
+        flag += P
 
 
 def certified_argmin(
