@@ -78,6 +78,7 @@ def decide(
     if cost.shape != (n, n):
         raise ValueError(f"cost matrix must be {n}x{n} for {n} classes, got {tuple(cost.shape)}")
     cost = cost.to(torch.float64).cpu()[None]  # small: prepared on the CPU
+    shifted = _shift(cost).to(probs.device)  # the reference's matrix, for the re-checks
     fast = _Fast(
         cost, probs, _priors(priors, n, *probs.shape[2:], probs), eps=(n + 4) * U64
     )  # eps: the reference's rounding per T
@@ -90,7 +91,7 @@ def decide(
             redo = kernel.certified_argmin(fast.probs[i], fast.folded, one, fast.eps, labels)
             redo = redo[0].nonzero()[:, 0]
             if len(redo):
-                out[i, redo] = fast.settle(fast.exact_q(i, redo), _shift(cost).to(probs.device))
+                out[i, redo] = fast.settle(fast.exact_q(i, redo), shifted)
         return out.view(b, h, w)
     for i in range(b):
         redo, q64 = [], []
@@ -101,7 +102,7 @@ def decide(
             q64.append(fast.exact_q(i, redo[-1]))  # while the chunk is in cache
         redo = torch.cat(redo)
         if len(redo):
-            out[i, redo] = fast.settle(torch.cat(q64), _shift(cost).to(probs.device))
+            out[i, redo] = fast.settle(torch.cat(q64), shifted)
     return out.view(b, h, w)
 
 
@@ -147,18 +148,17 @@ def decide_mixtures(
     b, _, h, w = probs.shape
     dtype = torch.uint8 if n <= 256 else torch.long  # K label maps add up
     out = torch.empty(b, len(weights), h * w, dtype=dtype, device=probs.device)
+    weights64 = weights.to(probs.device, torch.float64)
     if kernel := _gpu_kernel(fast):
-        weights = weights.to(torch.float64)
         for i in range(b):
             opened = kernel.certified_argmin(fast.probs[i], fast.folded, weights, fast.eps, out[i])
             grid, pixel = opened.nonzero().unbind(1)
             if len(grid):
                 pixels, inverse = torch.unique(pixel, return_inverse=True)
-                q = fast.exact_q(i, pixels)
-                settled = fast.settle(q, mixed, grid, weights.to(probs.device), inverse)
+                settled = fast.settle(fast.exact_q(i, pixels), mixed, grid, weights64, inverse)
                 out[i, grid, pixel] = settled.to(dtype)
         return out.view(b, len(weights), h, w)
-    mix = _Mixer(weights.to(probs.device, torch.float64), fast, mixed)
+    mix = _Mixer(weights64, fast, mixed)
     for i in range(b):
         for s, q in fast.chunks(i):
             exact_q = lambda pixels, i=i, s=s: fast.exact_q(i, s + pixels)  # noqa: E731
