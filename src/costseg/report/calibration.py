@@ -8,23 +8,23 @@ sweep, and the value system chosen with a guarantee.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 
 import numpy as np
 import torch
 from matplotlib.figure import Figure
-from torch.utils.tensorboard import SummaryWriter
 
 from costseg.classes import CLASS_NAMES
 from costseg.costs import mix_costs, save_cost
 from costseg.report.curves import plot_curves
+from costseg.report.drawing import Batch
 from costseg.report.files import write_csv, write_json
-from costseg.report.tensorboard import save_and_log
 from costseg.results import EvalResults
 
 
-def write_calibration(results: EvalResults, writer: SummaryWriter) -> None:
-    """ECE, reliability diagrams, temperature sweep and guarantee, as far as evaluated."""
+def write_calibration(results: EvalResults) -> list[tuple[str, Batch]]:
+    """ECE, reliability diagrams, temperature sweep and guarantee, as far as evaluated; returns
+    the figures, undrawn, as ``(TensorBoard prefix, batch)`` (:mod:`costseg.report.drawing`)."""
     out, extra = results.output_dir, results.extra
     ece = extra.get("ece", {})
     record = {"probabilities": results.probabilities, "scaling": extra.get("scaling")}
@@ -33,11 +33,15 @@ def write_calibration(results: EvalResults, writer: SummaryWriter) -> None:
     print(
         "ECE (top label, 15 bins): " + ", ".join(f"{k} {v:.4f}" for k, v in record["ece"].items())
     )
-    figures = {"reliability": plot_reliability(ece)} if ece else {}
-    figures |= _temperature_sweep(results)
-    save_and_log(writer, figures, out / "figures", "calibration")
     if "certificate" in extra:
         _write_certificate(results)
+    return [("calibration", _figures(results, ece))]
+
+
+def _figures(results: EvalResults, ece: Mapping) -> Iterator[tuple[str, Figure]]:
+    if ece:
+        yield "reliability", plot_reliability(ece)
+    yield from _temperature_sweep(results).items()
 
 
 def plot_reliability(bins: Mapping[str, Mapping[str, torch.Tensor]]) -> Figure:

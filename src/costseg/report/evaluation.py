@@ -14,11 +14,12 @@ from torch.utils.tensorboard import SummaryWriter
 
 from costseg.classes import CLASS_NAMES
 from costseg.report.cost_matrix import cost_matrix_figures
+from costseg.report.drawing import Batch, save_and_log_all
 from costseg.report.figures import heatmap_grid_figures, mask_figures
 from costseg.report.files import write_csv, write_json, write_text
 from costseg.report.priors import plot_roi_map
 from costseg.report.tables import ROI_NAMES, compare_with_paper, console_table, paper_table
-from costseg.report.tensorboard import log_masks, log_scalars, log_table, save_and_log
+from costseg.report.tensorboard import log_masks, log_scalars, log_table
 from costseg.results import EvalResults, GroupResult
 
 SUMMARY_COLUMNS = ("matrix", "class", "roi", "precision", "recall", "fp_segments", "fn_segments")
@@ -51,9 +52,9 @@ def write_evaluation(results: EvalResults) -> None:
                 ex.label.numpy(),
                 {n: ex.preds[k].numpy() for k, n in enumerate(named.group.names)},
             )
-        save_and_log(writer, _figures(results), out / "figures", "evaluation")
-        write_sweeps(results, writer)
-        write_calibration(results, writer)
+        batches = [("evaluation", figures) for figures in _figures(results)]
+        batches += write_sweeps(results) + write_calibration(results)
+        save_and_log_all(writer, batches, out / "figures")
     print(f"results written to {out}")
 
 
@@ -114,8 +115,8 @@ def _scalars(rows: list[dict], named: GroupResult) -> dict[str, float]:
     return scalars
 
 
-def _figures(results: EvalResults) -> Iterator[tuple[str, Figure]]:
-    """(tag, figure) of the named rules; figures of one kind are one figure redrawn."""
+def _figures(results: EvalResults) -> list[Batch]:
+    """The named rules' figures, undrawn, in batches: figures of one kind are one figure redrawn."""
     named = results.groups[0]
     names, segments = named.group.names, named.segments
     grids = []
@@ -126,7 +127,6 @@ def _figures(results: EvalResults) -> Iterator[tuple[str, Figure]]:
             for c, cls in enumerate(results.class_ids)
         }
         grids.append((f"{kind.lower()}_segments", maps, kind))
-    yield from heatmap_grid_figures(grids)
     examples = (
         (
             f"masks_{i}",
@@ -136,8 +136,14 @@ def _figures(results: EvalResults) -> Iterator[tuple[str, Figure]]:
         )
         for i, ex in enumerate(results.examples)
     )
-    yield from mask_figures(examples)
     costs = [(f"cost_{r.name}", r.cost, r.name) for r in named.group.rules if r.cost is not None]
-    yield from cost_matrix_figures(costs, CLASS_NAMES)
+    # The longest first, so that the processes drawing them finish together.
+    batches = [cost_matrix_figures(costs, CLASS_NAMES), mask_figures(examples)]
+    batches.append(heatmap_grid_figures(grids))
     if results.roi is not None:
-        yield "roi_map", plot_roi_map(results.roi)
+        batches.append(_roi_map(results.roi))
+    return batches
+
+
+def _roi_map(roi) -> Iterator[tuple[str, Figure]]:
+    yield "roi_map", plot_roi_map(roi)

@@ -7,15 +7,13 @@ triangles; ``figures/edges_*.png`` the precision–recall trade-off along each e
 
 from __future__ import annotations
 
-from collections.abc import Iterable
-
-from torch.utils.tensorboard import SummaryWriter
+from collections.abc import Iterator
 
 from costseg.classes import CLASS_NAMES
 from costseg.costs import mix_costs, save_cost
 from costseg.report.curves import plot_curves
+from costseg.report.drawing import Batch
 from costseg.report.files import write_csv, write_json
-from costseg.report.tensorboard import save_and_log
 from costseg.report.ternary import edge_tradeoff_figures, ternary_figures
 from costseg.results import EvalResults, GroupResult
 from costseg.selection import choose
@@ -23,20 +21,15 @@ from costseg.selection import choose
 SWEEP_ROIS = (0, 1, 2)
 
 
-def write_sweeps(results: EvalResults, writer: SummaryWriter) -> None:
-    """Files and figures of the grid and α groups, if evaluated, and the ``--target`` answer."""
+def write_sweeps(results: EvalResults) -> list[tuple[str, Batch]]:
+    """Files of the grid and α groups, if evaluated, and the ``--target`` answer; returns their
+    figures, undrawn, as ``(TensorBoard prefix, batch)`` (:mod:`costseg.report.drawing`)."""
     grid, alpha = results.group("grid"), results.group("alpha")
-    if grid is not None:
-        _write_grid(results, grid, writer)
-    if alpha is not None:
-        _write_alpha(results, alpha, writer)
+    batches = [] if grid is None else _write_grid(results, grid)
+    return batches + ([] if alpha is None else _write_alpha(results, alpha))
 
 
-def _save(results: EvalResults, writer: SummaryWriter, figures: Iterable, prefix: str) -> None:
-    save_and_log(writer, figures, results.output_dir / "figures", prefix)
-
-
-def _write_grid(results: EvalResults, grid: GroupResult, writer: SummaryWriter) -> None:
+def _write_grid(results: EvalResults, grid: GroupResult) -> list[tuple[str, Batch]]:
     out, note, weights = results.output_dir, grid.group.note, grid.group.weights
     rows = grid.rows(results.class_ids, SWEEP_ROIS)
     write_csv(out / "sweep.csv", rows)
@@ -57,10 +50,12 @@ def _write_grid(results: EvalResults, grid: GroupResult, writer: SummaryWriter) 
         for metric in ("fp_rate", "fn_rate"):
             title = f"{metric.replace('_', ' ')} of {name} segments"
             ternary.append((f"ternary_{name}_{metric}", segments[metric][:, c, 0], title, metric))
-    _save(results, writer, ternary_figures(weights, ternary, labels, note=note), "sweep")
-    _save(results, writer, edge_tradeoff_figures(weights, edges, labels, note=note), "sweep")
     if results.options.get("target"):
         _write_choice(results, grid)
+    return [
+        ("sweep", ternary_figures(weights, ternary, labels, note=note)),
+        ("sweep", edge_tradeoff_figures(weights, edges, labels, note=note)),
+    ]
 
 
 def _write_choice(results: EvalResults, grid: GroupResult) -> None:
@@ -96,13 +91,16 @@ def _write_choice(results: EvalResults, grid: GroupResult) -> None:
     )
 
 
-def _write_alpha(results: EvalResults, alpha: GroupResult, writer: SummaryWriter) -> None:
+def _write_alpha(results: EvalResults, alpha: GroupResult) -> list[tuple[str, Batch]]:
     out = results.output_dir
     alphas = [c["prior_alpha"] for c in alpha.group.columns]
     rows = alpha.rows(results.class_ids, SWEEP_ROIS)
     write_csv(out / "alpha_sweep.csv", rows)
     write_json(out / "alpha_sweep.json", {"note": alpha.group.note, "rows": rows})
-    figures = {}
+    return [("alpha_sweep", _alpha_figures(results, alpha, alphas))]
+
+
+def _alpha_figures(results: EvalResults, alpha: GroupResult, alphas: list) -> Iterator[tuple]:
     for cls in results.class_ids:
         name = CLASS_NAMES[cls]
         series = {
@@ -110,7 +108,12 @@ def _write_alpha(results: EvalResults, alpha: GroupResult, writer: SummaryWriter
             for roi in (1, 2)
             for metric in ("precision", "recall")
         }
-        figures[f"alpha_{name}"] = plot_curves(
-            alphas, series, "α (0 = Bayes, 1 = maximum likelihood)", f"{name}: {alpha.group.note}"
+        yield (
+            f"alpha_{name}",
+            plot_curves(
+                alphas,
+                series,
+                "α (0 = Bayes, 1 = maximum likelihood)",
+                f"{name}: {alpha.group.note}",
+            ),
         )
-    _save(results, writer, figures, "alpha_sweep")

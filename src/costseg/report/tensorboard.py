@@ -7,14 +7,12 @@ Every helper takes a ``torch.utils.tensorboard.SummaryWriter``; under Lightning 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
-from pathlib import Path
+from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
 from matplotlib.figure import Figure
 
 from costseg.report.figures import ArrayLike, masks_side_by_side
-from costseg.report.files import png_bytes, render, write_bytes
 
 if TYPE_CHECKING:
     from torch.utils.tensorboard import SummaryWriter
@@ -94,32 +92,6 @@ def log_masks(
     """
     strip = masks_side_by_side(image, target, preds)
     writer.add_image(tag, strip, global_step=step, dataformats="HWC")
-
-
-def save_and_log(
-    writer: SummaryWriter,
-    figures: Mapping[str, Figure] | Iterable[tuple[str, Figure]],
-    folder: Path,
-    prefix: str,
-) -> None:
-    """Draw each figure once: to ``folder/<tag>.png`` and to TensorBoard as ``prefix/<tag>``.
-
-    ``figures`` may be a generator of ``(tag, figure)`` that redraws one figure with new data
-    (e.g. :func:`costseg.report.ternary.ternary_figures`): each is drawn before the next is
-    taken.
-
-    >>> import tempfile
-    >>> from torch.utils.tensorboard import SummaryWriter
-    >>> with tempfile.TemporaryDirectory() as d, SummaryWriter(d) as w:
-    ...     save_and_log(w, {"empty": Figure(figsize=(1, 1))}, Path(d) / "figures", "eval")
-    ...     sorted(p.name for p in (Path(d) / "figures").iterdir())
-    ['empty.png']
-    """
-    for tag, fig in figures.items() if isinstance(figures, Mapping) else figures:
-        image = render(fig)
-        png = png_bytes(image)
-        write_bytes(folder / f"{tag.replace('/', '_')}.png", png)
-        log_png(writer, f"{prefix}/{tag}", png, image.shape)
 
 
 def log_png(
