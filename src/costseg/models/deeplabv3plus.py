@@ -1,9 +1,14 @@
-"""DeepLabv3+ (Chen et al., ECCV 2018) as a plain ``nn.Module`` on a torchvision backbone.
+"""DeepLabv3+ (Chen et al., ECCV 2018) as a plain ``nn.Module`` on a ResNet or MobileNetV3 trunk.
 
 The backbone gives stride-4 low-level features and stride-16 (or 8) high-level features;
-torchvision's ASPP runs on the high-level features, and the decoder merges its output with the
-low-level features before the classifier. Logits are resized bilinearly to the input size.
+ASPP runs on the high-level features, and the decoder merges its output with the low-level
+features before the classifier. Logits are resized bilinearly to the input size.
 The module knows nothing of Lightning, costs or datasets.
+
+The ResNet trunks (`costseg.models.resnet`) and the ASPP (`costseg.models.aspp`) are costseg's
+own, with torchvision's module names and outputs, so that importing this module does not import
+torchvision (and ``torch._dynamo`` with it, about 2 s); only ``mobilenet_v3_large`` builds
+torchvision's network, importing torchvision when it is built.
 """
 
 from __future__ import annotations
@@ -15,9 +20,9 @@ from pathlib import Path
 import torch
 from torch import nn
 from torch.nn import functional as F
-from torchvision import models
-from torchvision.models.feature_extraction import create_feature_extractor
-from torchvision.models.segmentation.deeplabv3 import ASPP
+
+from costseg.models.aspp import ASPP
+from costseg.models.resnet import ResNetTrunk
 
 __all__ = ["BACKBONES", "DeepLabV3Plus", "DeepLabV3PlusDecoder", "load_backbone_weights"]
 
@@ -28,61 +33,35 @@ _HEAD_PREFIXES = ("fc.", "classifier.")  # classification heads that the backbon
 
 @dataclass(frozen=True)
 class _BackboneSpec:
-    """How to build one backbone and where its two feature maps are."""
+    """How to build one backbone (output stride → module giving {"low", "out"} features)."""
 
     build: Callable[[int], nn.Module]
-    low_node: str
-    high_node: str
     low_channels: int
     high_channels: int
     output_strides: tuple[int, ...]
 
 
-def _dilate(stage: nn.Module, dilation: int) -> None:
-    """Turn a stage's stride 2 into dilation in place; weights are unchanged.
-
-    Every 3x3 conv of the stage gets the same dilation (segmentation_models_pytorch's convention).
-    """
-    for module in stage.modules():
-        if isinstance(module, nn.Conv2d):
-            module.stride = (1, 1)
-            if module.kernel_size == (3, 3):
-                module.dilation = (dilation, dilation)
-                module.padding = (dilation, dilation)
-
-
 def _resnet(name: str) -> Callable[[int], nn.Module]:
-    def build(output_stride: int) -> nn.Module:
-        dilate = [False, output_stride == 8, True]
-        builder = getattr(models, name)
-        if name in ("resnet50", "resnet101"):
-            return builder(weights=None, replace_stride_with_dilation=dilate)
-        # torchvision's BasicBlock raises NotImplementedError for dilation > 1: convert afterwards.
-        net = builder(weights=None)
-        dilation = 1
-        for stage, flag in zip((net.layer2, net.layer3, net.layer4), dilate, strict=True):
-            if flag:
-                dilation *= 2
-                _dilate(stage, dilation)
-        return net
-
-    return build
+    return lambda output_stride: ResNetTrunk(name, output_stride)
 
 
 def _mobilenet_v3_large(output_stride: int) -> nn.Module:
+    # torchvision (which imports torch._dynamo, about 2 s) is imported for this backbone only.
+    from torchvision.models import mobilenet_v3_large
+    from torchvision.models.feature_extraction import create_feature_extractor
+
     # `dilated=True` replaces the last stride-2 stage by dilation 2, giving output stride 16.
-    return models.mobilenet_v3_large(weights=None, dilated=True)
+    # features.3 is the last stride-4 block; features.16 the final 960-channel conv.
+    net = mobilenet_v3_large(weights=None, dilated=True)
+    return create_feature_extractor(net, {"features.3": "low", "features.16": "out"})
 
 
 _SPECS: dict[str, _BackboneSpec] = {
-    "resnet18": _BackboneSpec(_resnet("resnet18"), "layer1", "layer4", 64, 512, (8, 16)),
-    "resnet34": _BackboneSpec(_resnet("resnet34"), "layer1", "layer4", 64, 512, (8, 16)),
-    "resnet50": _BackboneSpec(_resnet("resnet50"), "layer1", "layer4", 256, 2048, (8, 16)),
-    "resnet101": _BackboneSpec(_resnet("resnet101"), "layer1", "layer4", 256, 2048, (8, 16)),
-    # features.3 is the last stride-4 block; features.16 the final 960-channel conv.
-    "mobilenet_v3_large": _BackboneSpec(
-        _mobilenet_v3_large, "features.3", "features.16", 24, 960, (16,)
-    ),
+    "resnet18": _BackboneSpec(_resnet("resnet18"), 64, 512, (8, 16)),
+    "resnet34": _BackboneSpec(_resnet("resnet34"), 64, 512, (8, 16)),
+    "resnet50": _BackboneSpec(_resnet("resnet50"), 256, 2048, (8, 16)),
+    "resnet101": _BackboneSpec(_resnet("resnet101"), 256, 2048, (8, 16)),
+    "mobilenet_v3_large": _BackboneSpec(_mobilenet_v3_large, 24, 960, (16,)),
 }
 BACKBONES: tuple[str, ...] = tuple(_SPECS)
 
@@ -127,7 +106,7 @@ class DeepLabV3PlusDecoder(nn.Module):
 
 
 class DeepLabV3Plus(nn.Module):
-    """DeepLabv3+: a torchvision backbone, torchvision's ASPP, the v3+ decoder and a 1x1 classifier.
+    """DeepLabv3+: a backbone, ASPP, the v3+ decoder and a 1x1 classifier.
 
     Args:
         num_classes: number of output channels (logits).
@@ -135,6 +114,7 @@ class DeepLabV3Plus(nn.Module):
         output_stride: 16 or 8 (ResNets), 16 (mobilenet_v3_large); ASPP rates follow it.
         backbone_weights: optional path to a torchvision classification state dict for the
             backbone (its ``fc.*`` / ``classifier.*`` head is ignored); nothing is downloaded.
+            The ResNets are costseg's own (`costseg.models.resnet`) under torchvision's names.
         decoder_channels: width of the ASPP output and of the decoder convs (256 in the paper);
             smaller values make a cheaper head for CPU training.
         decoder_convs: 3x3 conv blocks after the merge: 2 (the paper), or 1 (the layout of
@@ -164,9 +144,7 @@ class DeepLabV3Plus(nn.Module):
         if decoder_convs < 1:
             raise ValueError(f"decoder_convs must be a positive integer; got {decoder_convs!r}")
         self.output_stride = output_stride
-        self.backbone = create_feature_extractor(
-            spec.build(output_stride), {spec.low_node: "low", spec.high_node: "out"}
-        )
+        self.backbone = spec.build(output_stride)
         self.aspp = ASPP(spec.high_channels, ATROUS_RATES[output_stride], decoder_channels)
         self.decoder = DeepLabV3PlusDecoder(
             spec.low_channels, decoder_channels, decoder_channels, decoder_convs
@@ -231,8 +209,9 @@ def load_backbone_weights(backbone: nn.Module, path: str | Path) -> None:
     Example:
         >>> import tempfile
         >>> net = DeepLabV3Plus(19, "resnet18", decoder_channels=32)
+        >>> state = {**net.backbone.state_dict(), "fc.weight": torch.zeros(1000, 512)}
         >>> with tempfile.TemporaryDirectory() as tmp:
-        ...     torch.save(models.resnet18(weights=None).state_dict(), f"{tmp}/r18.pth")
+        ...     torch.save(state, f"{tmp}/r18.pth")
         ...     load_backbone_weights(net.backbone, f"{tmp}/r18.pth")
     """
     path = Path(path)
