@@ -9,7 +9,13 @@ import numpy as np
 import pytest
 from matplotlib.figure import Figure
 
-from costseg.report.drawing import draw
+from costseg.report.drawing import Drawing
+
+
+def draw(batches, folder, processes):
+    """Each batch's drawn tags and shapes, on ``processes`` processes."""
+    drawn = Drawing([("prefix", batch) for batch in batches], folder, processes - 1).finish()
+    return [figures for _, figures in drawn]
 
 
 def _redrawn(tags: list[str], seed: int):
@@ -64,3 +70,12 @@ def test_a_dead_worker_is_an_error_not_a_hang(tmp_path):
     parent = os.getpid()
     with pytest.raises(RuntimeError, match=r"exit codes \[3\]"):
         draw([_dies_in_a_worker(parent), _dies_in_a_worker(parent)], tmp_path, processes=2)
+
+
+def test_a_started_drawing_draws_while_the_caller_goes_on(tmp_path):
+    drawing = Drawing([("p", _redrawn(["early"], 0))], tmp_path, workers=1)
+    deadline = time.monotonic() + 60
+    while not (tmp_path / "early.png").exists():  # drawn by the worker, before finish()
+        assert time.monotonic() < deadline, "the worker drew nothing"
+        time.sleep(0.05)
+    assert drawing.finish() == [("p", [("early", (150, 200, 3))])]

@@ -176,12 +176,24 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict) -> EvalResults:
 
 
 def evaluate(opts: EvalOptions) -> EvalResults:
-    """Plan, run, and (on rank 0) write every output; returns the results."""
-    results = run(plan(opts))
-    if _rank() == 0:
-        from costseg.report.evaluation import write_evaluation
+    """Plan, run, and (on rank 0) write every output; returns the results.
 
-        write_evaluation(results)
+    The figures known from the plan are drawn on a forked process while the images are
+    evaluated."""
+    planned, started = plan(opts), None
+    if _rank() == 0:
+        from costseg.report.evaluation import start_plan_figures, write_evaluation
+
+        roi = planned.priors.roi_map()
+        started = start_plan_figures(planned.output_dir, planned.groups[0], roi)
+    try:
+        results = run(planned)
+    except BaseException:
+        if started:
+            started.cancel()
+        raise
+    if started:
+        write_evaluation(results, started)
     return results
 
 

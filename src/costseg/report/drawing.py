@@ -35,10 +35,11 @@ def save_and_log_all(
     writer: SummaryWriter,
     batches: Sequence[tuple[str, Batch]],
     folder: Path,
-    processes: int | None = None,
+    started: Drawing | None = None,
 ) -> None:
     """Draw each ``(prefix, batch)`` to ``folder/<tag>.png`` and to TensorBoard as
-    ``prefix/<tag>``, on up to ``processes`` processes (default: the usable cores).
+    ``prefix/<tag>``, on as many processes as there are usable cores; ``started``: batches
+    already being drawn, e.g. while the images were evaluated, logged first.
 
     >>> import tempfile
     >>> from torch.utils.tensorboard import SummaryWriter
@@ -48,39 +49,56 @@ def save_and_log_all(
     ...     sorted(p.name for p in (Path(d) / "figures").iterdir())
     ['empty.png']
     """
-    drawn = draw([batch for _, batch in batches], folder, processes)
-    for (prefix, _), figures in zip(batches, drawn, strict=True):
+    workers = min(len(os.sched_getaffinity(0)), len(batches)) - 1
+    drawn = Drawing(batches, folder, workers).finish()
+    for prefix, figures in (started.finish() if started else []) + drawn:
         for tag, shape in figures:
             log_png(writer, f"{prefix}/{tag}", _path(folder, tag).read_bytes(), shape)
 
 
-def draw(batches: Sequence[Batch], folder: Path, processes: int | None = None) -> list[Drawn]:
-    """Write every figure of every batch to ``folder/<tag>.png``; returns each batch's tags and
-    image shapes, in order. Runs in this process alone where ``fork`` is not available."""
-    processes = min(processes or len(os.sched_getaffinity(0)), len(batches))
-    if processes <= 1 or "fork" not in multiprocessing.get_all_start_methods():
-        return [_draw(batch, folder) for batch in batches]
-    context = multiprocessing.get_context("fork")
-    claimed, reports = context.Value("i", 0), context.Queue()
-    workers = [
-        context.Process(target=_work, args=(batches, folder, claimed, reports), daemon=True)
-        for _ in range(processes - 1)
-    ]
-    for worker in workers:
-        worker.start()
-    try:
-        done = dict(_claim_and_draw(batches, folder, claimed))
-        while len(done) < len(batches):
-            index, outcome = _next_report(reports, workers)
-            if isinstance(outcome, str):
-                raise RuntimeError(f"drawing figures failed in a worker process:\n{outcome}")
-            done[index] = outcome
-    finally:
-        for worker in workers:
-            worker.join(timeout=5)
+class Drawing:
+    """``(prefix, batch)`` pairs drawn to ``folder`` by ``workers`` forked processes from now
+    on, while this one goes on.
+
+    :meth:`finish` draws the batches that no worker has taken yet in this process and waits
+    for the others; without ``fork`` (or workers) it draws them all. :meth:`cancel` stops the
+    workers.
+    """
+
+    def __init__(self, batches: Sequence[tuple[str, Batch]], folder: Path, workers: int) -> None:
+        self.prefixes = [prefix for prefix, _ in batches]
+        self.batches, self.folder, self.workers = [b for _, b in batches], folder, []
+        if workers < 1 or "fork" not in multiprocessing.get_all_start_methods():
+            self.claimed = multiprocessing.Value("i", 0)
+            return
+        context = multiprocessing.get_context("fork")
+        self.claimed, self.reports = context.Value("i", 0), context.Queue()
+        args = (self.batches, folder, self.claimed, self.reports)
+        self.workers = [
+            context.Process(target=_work, args=args, daemon=True) for _ in range(workers)
+        ]
+        for worker in self.workers:
+            worker.start()
+
+    def finish(self) -> list[tuple[str, Drawn]]:
+        """``(prefix, tags and image shapes)`` of each batch, in order, once all are drawn."""
+        try:
+            done = dict(_claim_and_draw(self.batches, self.folder, self.claimed))
+            while len(done) < len(self.batches):
+                index, outcome = _next_report(self.reports, self.workers)
+                if isinstance(outcome, str):
+                    raise RuntimeError(f"drawing figures failed in a worker process:\n{outcome}")
+                done[index] = outcome
+        finally:
+            self.cancel(timeout=5)
+        return [(prefix, done[i]) for i, prefix in enumerate(self.prefixes)]
+
+    def cancel(self, timeout: float = 0) -> None:
+        """Wait up to ``timeout`` seconds for the workers to end, then stop them."""
+        for worker in self.workers:
+            worker.join(timeout=timeout)
             if worker.is_alive():
                 worker.terminate()
-    return [done[i] for i in range(len(batches))]
 
 
 def _draw(batch: Batch, folder: Path) -> Drawn:

@@ -8,25 +8,36 @@ theirs (:mod:`costseg.report.sweep`).
 from __future__ import annotations
 
 from collections.abc import Iterator
+from pathlib import Path
 
+import torch
 from matplotlib.figure import Figure
 from torch.utils.tensorboard import SummaryWriter
 
 from costseg.classes import CLASS_NAMES
 from costseg.report.cost_matrix import cost_matrix_figures
-from costseg.report.drawing import Batch, save_and_log_all
+from costseg.report.drawing import Batch, Drawing, save_and_log_all
 from costseg.report.figures import heatmap_grid_figures, mask_figures
 from costseg.report.files import write_csv, write_json, write_text
 from costseg.report.priors import plot_roi_map
 from costseg.report.tables import ROI_NAMES, compare_with_paper, console_table, paper_table
 from costseg.report.tensorboard import log_masks, log_scalars, log_table
 from costseg.results import EvalResults, GroupResult
+from costseg.rules import RuleGroup
 
 SUMMARY_COLUMNS = ("matrix", "class", "roi", "precision", "recall", "fp_segments", "fn_segments")
 
 
-def write_evaluation(results: EvalResults) -> None:
-    """Write the named rules' results, then each sweep's, into ``results.output_dir``."""
+def start_plan_figures(output_dir: Path, group: RuleGroup, roi: torch.Tensor | None) -> Drawing:
+    """Start drawing the figures known before the first image (the named rules' cost matrices,
+    the RoI map) on a forked process; pass the result to :func:`write_evaluation`."""
+    return Drawing(_plan_figures(group, roi), output_dir / "figures", workers=1)
+
+
+def write_evaluation(results: EvalResults, started: Drawing | None = None) -> None:
+    """Write the named rules' results, then each sweep's, into ``results.output_dir``.
+
+    ``started``: :func:`start_plan_figures`, if called; else its figures are drawn here."""
     from costseg.report.calibration import write_calibration
     from costseg.report.sweep import write_sweeps
 
@@ -52,9 +63,9 @@ def write_evaluation(results: EvalResults) -> None:
                 ex.label.numpy(),
                 {n: ex.preds[k].numpy() for k, n in enumerate(named.group.names)},
             )
-        batches = [("evaluation", figures) for figures in _figures(results)]
-        batches += write_sweeps(results) + write_calibration(results)
-        save_and_log_all(writer, batches, out / "figures")
+        batches = [] if started else _plan_figures(named.group, results.roi)
+        batches += write_sweeps(results) + _figures(results) + write_calibration(results)
+        save_and_log_all(writer, batches, out / "figures", started)
     print(f"results written to {out}")
 
 
@@ -115,8 +126,15 @@ def _scalars(rows: list[dict], named: GroupResult) -> dict[str, float]:
     return scalars
 
 
-def _figures(results: EvalResults) -> list[Batch]:
-    """The named rules' figures, undrawn, in batches: figures of one kind are one figure redrawn."""
+def _plan_figures(group: RuleGroup, roi: torch.Tensor | None) -> list[tuple[str, Batch]]:
+    costs = [(f"cost_{r.name}", r.cost, r.name) for r in group.rules if r.cost is not None]
+    batches = [("evaluation", cost_matrix_figures(costs, CLASS_NAMES))]
+    return batches + ([] if roi is None else [("evaluation", _roi_map(roi.cpu()))])
+
+
+def _figures(results: EvalResults) -> list[tuple[str, Batch]]:
+    """The named rules' figures from their results, undrawn, in batches: figures of one kind
+    are one figure redrawn."""
     named = results.groups[0]
     names, segments = named.group.names, named.segments
     grids = []
@@ -136,13 +154,7 @@ def _figures(results: EvalResults) -> list[Batch]:
         )
         for i, ex in enumerate(results.examples)
     )
-    costs = [(f"cost_{r.name}", r.cost, r.name) for r in named.group.rules if r.cost is not None]
-    # The longest first, so that the processes drawing them finish together.
-    batches = [cost_matrix_figures(costs, CLASS_NAMES), mask_figures(examples)]
-    batches.append(heatmap_grid_figures(grids))
-    if results.roi is not None:
-        batches.append(_roi_map(results.roi))
-    return batches
+    return [("evaluation", mask_figures(examples)), ("evaluation", heatmap_grid_figures(grids))]
 
 
 def _roi_map(roi) -> Iterator[tuple[str, Figure]]:
