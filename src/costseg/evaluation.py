@@ -182,7 +182,7 @@ def evaluate(opts: EvalOptions) -> EvalResults:
     evaluated."""
     planned, started = plan(opts), None
     if _rank() == 0:
-        from costseg.report.evaluation import start_plan_figures, write_evaluation
+        from costseg.report.plan_figures import start_plan_figures
 
         roi = planned.priors.roi_map()
         started = start_plan_figures(planned.output_dir, planned.groups[0], roi)
@@ -193,6 +193,8 @@ def evaluate(opts: EvalOptions) -> EvalResults:
             started.cancel()
         raise
     if started:
+        from costseg.report.evaluation import write_evaluation
+
         write_evaluation(results, started)
     return results
 

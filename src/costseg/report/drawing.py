@@ -5,7 +5,8 @@ the figures' data without pickling it. A batch is an iterable of ``(tag, figure)
 generator that redraws one figure (e.g. :func:`costseg.report.ternary.ternary_figures`), so
 each batch is drawn by one process. Every process takes the next batch until none is left,
 writes ``folder/<tag>.png`` and reports the tags and image shapes; the calling process draws
-too, then logs every image to TensorBoard in the batches' order.
+too, then logs every image to TensorBoard in the batches' order. Importing this module imports
+neither matplotlib nor TensorBoard, so that drawing can start before this process needs them.
 """
 
 from __future__ import annotations
@@ -18,16 +19,11 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import matplotlib
-from matplotlib.figure import Figure
-
-from costseg.report.files import png_bytes, render, write_bytes
-from costseg.report.tensorboard import log_png
-
 if TYPE_CHECKING:
+    from matplotlib.figure import Figure
     from torch.utils.tensorboard import SummaryWriter
 
-Batch = Iterable[tuple[str, Figure]]
+Batch = Iterable[tuple[str, "Figure"]]
 Drawn = list[tuple[str, tuple[int, ...]]]  # (tag, (H, W, 3)) of each figure of a batch
 
 
@@ -42,6 +38,7 @@ def save_and_log_all(
     already being drawn, e.g. while the images were evaluated, logged first.
 
     >>> import tempfile
+    >>> from matplotlib.figure import Figure
     >>> from torch.utils.tensorboard import SummaryWriter
     >>> with tempfile.TemporaryDirectory() as d, SummaryWriter(d) as w:
     ...     batches = [("eval", {"empty": Figure(figsize=(1, 1))}.items())]
@@ -49,6 +46,8 @@ def save_and_log_all(
     ...     sorted(p.name for p in (Path(d) / "figures").iterdir())
     ['empty.png']
     """
+    from costseg.report.tensorboard import log_png
+
     workers = min(len(os.sched_getaffinity(0)), len(batches)) - 1
     drawn = Drawing(batches, folder, workers).finish()
     for prefix, figures in (started.finish() if started else []) + drawn:
@@ -102,6 +101,10 @@ class Drawing:
 
 
 def _draw(batch: Batch, folder: Path) -> Drawn:
+    import matplotlib
+
+    from costseg.report.files import png_bytes, render, write_bytes
+
     drawn = []
     # A fixed title height: matplotlib's default measures every tick label at each draw to
     # lift the title over ticks at the top, and none of these figures has any.

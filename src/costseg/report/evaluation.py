@@ -7,37 +7,25 @@ theirs (:mod:`costseg.report.sweep`).
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from pathlib import Path
-
-import torch
-from matplotlib.figure import Figure
 from torch.utils.tensorboard import SummaryWriter
 
 from costseg.classes import CLASS_NAMES
-from costseg.report.cost_matrix import cost_matrix_figures
 from costseg.report.drawing import Batch, Drawing, save_and_log_all
 from costseg.report.figures import heatmap_grid_figures, mask_figures
 from costseg.report.files import write_csv, write_json, write_text
-from costseg.report.priors import plot_roi_map
+from costseg.report.plan_figures import plan_figures
 from costseg.report.tables import ROI_NAMES, compare_with_paper, console_table, paper_table
 from costseg.report.tensorboard import log_masks, log_scalars, log_table
 from costseg.results import EvalResults, GroupResult
-from costseg.rules import RuleGroup
 
 SUMMARY_COLUMNS = ("matrix", "class", "roi", "precision", "recall", "fp_segments", "fn_segments")
-
-
-def start_plan_figures(output_dir: Path, group: RuleGroup, roi: torch.Tensor | None) -> Drawing:
-    """Start drawing the figures known before the first image (the named rules' cost matrices,
-    the RoI map) on a forked process; pass the result to :func:`write_evaluation`."""
-    return Drawing(_plan_figures(group, roi), output_dir / "figures", workers=1)
 
 
 def write_evaluation(results: EvalResults, started: Drawing | None = None) -> None:
     """Write the named rules' results, then each sweep's, into ``results.output_dir``.
 
-    ``started``: :func:`start_plan_figures`, if called; else its figures are drawn here."""
+    ``started``: :func:`costseg.report.plan_figures.start_plan_figures`, if called; else those
+    figures are drawn here."""
     from costseg.report.calibration import write_calibration
     from costseg.report.sweep import write_sweeps
 
@@ -63,7 +51,7 @@ def write_evaluation(results: EvalResults, started: Drawing | None = None) -> No
                 ex.label.numpy(),
                 {n: ex.preds[k].numpy() for k, n in enumerate(named.group.names)},
             )
-        batches = [] if started else _plan_figures(named.group, results.roi)
+        batches = [] if started else plan_figures(named.group, results.roi)
         batches += write_sweeps(results) + _figures(results) + write_calibration(results)
         save_and_log_all(writer, batches, out / "figures", started)
     print(f"results written to {out}")
@@ -126,12 +114,6 @@ def _scalars(rows: list[dict], named: GroupResult) -> dict[str, float]:
     return scalars
 
 
-def _plan_figures(group: RuleGroup, roi: torch.Tensor | None) -> list[tuple[str, Batch]]:
-    costs = [(f"cost_{r.name}", r.cost, r.name) for r in group.rules if r.cost is not None]
-    batches = [("evaluation", cost_matrix_figures(costs, CLASS_NAMES))]
-    return batches + ([] if roi is None else [("evaluation", _roi_map(roi.cpu()))])
-
-
 def _figures(results: EvalResults) -> list[tuple[str, Batch]]:
     """The named rules' figures from their results, undrawn, in batches: figures of one kind
     are one figure redrawn."""
@@ -155,7 +137,3 @@ def _figures(results: EvalResults) -> list[tuple[str, Batch]]:
         for i, ex in enumerate(results.examples)
     )
     return [("evaluation", mask_figures(examples)), ("evaluation", heatmap_grid_figures(grids))]
-
-
-def _roi_map(roi) -> Iterator[tuple[str, Figure]]:
-    yield "roi_map", plot_roi_map(roi)

@@ -15,11 +15,13 @@ import os
 import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
-from matplotlib.figure import Figure
+
+if TYPE_CHECKING:  # matplotlib is imported where a figure is drawn, not with the writers
+    from matplotlib.figure import Figure
 
 
 def _atomic_write(path: str | os.PathLike, data: bytes) -> Path:
@@ -125,6 +127,7 @@ def save_figure(fig: Figure, path: str | os.PathLike, dpi: float = 100) -> Path:
 
     The image is ``figsize * dpi`` pixels (no tight bounding box), and the figure stays open.
 
+    >>> from matplotlib.figure import Figure
     >>> with tempfile.TemporaryDirectory() as d:
     ...     save_figure(Figure(figsize=(2, 1)), Path(d) / "f.png", dpi=10).read_bytes()[:4]
     b'\\x89PNG'
@@ -142,6 +145,7 @@ def render(fig: Figure, dpi: float = 100) -> np.ndarray:
     A figure drawn again (with new data) keeps its canvas, and with it the renderer's cache of
     text sizes.
 
+    >>> from matplotlib.figure import Figure
     >>> render(Figure(figsize=(2, 1)), dpi=10).shape
     (10, 20, 3)
     """
