@@ -56,6 +56,14 @@ def ml_cost(priors, lam=1.0):
     return (lam / priors).expand(len(priors), -1).clone().fill_diagonal_(0.0)
 
 
+@pytest.fixture(params=["compiled", "tensor operations"])
+def mixer(request, monkeypatch):
+    """Both CPU paths of decide_mixtures: numba's kernel, and _Mixer (which CUDA falls back to)."""
+    if request.param == "tensor operations":
+        monkeypatch.setenv("COSTSEG_NO_NUMBA", "1")
+    return request.param
+
+
 def smooth(shape, seed, scale=6.0):
     """Softmax of smooth random logits (the benchmark's recipe): unsure near borders."""
     gen = torch.Generator().manual_seed(seed)
@@ -182,7 +190,7 @@ def test_near_ties_within_float32_ulps(name):
 
 
 @pytest.mark.parametrize("n", [2, 3])
-def test_few_classes_near_ties(n):
+def test_few_classes_near_ties(n, mixer):
     """Few classes: few index bits, so the rounding bound itself must catch the near ties."""
     gen = torch.Generator().manual_seed(n)
     for _ in range(20):
@@ -198,7 +206,7 @@ def test_few_classes_near_ties(n):
         assert torch.equal(decide_mixtures(probs, vertices, weights).long(), loop)
 
 
-def test_costs_spanning_fourteen_orders_of_magnitude():
+def test_costs_spanning_fourteen_orders_of_magnitude(mixer):
     """Two tiny costs near a tie next to huge columns: the float64 reference's own rounding
     (relative to the huge shifted costs) decides there, and the fast path must follow it."""
     gen = torch.Generator().manual_seed(12)
@@ -265,7 +273,7 @@ def loop_of_decides(probs, weights, priors=None):
 
 
 @pytest.mark.parametrize("step", [0.1, 0.05])
-def test_mixtures_equal_decide_on_each_mixed_matrix(step):
+def test_mixtures_equal_decide_on_each_mixed_matrix(step, mixer):
     weights = barycentric_grid(step)
     probs = torch.cat([smooth((1, 19, 40, 48), 7), smooth((1, 19, 40, 48), 8, scale=1)])
     assert torch.equal(
@@ -277,7 +285,7 @@ def test_mixtures_equal_decide_on_each_mixed_matrix(step):
 
 
 @pytest.mark.parametrize("dtype", LOW_PRECISION)
-def test_mixtures_on_ties_and_low_precision(dtype):
+def test_mixtures_on_ties_and_low_precision(dtype, mixer):
     weights = barycentric_grid(0.1)
     probs = torch.cat([smooth((1, 19, 24, 24), 9, scale=2), torch.full((1, 19, 24, 24), 1 / 19)])
     probs = probs.to(dtype)
@@ -286,7 +294,7 @@ def test_mixtures_on_ties_and_low_precision(dtype):
     )
 
 
-def test_mixtures_near_ties_of_a_mixed_matrix():
+def test_mixtures_near_ties_of_a_mixed_matrix(mixer):
     weights = barycentric_grid(0.1)
     for k in (12, 40):  # ties constructed on one grid point's matrix
         probs = near_ties(mix_costs(VERTICES, weights)[k], 700, seed=k)
@@ -294,7 +302,17 @@ def test_mixtures_near_ties_of_a_mixed_matrix():
         assert torch.equal(mixed, loop_of_decides(probs, weights))
 
 
-def test_mixture_vertices_are_the_single_rules():
+def test_mixtures_on_non_finite_probabilities(mixer):
+    probs = smooth((1, 19, 12, 12), 11)
+    probs[0, 3, 0, :4] = torch.tensor([float("nan"), float("inf"), 0.0, 0.0])
+    probs[0, :, 1, 0] = float("inf")
+    weights = barycentric_grid(0.1)
+    assert torch.equal(
+        decide_mixtures(probs, VERTICES, weights).long(), loop_of_decides(probs, weights)
+    )
+
+
+def test_mixture_vertices_are_the_single_rules(mixer):
     probs = torch.cat([torch.full((1, 19, 3, 3), 1 / 19), smooth((1, 19, 3, 3), 10)])
     labels = decide_mixtures(probs, VERTICES, torch.eye(3, dtype=torch.float64))
     for v in range(3):

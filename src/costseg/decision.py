@@ -25,6 +25,8 @@ mixed. Where every vertex picks the same class with a certified gap, so does eve
 Elsewhere only classes that no vertex winner beats in every vertex can win; two or three such
 candidates are decided by the signs of mixed cost differences, more by mixing their costs; near
 ties go to stages 2 and 3 on the mixed matrix of ``mix_costs``: the result equals ``decide`` on it.
+On the CPU one compiled pass per chunk does the same pixel by pixel (:mod:`costseg.decision_numba`,
+each pixel's vertex costs in cache while all K mixtures are decided); on a GPU, Triton's kernel.
 """
 
 from __future__ import annotations
@@ -159,10 +161,19 @@ def decide_mixtures(
                 out[i, grid, pixel] = settled.to(dtype)
         return out.view(b, len(weights), h, w)
     mix = _Mixer(weights64, fast, mixed)
+    compiled = _cpu_kernel(fast, mix)
     for i in range(b):
         for s, q in fast.chunks(i):
-            exact_q = lambda pixels, i=i, s=s: fast.exact_q(i, s + pixels)  # noqa: E731
-            mix.chunk(fast.costs(q), exact_q, out[i, :, s : s + q.shape[1]])
+            labels = out[i, :, s : s + q.shape[1]]
+            if compiled is None:
+                exact_q = lambda pixels, i=i, s=s: fast.exact_q(i, s + pixels)  # noqa: E731
+                mix.chunk(fast.costs(q), exact_q, labels)
+                continue
+            grid, pixel = compiled.chunk(q, labels)
+            if len(grid):
+                pixels, inverse = torch.unique(pixel, return_inverse=True)
+                settled = fast.settle(fast.exact_q(i, s + pixels), mixed, grid, weights64, inverse)
+                labels[grid, pixel] = settled.to(dtype)
     return out.view(b, len(weights), h, w)
 
 
@@ -177,6 +188,18 @@ def _gpu_kernel(fast: _Fast):
     except ImportError:  # a CUDA build of torch without Triton
         return None
     return decision_triton
+
+
+def _cpu_kernel(fast: _Fast, mix: _Mixer):
+    """:class:`costseg.decision_numba.NumbaMixer` for CPU tensors where numba imports, else None
+    (``_Mixer``'s tensor operations)."""
+    if fast.probs.device.type != "cpu" or os.environ.get("COSTSEG_NO_NUMBA") == "1":
+        return None
+    try:
+        from costseg.decision_numba import NumbaMixer
+    except ImportError:
+        return None
+    return NumbaMixer(fast, mix.weights64, mix.gamma)
 
 
 def _check(probs: torch.Tensor) -> int:

@@ -1,8 +1,8 @@
 """The certified fast path behind :mod:`costseg.decision` (see its docstring for the method).
 
 float32 costs with a rounding certificate per pixel (``_Fast``, ``_top``), a float64 re-check of
-the pixels left open (``_top64``), the sequential float64 reference for true near ties
-(``_reference``), and the mixing of vertex cost maps over a grid of mixtures (``_Mixer``).
+the pixels left open (``_top64``), the float64 reference for true near ties (``_reference``), and
+the mixing of vertex cost maps over a grid of mixtures (``_Mixer``; on the CPU, numba's kernel).
 """
 
 from __future__ import annotations
