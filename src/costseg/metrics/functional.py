@@ -25,6 +25,7 @@ from torch import Tensor
 from costseg.classes import IGNORE_INDEX, NUM_CLASSES
 
 _EIGHT_CONNECTED = np.ones((3, 3), dtype=bool)
+CONFUSION_CHUNK = 1 << 20  # rule x pixel entries indexed at once in roi_confusion
 
 
 def _is_int(t: Tensor) -> bool:
@@ -112,12 +113,17 @@ def roi_confusion(
         rows = rows + roi.long().expand_as(target) * (n + 1)
     per_rule = r1 * (n + 1) * n
     offsets = torch.arange(rules.shape[1], device=preds.device) * per_rule
-    # In-place adds on int32 (when the bins fit) halve the memory traffic of this, the costly step.
+    # In-place adds on int32 (when the bins fit) halve the memory traffic of this, the costly step;
+    # chunks of pixels keep the K-fold index in cache (a sweep's is gigabytes at full size).
     dtype = torch.int32 if len(offsets) * per_rule < 2**31 else torch.long
-    index = rules.to(dtype, copy=True)
-    index += (rows * n).unsqueeze(1).to(dtype)
-    index += offsets.view(-1, 1, 1).to(dtype)
-    counts = torch.bincount(index.flatten(), minlength=len(offsets) * per_rule)
+    rules, rows = rules.flatten(2), (rows * n).flatten(1).unsqueeze(1).to(dtype)
+    step = max(1, CONFUSION_CHUNK // (rules.shape[0] * rules.shape[1]))
+    counts = torch.zeros(len(offsets) * per_rule, dtype=torch.long, device=preds.device)
+    for s in range(0, rules.shape[2], step):
+        index = rules[:, :, s : s + step].to(dtype, copy=True)
+        index += rows[:, :, s : s + step]
+        index += offsets.view(-1, 1).to(dtype)
+        counts += torch.bincount(index.flatten(), minlength=len(counts))
     counts = counts.view(-1, r1, n + 1, n)[:, :, :n]
     cm = torch.cat([counts.sum(1, keepdim=True), counts[:, 1:]], dim=1)
     return cm if preds.ndim == 4 else cm[0]
