@@ -161,7 +161,7 @@ def decide_mixtures(
                 out[i, grid, pixel] = settled.to(dtype)
         return out.view(b, len(weights), h, w)
     mix = _Mixer(weights64, fast, mixed)
-    compiled = _cpu_kernel(fast, mix)
+    compiled = _cpu_kernel(fast, mix, mixed)
     for i in range(b):
         for s, q in fast.chunks(i):
             labels = out[i, :, s : s + q.shape[1]]
@@ -172,7 +172,7 @@ def decide_mixtures(
             grid, pixel = compiled.chunk(q, labels)
             if len(grid):
                 pixels, inverse = torch.unique(pixel, return_inverse=True)
-                settled = fast.settle(fast.exact_q(i, s + pixels), mixed, grid, weights64, inverse)
+                settled = compiled.settle(fast.exact_q(i, s + pixels), grid, inverse)
                 labels[grid, pixel] = settled.to(dtype)
     return out.view(b, len(weights), h, w)
 
@@ -190,7 +190,7 @@ def _gpu_kernel(fast: _Fast):
     return decision_triton
 
 
-def _cpu_kernel(fast: _Fast, mix: _Mixer):
+def _cpu_kernel(fast: _Fast, mix: _Mixer, shifted: torch.Tensor):
     """:class:`costseg.decision_numba.NumbaMixer` for CPU tensors where numba imports, else None
     (``_Mixer``'s tensor operations)."""
     if fast.probs.device.type != "cpu" or os.environ.get("COSTSEG_NO_NUMBA") == "1":
@@ -199,7 +199,7 @@ def _cpu_kernel(fast: _Fast, mix: _Mixer):
         from costseg.decision_numba import NumbaMixer
     except ImportError:
         return None
-    return NumbaMixer(fast, mix.weights64, mix.gamma)
+    return NumbaMixer(fast, mix.weights64, mix.gamma, shifted)
 
 
 def _check(probs: torch.Tensor) -> int:

@@ -25,14 +25,14 @@ import numba
 import numpy as np
 import torch
 
-from costseg.decision_certified import _Fast
+from costseg.decision_certified import U64, _Fast, _reference
 
 TINY = 2.0**-120  # as in decision_certified
 UNDERFLOW = 2.0**-60  # x_b below it: never certified
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False, error_model="numpy")
-def _decide_pixels(costs, weights, params, labels, opened, start, stop):  # pragma: no cover
+def _decide_pixels(costs, weights, params, labels, opened, start, stop):
     """Pixels ``start:stop`` of a chunk; returns how many (mixture, pixel) pairs are open.
 
     Args:
@@ -136,6 +136,37 @@ def _decide_pixels(costs, weights, params, labels, opened, start, stop):  # prag
     return total
 
 
+@numba.njit(nogil=True, cache=True, boundscheck=False, error_model="numpy")
+def _settle_pairs(costs, weights, grid, pixel, gamma, eps, labels, unsure, start, stop):
+    """Stage 2 for (mixture, pixel) pairs ``start:stop``: ``_top64`` on the mixed float64 costs.
+
+    Args:
+        costs: (U, V, N + 1) float64 vertex costs of the U pixels (T last); weights: (K, V).
+        grid, pixel: (R,) each pair's mixture and row of ``costs``.
+        gamma: the rounding of the mixed costs; eps: the reference's, per T.
+        labels, unsure: (R,) outputs.
+    """
+    v_count, n = costs.shape[1], costs.shape[2] - 1
+    g = gamma / (1 - gamma)
+    for r in range(start, stop):
+        k, u = grid[r], pixel[r]
+        total = 0.0
+        for v in range(v_count):
+            total += weights[k, v] * costs[u, v, n]
+        lo, hi, arg = np.inf, np.inf, 0
+        for c in range(n):
+            y = 0.0
+            for v in range(v_count):
+                y += weights[k, v] * costs[u, v, c]
+            if y < lo:  # the first minimum, as torch's min
+                lo, hi, arg = y, lo, c
+            elif y < hi:
+                hi = y
+        need = 1.25 * (g * (lo + hi) + 2 * eps * (1 + g) * total) + 2.0**-900
+        labels[r] = arg
+        unsure[r] = not (total < np.inf and (hi - lo) * (1 - 4 * 2.0**-53) > need)
+
+
 class NumbaMixer:
     """Decisions of K mixtures, chunk by chunk, on the CPU's cores (see the module docstring).
 
@@ -145,8 +176,13 @@ class NumbaMixer:
         mix_gamma: the rounding of the mixed costs (``_Mixer.gamma``).
     """
 
-    def __init__(self, fast: _Fast, weights: torch.Tensor, mix_gamma: float) -> None:
+    def __init__(
+        self, fast: _Fast, weights: torch.Tensor, mix_gamma: float, shifted: torch.Tensor
+    ) -> None:
         self.fast, self.weights = fast, weights.t().float().contiguous().numpy()  # (V, K)
+        self.weights64, self.shifted = weights.double().contiguous().numpy(), shifted
+        v = len(self.weights)  # the float64 re-check: V more nonnegative terms
+        self.gamma64 = (1 + fast.gamma64) * (1 + v * U64 / (1 - v * U64)) - 1
         gamma, eps, rounding = fast.gamma, fast.eps, 1 + 2.0**-20  # the float tests' rounding
         self.params = np.array(
             [
@@ -163,23 +199,44 @@ class NumbaMixer:
         """(N, P) float32 q → (K, P) labels written into ``labels``; returns the mixtures and
         pixels of the pairs left open."""
         # The vertex costs pixel-major, (P, V, N + 1): each pixel's adjacent.
-        costs = (q.t() @ self.fast.weight.t()).view(-1, *self.fast.rows).numpy()
+        costs = (q.detach().t() @ self.fast.weight.t()).view(-1, *self.fast.rows).numpy()
         p, k = costs.shape[0], self.weights.shape[1]
         # Labels of this chunk only: K rows of the whole image lie too far apart (one page
         # each per pixel) for the address translation caches.
         decided = np.empty((k, p), labels.numpy().dtype)
         opened = np.zeros((p, k), np.uint8)  # calloc: pages of contested pixels only are touched
         args = (costs, self.weights, self.params, decided, opened)
-        step = -(-p // (4 * _threads()._max_workers))  # a few pieces per thread: balance
-        jobs = [
-            _threads().submit(_decide_pixels, *args, s, min(s + step, p)) for s in range(0, p, step)
-        ]
-        total = sum(job.result() for job in jobs)
+        total = sum(_in_pieces(_decide_pixels, args, p))
         labels.copy_(torch.from_numpy(decided))
         if not total:
             return torch.zeros(0, dtype=torch.long), torch.zeros(0, dtype=torch.long)
         pixel, grid = torch.from_numpy(opened).nonzero().unbind(1)
         return grid, pixel
+
+    def settle(self, q: torch.Tensor, grid: torch.Tensor, pixel: torch.Tensor) -> torch.Tensor:
+        """Labels (R,) of the pairs left open: stage 2 here, stage 3 (the reference) in torch.
+
+        Args:
+            q: (U, N) float64 ``p / π`` of the pixels (``_Fast.exact_q``).
+            grid, pixel: (R,) each pair's mixture and row of ``q``.
+        """
+        fast = self.fast
+        costs = (q @ fast.weight64.t()).view(len(q), *fast.rows).numpy()
+        labels, unsure = np.empty(len(grid), np.int64), np.empty(len(grid), np.bool_)
+        args = (costs, self.weights64, grid.numpy(), pixel.numpy(), self.gamma64, fast.eps)
+        _in_pieces(_settle_pairs, (*args, labels, unsure), len(grid))
+        labels, unsure = torch.from_numpy(labels), torch.from_numpy(unsure).nonzero()[:, 0]
+        if len(unsure):
+            matrices = self.shifted[grid[unsure]]
+            labels[unsure] = _reference(q[pixel[unsure]], matrices)
+        return labels
+
+
+def _in_pieces(kernel, args: tuple, count: int) -> list:
+    """``kernel(*args, start, stop)`` over ``range(count)`` in a few pieces per thread."""
+    step = max(1, -(-count // (4 * _threads()._max_workers)))
+    pieces = [(s, min(s + step, count)) for s in range(0, count, step)]
+    return [job.result() for job in [_threads().submit(kernel, *args, *p) for p in pieces]]
 
 
 @cache
