@@ -4,7 +4,8 @@
 # 1. the decision layer's Triton kernel against the float64 reference, on the GPU;
 # 2. scripts/bench_decision.py on the GPU: decide ÷ argmax, mixtures ÷ decide at (1, 19, 1024, 2048);
 # 3. scripts/bench_pipeline.py's full-resolution section: the 231-point sweep per 1024 x 2048 image
-#    (8 stand-in scenes), and where a sweep's time goes (cProfile, 4 images).
+#    (8 stand-in scenes), and where a sweep's time goes (cProfile, 4 images);
+# 4. one evaluation with every figure, written by forked processes from results on the GPU.
 # Runs from the source tree (PYTHONPATH=src): no installation needed beyond torch's image.
 set -uo pipefail
 ckpt=$1
@@ -28,4 +29,15 @@ opts = EvalOptions(ckpt_path=sys.argv[1], data_root="/tmp/standin4", sweep=0.05,
 run(plan(opts))  # warm-up
 cProfile.run("run(plan(opts))", "/tmp/sweep.prof")
 pstats.Stats("/tmp/sweep.prof").sort_stats("cumulative").print_stats(25)
+PY
+python - "$ckpt" "$out" <<'PY' | tail -n 3
+import sys
+from pathlib import Path
+from costseg.evaluation import evaluate
+from costseg.options import EvalOptions
+
+out = Path(sys.argv[2]) / "evaluation"
+evaluate(EvalOptions(ckpt_path=sys.argv[1], data_root="/tmp/standin4", sweep=0.25, limit=2,
+                     overwrite=True, output_dir=str(out), progress=False))
+print(len(list((out / "figures").glob("*.png"))), "figures written")
 PY

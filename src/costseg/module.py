@@ -33,7 +33,7 @@ class SegmentationModule(L.LightningModule):
 
     Args:
         num_classes: output classes (19 Cityscapes train classes).
-        backbone: a torchvision backbone name (see ``costseg.models.deeplabv3plus.BACKBONES``).
+        backbone: a backbone name (see ``costseg.models.deeplabv3plus.BACKBONES``).
         output_stride: 16 or 8.
         decoder_channels: width of ASPP and decoder (256 in the paper's model).
         backbone_weights: optional local file with ImageNet weights for the backbone.

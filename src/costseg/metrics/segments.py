@@ -43,6 +43,9 @@ def _threads() -> ThreadPoolExecutor:
     return ThreadPoolExecutor(len(os.sched_getaffinity(0)), thread_name_prefix="segments")
 
 
+os.register_at_fork(after_in_child=_threads.cache_clear)  # a forked child has none of its threads
+
+
 def _rule_errors(
     pred_masks: np.ndarray, gt_mask: np.ndarray, roi: np.ndarray | None, num_rois: int, maps: bool
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
