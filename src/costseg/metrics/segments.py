@@ -82,8 +82,11 @@ def _distinct_errors(
 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """Counts (U, 4, R+1) and, if ``maps``, FP / FN masks (U, H, W) of U masks; see above."""
     gt = label_segments(gt_mask, roi, num_rois)  # does not depend on the rule
-    # One labelling per mask, on threads: scipy's labelling and numpy's large-array work run
-    # without the GIL for the most part.
+    # One labelling per mask, on threads: scipy's labelling, numpy's large-array work and the
+    # compiled counting run without the GIL for the most part.
+    if not maps and (counting := _compiled_counts()):
+        counts = _threads().map(lambda m: counting(m, gt_mask, roi, num_rois, gt), pred_masks)
+        return np.stack(list(counts)), None, None
     errors = list(
         _threads().map(lambda m: mask_segment_errors(m, gt_mask, roi, num_rois, gt), pred_masks)
     )
@@ -91,6 +94,16 @@ def _distinct_errors(
     if not maps:
         return counts, None, None
     return counts, np.stack([e.fp_mask for e in errors]), np.stack([e.fn_mask for e in errors])
+
+
+@functools.cache
+def _compiled_counts():
+    """:func:`costseg.metrics.segment_counts.mask_counts` where numba imports, else None."""
+    try:
+        from costseg.metrics.segment_counts import mask_counts
+    except ImportError:
+        return None
+    return mask_counts
 
 
 class SegmentErrors(SumMetric):
