@@ -13,6 +13,7 @@ reported images and the metrics' sums are merged.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -101,8 +102,9 @@ def plan(opts: EvalOptions) -> EvalPlan:
     )
 
 
-def run(plan: EvalPlan) -> EvalResults:
-    """Calibrate and certify on the held-out images, then one pass over the reported ones."""
+def run(plan: EvalPlan, after_batch: Callable[[list[Example]], None] | None = None) -> EvalResults:
+    """Calibrate and certify on the held-out images, then one pass over the reported ones;
+    ``after_batch(examples)`` after each of its batches (e.g. to start drawing figures)."""
     opts, extra = plan.options, {}
     scaling = Scaling()
     if opts.calibrate:
@@ -126,10 +128,10 @@ def run(plan: EvalPlan) -> EvalResults:
             opts.guarantee_method,
             plan.class_ids,
         )
-    return _report_pass(plan, scaling, extra)
+    return _report_pass(plan, scaling, extra, after_batch)
 
 
-def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict) -> EvalResults:
+def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> EvalResults:
     opts, device = plan.options, plan.device
     metrics = [
         GroupMetrics(
@@ -160,6 +162,8 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict) -> EvalResults:
             ]
             writer.save_predictions(batch.stems, preds[0])
             _keep_examples(examples, opts.num_examples, batch, preds[0])
+            if after_batch:
+                after_batch(examples)
     extra["ece"] = {k: m.compute() for k, m in ece.items()}
     return EvalResults(
         output_dir=plan.output_dir,
@@ -178,24 +182,23 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict) -> EvalResults:
 def evaluate(opts: EvalOptions) -> EvalResults:
     """Plan, run, and (on rank 0) write every output; returns the results.
 
-    The figures known from the plan are drawn on a forked process while the images are
-    evaluated."""
-    planned, started = plan(opts), None
+    Figures known before the loop ends are drawn on forked processes meanwhile."""
+    planned, early = plan(opts), None
     if _rank() == 0:
-        from costseg.report.plan_figures import start_plan_figures
+        from costseg.report.early_figures import EarlyFigures
 
         roi = planned.priors.roi_map()
-        started = start_plan_figures(planned.output_dir, planned.groups[0], roi)
+        early = EarlyFigures(planned.output_dir, planned.groups[0], roi, opts.num_examples)
     try:
-        results = run(planned)
+        results = run(planned, early.after_batch if early else None)
     except BaseException:
-        if started:
-            started.cancel()
+        if early:
+            early.cancel()
         raise
-    if started:
+    if early:
         from costseg.report.evaluation import write_evaluation
 
-        write_evaluation(results, started)
+        write_evaluation(results, early)
     return results
 
 

@@ -17,21 +17,28 @@ import queue
 import traceback
 from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
     from torch.utils.tensorboard import SummaryWriter
 
+
 Batch = Iterable[tuple[str, "Figure"]]
 Drawn = list[tuple[str, tuple[int, ...]]]  # (tag, (H, W, 3)) of each figure of a batch
+
+
+class Started(Protocol):
+    """Drawing started earlier (a :class:`Drawing`, ``report.early_figures.EarlyFigures``)."""
+
+    def finish(self) -> list[tuple[str, Drawn]]: ...
 
 
 def save_and_log_all(
     writer: SummaryWriter,
     batches: Sequence[tuple[str, Batch]],
     folder: Path,
-    started: Drawing | None = None,
+    started: Started | None = None,
 ) -> None:
     """Draw each ``(prefix, batch)`` to ``folder/<tag>.png`` and to TensorBoard as
     ``prefix/<tag>``, on as many processes as there are usable cores; ``started``: batches

@@ -10,10 +10,10 @@ from __future__ import annotations
 from torch.utils.tensorboard import SummaryWriter
 
 from costseg.classes import CLASS_NAMES
-from costseg.report.drawing import Batch, Drawing, save_and_log_all
-from costseg.report.figures import heatmap_grid_figures, mask_figures
+from costseg.report.drawing import Batch, save_and_log_all
+from costseg.report.early_figures import EarlyFigures, example_figures, plan_figures
+from costseg.report.figures import heatmap_grid_figures
 from costseg.report.files import write_csv, write_json, write_text
-from costseg.report.plan_figures import plan_figures
 from costseg.report.tables import ROI_NAMES, compare_with_paper, console_table, paper_table
 from costseg.report.tensorboard import log_masks, log_scalars, log_table
 from costseg.results import EvalResults, GroupResult
@@ -21,11 +21,10 @@ from costseg.results import EvalResults, GroupResult
 SUMMARY_COLUMNS = ("matrix", "class", "roi", "precision", "recall", "fp_segments", "fn_segments")
 
 
-def write_evaluation(results: EvalResults, started: Drawing | None = None) -> None:
+def write_evaluation(results: EvalResults, early: EarlyFigures | None = None) -> None:
     """Write the named rules' results, then each sweep's, into ``results.output_dir``.
 
-    ``started``: :func:`costseg.report.plan_figures.start_plan_figures`, if called; else those
-    figures are drawn here."""
+    ``early``: the figures started while the images were evaluated; the others are drawn here."""
     from costseg.report.calibration import write_calibration
     from costseg.report.sweep import write_sweeps
 
@@ -51,9 +50,11 @@ def write_evaluation(results: EvalResults, started: Drawing | None = None) -> No
                 ex.label.numpy(),
                 {n: ex.preds[k].numpy() for k, n in enumerate(named.group.names)},
             )
-        batches = [] if started else plan_figures(named.group, results.roi)
+        batches = [] if early and early.plan_started else plan_figures(named.group, results.roi)
+        if not (early and early.examples_started):
+            batches.append(("evaluation", example_figures(named.group.names, results.examples)))
         batches += write_sweeps(results) + _figures(results) + write_calibration(results)
-        save_and_log_all(writer, batches, out / "figures", started)
+        save_and_log_all(writer, batches, out / "figures", early)
     print(f"results written to {out}")
 
 
@@ -127,13 +128,4 @@ def _figures(results: EvalResults) -> list[tuple[str, Batch]]:
             for c, cls in enumerate(results.class_ids)
         }
         grids.append((f"{kind.lower()}_segments", maps, kind))
-    examples = (
-        (
-            f"masks_{i}",
-            ex.image.permute(1, 2, 0).numpy(),
-            ex.label.numpy(),
-            {n: ex.preds[k].numpy() for k, n in enumerate(names)},
-        )
-        for i, ex in enumerate(results.examples)
-    )
-    return [("evaluation", mask_figures(examples)), ("evaluation", heatmap_grid_figures(grids))]
+    return [("evaluation", heatmap_grid_figures(grids))]
