@@ -79,3 +79,18 @@ def test_a_started_drawing_draws_while_the_caller_goes_on(tmp_path):
         assert time.monotonic() < deadline, "the worker drew nothing"
         time.sleep(0.05)
     assert drawing.finish() == [("p", [("early", (150, 200, 3))])]
+
+
+def test_redrawing_only_the_changing_artists_paints_the_same_pixels():
+    from costseg.costs import barycentric_grid
+    from costseg.report.files import redraw_only, render
+    from costseg.report.ternary import ternary_figures
+
+    weights = barycentric_grid(0.1)
+    rng = np.random.default_rng(0)
+    panels = [(f"t{i}", rng.random(len(weights)), f"panel {i}", f"m{i % 2}") for i in range(3)]
+    repainted = [render(fig) for _, fig in ternary_figures(weights, panels)]
+    full = [render(redraw_only(fig, [])) for _, fig in ternary_figures(weights, panels)]
+    assert len({image.tobytes() for image in full}) == 3  # the panels differ
+    for a, b in zip(repainted, full, strict=True):
+        np.testing.assert_array_equal(a, b)

@@ -143,7 +143,8 @@ def render(fig: Figure, dpi: float = 100) -> np.ndarray:
     """Draw a figure into an (H, W, 3) uint8 RGB array (``figsize * dpi`` pixels).
 
     A figure drawn again (with new data) keeps its canvas, and with it the renderer's cache of
-    text sizes.
+    text sizes. A figure marked by :func:`redraw_only` is drawn in full once; later calls paint
+    only its changing artists over a copy of the rest.
 
     >>> from matplotlib.figure import Figure
     >>> render(Figure(figsize=(2, 1)), dpi=10).shape
@@ -151,10 +152,30 @@ def render(fig: Figure, dpi: float = 100) -> np.ndarray:
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-    fig.set_dpi(dpi)
     canvas = fig.canvas if isinstance(fig.canvas, FigureCanvasAgg) else FigureCanvasAgg(fig)
-    canvas.draw()
+    changing, background = getattr(fig, "_costseg_redraw", ((), None))
+    if background is not None and background[0] == dpi:
+        canvas.restore_region(background[1])
+    else:
+        fig.set_dpi(dpi)
+        for artist in changing:
+            artist.set_visible(False)
+        canvas.draw()
+        if changing:  # the unchanging rest, to paint the changing artists over next time
+            fig._costseg_redraw = (changing, (dpi, canvas.copy_from_bbox(fig.bbox)))
+        for artist in changing:
+            artist.set_visible(True)
+    for artist in changing:
+        fig.draw_artist(artist)
     return np.asarray(canvas.buffer_rgba())[..., :3].copy()
+
+
+def redraw_only(fig: Figure, changing: Sequence) -> Figure:
+    """Mark ``fig`` so that :func:`render` repaints only ``changing`` artists (drawn in this
+    order, over everything else) after its first drawing: for a figure redrawn with new data
+    whose layout, axes and text otherwise stay the same."""
+    fig._costseg_redraw = (tuple(changing), None)
+    return fig
 
 
 def png_bytes(image: np.ndarray) -> bytes:

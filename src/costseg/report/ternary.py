@@ -22,6 +22,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Polygon
 
 from costseg.report.figures import freeze_layout
+from costseg.report.files import redraw_only
 
 ArrayLike = np.ndarray | torch.Tensor
 LABELS = ("Robotistic", "Altruistic", "Egoistic")
@@ -142,10 +143,10 @@ def ternary_figures(
             bar = fig.colorbar(cells, ax=ax, shrink=0.8)
             fig.supxlabel(note, fontsize="small")
         cells.set_array(v)
-        ax.set_title(title)
+        ax.set_title(title, y=1.0)  # a fixed height: no tick lifts it (axes off)
         bar.set_label(cbar_label)
         if first:
-            freeze_layout(fig)
+            redraw_only(freeze_layout(fig), [cells, ax.title, bar.ax.yaxis.label])
         yield tag, fig
 
 
@@ -244,9 +245,10 @@ def edge_tradeoff_figures(
                 edges.append((points, lines))
                 _edge_axes(ax, i, j, vertex_labels, len(points) > 0)
             axes[0].set_ylabel("%")
-            axes[0].legend(loc="lower left")
+            legend = axes[0].legend(loc="lower left")
             fig.supxlabel(note, fontsize="small")
-            freeze_layout(fig)
+            lines = [line for _, pair in edges for line in pair]
+            redraw_only(freeze_layout(fig), [*lines, legend])  # the legend over the lines
         for points, lines in edges:
             for line, values in zip(lines, metrics.values(), strict=True):
                 line.set_ydata(100 * values[points])
