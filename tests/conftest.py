@@ -59,6 +59,15 @@ def write_cityscapes_item(
 
 
 @pytest.fixture
+def one_thread():
+    """Small tensors: on a busy CPU, syncing OpenMP threads costs more than the math."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.fixture
 def cityscapes_root(tmp_path: Path) -> Path:
     """A Cityscapes tree (``CITYSCAPES_FILES``, ``CITYSCAPES_SIZE``) under ``tmp_path``."""
     root = tmp_path / "cityscapes"

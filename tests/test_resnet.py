@@ -9,7 +9,6 @@ from __future__ import annotations
 import dataclasses
 import subprocess
 import sys
-from collections.abc import Iterator
 
 import pytest
 import torch
@@ -23,14 +22,7 @@ from costseg.models.aspp import ASPP
 from costseg.models.deeplabv3plus import DeepLabV3Plus
 from costseg.models.resnet import RESNETS, ResNetTrunk
 
-
-@pytest.fixture(autouse=True)
-def _one_thread() -> Iterator[None]:
-    """Tiny tensors: on a busy CPU, syncing 2 OpenMP threads costs far more than the math."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def _dilate(stage: nn.Module, dilation: int) -> None:
