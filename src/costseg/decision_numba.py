@@ -2,7 +2,7 @@
 
 The same method as :class:`costseg.decision_certified._Mixer`, which runs it as a sequence of
 tensor operations over a chunk, each a pass over memory; here each pixel's V vertex costs
-(float32, ``_Fast.costs``) stay in registers while all K mixtures are decided:
+(float32, as ``_Fast.costs``, pixel-major) stay in cache while all K mixtures are decided:
 
 1. every vertex's argmin and runner-up, certified as in ``_top`` (gap and floor);
 2. where every vertex picks the same class with a certified gap, every mixture picks it;
@@ -11,8 +11,9 @@ tensor operations over a chunk, each a pass over memory; here each pixel's V ver
 4. else, per mixture, the candidates' mixed costs ``Σ_v w_kv x_v`` and ``T``, their argmin
    (lowest class on ties) and the same certificate with the mixing's rounding in ``γ``.
 
-Pairs left open (and every pair of a pixel whose ``T`` is not finite) are flagged for the float64
-re-check. Compiled on first use and cached beside this file.
+Pairs left open (and every pair of a pixel whose ``T`` is not finite) go to the float64 re-check,
+also compiled (``_settle_pairs``, stage 2), then to the reference. Compiled on first use and
+cached beside this file.
 """
 
 from __future__ import annotations
