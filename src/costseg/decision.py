@@ -191,9 +191,11 @@ def _gpu_kernel(fast: _Fast):
 
 
 def _cpu_kernel(fast: _Fast, mix: _Mixer, shifted: torch.Tensor):
-    """:class:`costseg.decision_numba.NumbaMixer` for CPU tensors where numba imports, else None
-    (``_Mixer``'s tensor operations)."""
-    if fast.probs.device.type != "cpu" or os.environ.get("COSTSEG_NO_NUMBA") == "1":
+    """:class:`costseg.decision_numba.NumbaMixer` for a grid of mixtures (more than vertices) of
+    CPU tensors where numba imports, else None (``_Mixer``'s tensor operations). A few named
+    rules do not pay for importing numba (about 0.8 s before the first image)."""
+    k, v = mix.weights64.shape
+    if fast.probs.device.type != "cpu" or k <= v or os.environ.get("COSTSEG_NO_NUMBA") == "1":
         return None
     try:
         from costseg.decision_numba import NumbaMixer
