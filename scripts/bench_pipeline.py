@@ -9,7 +9,7 @@ Sections:
    `evaluate.py` from start to its first image (when its progress bar counts the first of two
    images), each as a fresh process;
 2. the 231-point sweep (step 0.05) ÷ a single-rule evaluation on the toy validation set,
-   network included (the loop only, outputs not written);
+   network included (the time until the outputs are written);
 3. figures: the share of an evaluation of 20 toy images spent writing tables and figures;
 4. full-resolution: section 2 on ``--images`` stand-in scenes written at 1024 × 2048 by
    scripts/toy_as_cityscapes.py, and the sweep's seconds per image.
@@ -110,7 +110,7 @@ def bench_sweep(name: str, out: Path, images: int | None = None, **options) -> N
     evaluation_seconds(single)  # warm-up: caches, thread pools
     t_single = evaluation_seconds(single)[0]
     t_sweep = evaluation_seconds(sweep)[0]
-    print(f"value-space sweep, {name} (network included, outputs not written):")
+    print(f"value-space sweep, {name} (network included, writing the outputs not timed):")
     print(f"  single rule {t_single:7.1f} s   231-point sweep {t_sweep:7.1f} s")
     print(f"  sweep / single rule            {t_sweep / t_single:8.2f}   (target <= 5)")
     if images:

@@ -101,12 +101,11 @@ class EvalResults:
     num_images: int = 0
     extra: dict = field(default_factory=dict)
 
-    def __post_init__(self) -> None:
+    def __post_init__(self) -> None:  # the metrics' sums may be on a GPU (examples, roi: CPU)
         for result in self.groups:
             result.pixels, result.segments = _cpu(result.pixels), _cpu(result.segments)
             result.per_image = _cpu(result.per_image)
-        self.examples = _cpu(self.examples)
-        self.roi, self.extra = _cpu(self.roi), _cpu(self.extra)
+        self.extra = _cpu(self.extra)
 
     def group(self, kind: str) -> GroupResult | None:
         """The result of the group of ``kind`` ("rules", "grid", "alpha"), if evaluated."""
@@ -114,16 +113,11 @@ class EvalResults:
 
 
 def _cpu(value):
-    """``value`` with every tensor in it (in dicts, lists, tuples, examples) on the CPU."""
+    """``value`` with every tensor in it (in dicts and lists) on the CPU."""
     if isinstance(value, torch.Tensor):
         return value.cpu()
     if isinstance(value, dict):
         return {k: _cpu(v) for k, v in value.items()}
     if isinstance(value, list):
         return [_cpu(v) for v in value]
-    if isinstance(value, tuple):
-        items = [_cpu(v) for v in value]
-        return type(value)(*items) if hasattr(value, "_fields") else tuple(items)
-    if isinstance(value, Example):
-        return Example(_cpu(value.image), _cpu(value.label), _cpu(value.preds))
     return value
