@@ -39,6 +39,8 @@ import torch
 from costseg.costs import mix_costs, symmetric_cost
 from costseg.decision_certified import U64, _Fast, _Mixer, _top
 
+COMPILED_MIN_PIXELS = 1 << 20  # single rules: numba's kernel from this image size on
+
 
 def _exact_precision(fn):
     """Run ``fn`` outside autocast: mixed-precision validation must not lower the costs' float32
@@ -95,12 +97,17 @@ def decide(
             if len(redo):
                 out[i, redo] = fast.settle(fast.exact_q(i, redo), shifted)
         return out.view(b, h, w)
+    rule = _sparse_rule(fast, cost)
     for i in range(b):
         redo, q64 = [], []
-        for s, q in fast.chunks(i):
+        for s, q in fast.chunks(i, rule and rule.step):
             labels = out[i, s : s + q.shape[1]]
-            _, open_ = _top(fast.costs(q)[0], fast.gamma, fast.eps, *fast.code, True, labels)
-            redo.append(open_.nonzero()[:, 0] + s)
+            if rule is None:
+                _, open_ = _top(fast.costs(q)[0], fast.gamma, fast.eps, *fast.code, True, labels)
+                open_ = open_.nonzero()[:, 0]
+            else:
+                open_ = rule.chunk(q, labels)
+            redo.append(open_ + s)
             q64.append(fast.exact_q(i, redo[-1]))  # while the chunk is in cache
         redo = torch.cat(redo)
         if len(redo):
@@ -190,18 +197,36 @@ def _gpu_kernel(fast: _Fast):
     return decision_triton
 
 
+def _sparse_rule(fast: _Fast, cost: torch.Tensor):
+    """:class:`costseg.decision_sparse.SparseRule` for CPU images of at least
+    ``COMPILED_MIN_PIXELS`` where numba imports, else None (matmuls and ``_top``). Importing numba
+    and loading the kernel (about 0.3 s) pays off at Cityscapes scale, not for one small image."""
+    probs = fast.probs
+    if probs.device.type != "cpu" or probs.shape[2] < COMPILED_MIN_PIXELS or _no_numba():
+        return None
+    try:
+        from costseg.decision_sparse import SparseRule
+    except ImportError:
+        return None
+    return SparseRule(fast, cost)
+
+
 def _cpu_kernel(fast: _Fast, mix: _Mixer, shifted: torch.Tensor):
     """:class:`costseg.decision_numba.NumbaMixer` for a grid of mixtures (more than vertices) of
     CPU tensors where numba imports, else None (``_Mixer``'s tensor operations). A few named
     rules do not pay for importing numba (about 0.8 s before the first image)."""
     k, v = mix.weights64.shape
-    if fast.probs.device.type != "cpu" or k <= v or os.environ.get("COSTSEG_NO_NUMBA") == "1":
+    if fast.probs.device.type != "cpu" or k <= v or _no_numba():
         return None
     try:
         from costseg.decision_numba import NumbaMixer
     except ImportError:
         return None
     return NumbaMixer(fast, mix.weights64, mix.gamma, shifted)
+
+
+def _no_numba() -> bool:
+    return os.environ.get("COSTSEG_NO_NUMBA") == "1"
 
 
 def _check(probs: torch.Tensor) -> int:

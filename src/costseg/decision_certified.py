@@ -74,10 +74,10 @@ class _Fast:
             q = q / prior.double()
         return q.t()
 
-    def chunks(self, image: int) -> Iterator[tuple[int, torch.Tensor]]:
-        """(first pixel, (N, P) float32 q) for every chunk of pixels of one image."""
+    def chunks(self, image: int, step: int | None = None) -> Iterator[tuple[int, torch.Tensor]]:
+        """(first pixel, (N, P) float32 q) for every chunk of ``step`` pixels of one image."""
         probs = self.probs[image]
-        step = CPU_CHUNK if probs.device.type == "cpu" else GPU_CHUNK
+        step = step or (CPU_CHUNK if probs.device.type == "cpu" else GPU_CHUNK)
         for s in range(0, probs.shape[1], step):
             q = probs[:, s : s + step]
             if self.pixel_priors is not None:

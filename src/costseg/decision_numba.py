@@ -233,9 +233,11 @@ class NumbaMixer:
         return labels
 
 
-def _in_pieces(kernel, args: tuple, count: int) -> list:
-    """``kernel(*args, start, stop)`` over ``range(count)`` in a few pieces per thread."""
+def _in_pieces(kernel, args: tuple, count: int, align: int = 1) -> list:
+    """``kernel(*args, start, stop)`` over ``range(count)`` in a few pieces per thread, each
+    starting at a multiple of ``align``."""
     step = max(1, -(-count // (4 * _threads()._max_workers)))
+    step = -(-step // align) * align
     pieces = [(s, min(s + step, count)) for s in range(0, count, step)]
     return [job.result() for job in [_threads().submit(kernel, *args, *p) for p in pieces]]
 

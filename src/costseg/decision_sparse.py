@@ -1,0 +1,190 @@
+"""Single-rule decisions on the CPU in one compiled pass (numba), from a sparse matrix.
+
+A column constant changes no decision (:mod:`costseg.decision`), so with ``c_k`` the most
+frequent entry of column k, ``C = 1 cᵀ + E`` decides as ``E`` does: ``argmin_j Σ_k E_jk q_k``.
+E is sparse for the usual matrices (robotistic: ``-I``; the paper's others add the large costs
+of missing a vulnerable class), so a pixel costs nnz(E) multiply-adds instead of N², and the
+kernel reads each block of probabilities once, from the cache, for the costs, the best two and
+the certificate.
+
+**Certificate.** Float32 sums of terms of either sign err by at most ``γ Σ_k |E_jk| q_k <= γ M``
+with ``M = Σ_k m_k q_k``, ``m_k = max_j |E_jk|``; the reference (float64, shifted by the column
+maxima, which differs from E by a column constant) by at most ``eps T`` (``_Fast``'s T). So the
+smallest sum a and the runner-up b certify the reference's decision a when
+``x_b - x_a > 2γ M + 2 eps T``: a row ``bound`` summed like a cost, rounded up, plus a tiny
+constant for underflow. A NaN or infinite q makes that bound NaN or infinite: never certified.
+The pixels left open go to ``_Fast.settle`` (float64 certificate, then the reference).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+import torch
+
+from costseg.decision_certified import TINY, U32, U64, _Fast
+from costseg.decision_numba import _in_pieces
+
+BLOCK = 512  # pixels decided together: (N x BLOCK) float32 probabilities stay in cache
+CHUNK = 1 << 20  # pixels converted to float32 q at once (other types, pixel-wise priors)
+ROUNDING = 1 + 2.0**-20  # rounds the float64 bound's coefficients up past their float32 casts
+
+
+# fastmath "contract" only: multiply-adds fused (one rounding less), NaN and inf kept.
+JIT = dict(nogil=True, cache=True, boundscheck=False, error_model="numpy", fastmath={"contract"})
+
+
+@numba.njit(**JIT)
+def _sum_terms(q, s, cols, vals, first, last, out):
+    """``out = Σ_t vals[t] q[cols[t], s : s + BLOCK]`` for t in ``first:last``, four terms per
+    pass over ``out`` (loads and stores, not arithmetic, bound a pass; any order of summation
+    keeps the rounding bound)."""
+    out[:] = 0
+    t = first
+    while t + 4 <= last:
+        a, b, c, d = vals[t], vals[t + 1], vals[t + 2], vals[t + 3]
+        row_a, row_b = q[cols[t], s : s + BLOCK], q[cols[t + 1], s : s + BLOCK]
+        row_c, row_d = q[cols[t + 2], s : s + BLOCK], q[cols[t + 3], s : s + BLOCK]
+        for i in range(BLOCK):
+            out[i] += (a * row_a[i] + b * row_b[i]) + (c * row_c[i] + d * row_d[i])
+        t += 4
+    if t + 2 <= last:
+        a, b = vals[t], vals[t + 1]
+        row_a, row_b = q[cols[t], s : s + BLOCK], q[cols[t + 1], s : s + BLOCK]
+        for i in range(BLOCK):
+            out[i] += a * row_a[i] + b * row_b[i]
+        t += 2
+    if t < last:
+        a, row_a = vals[t], q[cols[t], s : s + BLOCK]
+        for i in range(BLOCK):
+            out[i] += a * row_a[i]
+
+
+@numba.njit(**JIT)
+def _decide_blocks(q, matrix, certificate, labels, opened, start, stop):
+    """Pixels ``start:stop`` (whole blocks) of (N, P) float32 q; returns how many are open.
+
+    Args:
+        matrix: (indptr, cols, vals, sizes): the lower-bound matrix's nonzero entries (float32)
+            row by row, and their magnitudes.
+        certificate: (coef, size_coef, reference): per decided class, float32 coefficients of
+            ``Σ_k q_k`` and of the row's magnitude M_a; that of ``Σ_k q_k`` for the reference's
+            rounding alone.
+        labels: (P,) int64 output; opened: (P,) uint8 output, 1 where open.
+    """
+    indptr, cols, vals, sizes = matrix
+    coef, size_coef, reference = certificate
+    n = q.shape[0]
+    cost, best = np.empty(BLOCK, np.float32), np.empty(BLOCK, np.float32)
+    second, arg = np.empty(BLOCK, np.float32), np.empty(BLOCK, np.float32)
+    total, classes, ones = np.empty(BLOCK, np.float32), np.arange(n), np.ones(n, np.float32)
+    count = 0
+    for s in range(start, stop, BLOCK):
+        _sum_terms(q, s, classes, ones, 0, n, total)
+        best[:], second[:], arg[:] = np.inf, np.inf, 0
+        for j in range(n):
+            _sum_terms(q, s, cols, vals, indptr[j], indptr[j + 1], cost)
+            label = np.float32(j)
+            for i in range(BLOCK):  # branch-free, so that it vectorises; ties keep the lower j
+                y, b = cost[i], best[i]
+                second[i] = np.minimum(second[i], np.maximum(y, b))
+                arg[i] += (label - arg[i]) * np.float32(y < b)
+                best[i] = np.minimum(y, b)
+        out, flags = labels[s : s + BLOCK], opened[s : s + BLOCK]
+        for i in range(BLOCK):  # with M_a <= r_a Σ_k q_k: vectorised
+            label, gap = np.int64(arg[i]), second[i] - best[i]
+            sure = (gap > coef[label] * total[i] + np.float32(TINY)) & (gap < np.inf)
+            out[i], flags[i] = label, np.uint8(1) - np.uint8(sure)
+        for i in range(BLOCK):  # the rest with M_a itself
+            gap = second[i] - best[i]
+            if flags[i] and gap > 0 and gap < np.inf:
+                size, label = np.float32(0), out[i]
+                for t in range(indptr[label], indptr[label + 1]):
+                    size += sizes[t] * q[cols[t], s + i]
+                need = size_coef[label] * size + reference * total[i] + np.float32(TINY)
+                sure = gap > need
+                flags[i] = np.uint8(1) - np.uint8(sure)
+            count += flags[i]
+    return count
+
+
+class SparseRule:
+    """One matrix's sparse part E, float32, and its certificate, for :func:`_decide_blocks`.
+
+    Args:
+        fast: the matrix's ``_Fast`` (priors, T's coefficients and ``eps``; the open pixels'
+            re-check).
+        cost: (1, N, N) float64 cost matrix.
+    """
+
+    def __init__(self, fast: _Fast, cost: torch.Tensor) -> None:
+        n = cost.shape[-1]
+        sparse = cost[0] - cost[0].mode(0, keepdim=True).values
+        total = fast.weight64[n].cpu()  # T's coefficients: R_k, bounding |reference cost| / q_k
+        if fast.priors is not None and fast.priors.ndim == 1:  # global priors: into the columns
+            sparse, total = sparse / fast.priors.cpu().double(), total / fast.priors.cpu().double()
+        top = sparse.abs().max().item()
+        scale = 2.0 ** -math.frexp(top)[1] if top > 0 else 1.0  # exact: keeps float32 in range
+        sparse = sparse * scale
+        magnitude, nonzero = sparse.abs(), sparse != 0
+        # Row j's float32 sum: terms rounded at most depth_j times, q three times before.
+        gamma = (1 + U32) ** 3 * (1 + _gamma(_depth(nonzero.sum(1)))) - 1
+        margin = gamma * (1 + U32) * (1 + 8 * U64)  # 8 u64: the float64 steps before
+        g = 1.01 * margin / (1 - margin)
+        # Lower bounds of the costs: entries moved down by g |E|, then rounded down.
+        single = _round_down(sparse - g[:, None] * magnitude)
+        # A row's lower bound lies within d M_a of its cost, M_a <= r_a Σ_k q_k.
+        d = g + U32 * (1 + g) * (1 + 8 * U64) + gamma * (1 + g) * (1 + U32)
+        reference = 2 * fast.eps * (total * scale).max().item()  # 2 eps T <= this Σ_k q_k
+        shrink = (1 - U32) ** 3 * (1 - _gamma(_depth(torch.tensor(n))))  # computed Σ_k q_k
+        up = (1 + U32) ** 2 / shrink * ROUNDING  # and the test's roundings, and the cast
+        coef = ((d * magnitude.amax(1) + reference) * up).float().numpy()
+        # M_a itself from |lower| >= (1 - g)(1 - u)|E|, summed like Σ_k q_k (N terms at most).
+        size_coef = (d / ((1 - g) * (1 - U32)) * up / shrink).float().numpy()
+        self.certificate = coef, size_coef, np.float32(reference * up)
+        indptr = torch.cat([torch.zeros(1, dtype=torch.long), nonzero.sum(1).cumsum(0)])
+        vals = single[nonzero].contiguous().numpy()
+        cols = nonzero.nonzero()[:, 1].contiguous().numpy()
+        self.matrix = indptr.numpy(), cols, vals, np.abs(vals)
+        # Chunks: a float32 image without pixel-wise priors is read where it lies.
+        as_is = fast.probs.dtype == torch.float32 and fast.pixel_priors is None
+        self.step = fast.probs.shape[2] if as_is else CHUNK
+
+    def chunk(self, q: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
+        """(N, P) float32 q → (P,) int64 labels written into ``labels``; returns the open pixels."""
+        q, n, p = q.contiguous().numpy(), q.shape[0], q.shape[1]
+        whole = p - p % BLOCK
+        out, opened = labels.numpy(), np.empty(p, np.uint8)
+        args = (self.matrix, self.certificate)
+        total = sum(_in_pieces(_decide_blocks, (q, *args, out, opened), whole, BLOCK))
+        if whole < p:  # the last pixels, padded to a block
+            tail = np.zeros((n, BLOCK), np.float32)
+            tail[:, : p - whole] = q[:, whole:]
+            tail_labels, tail_open = np.empty(BLOCK, np.int64), np.empty(BLOCK, np.uint8)
+            _decide_blocks(tail, *args, tail_labels, tail_open, 0, BLOCK)
+            out[whole:], opened[whole:] = tail_labels[: p - whole], tail_open[: p - whole]
+            total += int(opened[whole:].sum())
+        if not total:
+            return torch.zeros(0, dtype=torch.long)
+        return torch.from_numpy(opened).nonzero()[:, 0]
+
+
+def _round_down(values: torch.Tensor) -> torch.Tensor:
+    """float64 → float32, each rounded down."""
+    single = values.float()
+    above = single.double() > values
+    return torch.where(above, torch.nextafter(single, torch.tensor(-math.inf)), single)
+
+
+def _depth(terms: torch.Tensor) -> torch.Tensor:
+    """The most roundings a term of a ``_sum_terms`` sum of ``terms`` terms can undergo: four in
+    its own pass (product, pair, pairs, accumulation), one in each later pass."""
+    passes = terms // 4 + (terms % 4 >= 2).long() + (terms % 2).long()
+    return passes + 3
+
+
+def _gamma(m: torch.Tensor) -> torch.Tensor:
+    """float64 ``γ_m = m u / (1 - m u)``: the relative error of m float32 roundings."""
+    return m.double() * U32 / (1 - m.double() * U32)
