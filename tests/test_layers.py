@@ -9,7 +9,7 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "costseg"
 CHAIN = [
     {"classes", "checkpoints", "options"},
     {"costs"},
-    {"decision_certified", "decision_numba", "decision_triton"},
+    {"decision_certified", "decision_numba", "decision_sparse", "decision_triton"},
     {"decision"},
     {"rules", "selection", "calibration", "calibration_sample", "guarantee"},
     {"data", "metrics", "models", "networks", "probs_files", "results"},
@@ -24,6 +24,7 @@ NO_LIGHTNING = {
     "decision",
     "decision_certified",
     "decision_numba",
+    "decision_sparse",
     "decision_triton",
     "rules",
     "selection",

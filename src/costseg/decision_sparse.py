@@ -37,29 +37,22 @@ JIT = dict(nogil=True, cache=True, boundscheck=False, error_model="numpy", fastm
 
 
 @numba.njit(**JIT)
-def _sum_terms(q, s, cols, vals, first, last, out):
+def _sum_groups(q, s, cols, vals, first, last, out):
     """``out = Σ_t vals[t] q[cols[t], s : s + BLOCK]`` for t in ``first:last``, four terms per
-    pass over ``out`` (loads and stores, not arithmetic, bound a pass; any order of summation
-    keeps the rounding bound)."""
-    out[:] = 0
-    t = first
-    while t + 4 <= last:
+    pass (loads and stores, not arithmetic, bound a pass; the rounding bound holds in any order
+    of summation)."""
+    if first == last:
+        out[:] = 0
+    for t in range(first, last, 4):
         a, b, c, d = vals[t], vals[t + 1], vals[t + 2], vals[t + 3]
         row_a, row_b = q[cols[t], s : s + BLOCK], q[cols[t + 1], s : s + BLOCK]
         row_c, row_d = q[cols[t + 2], s : s + BLOCK], q[cols[t + 3], s : s + BLOCK]
-        for i in range(BLOCK):
-            out[i] += (a * row_a[i] + b * row_b[i]) + (c * row_c[i] + d * row_d[i])
-        t += 4
-    if t + 2 <= last:
-        a, b = vals[t], vals[t + 1]
-        row_a, row_b = q[cols[t], s : s + BLOCK], q[cols[t + 1], s : s + BLOCK]
-        for i in range(BLOCK):
-            out[i] += a * row_a[i] + b * row_b[i]
-        t += 2
-    if t < last:
-        a, row_a = vals[t], q[cols[t], s : s + BLOCK]
-        for i in range(BLOCK):
-            out[i] += a * row_a[i]
+        if t == first:
+            for i in range(BLOCK):
+                out[i] = (a * row_a[i] + b * row_b[i]) + (c * row_c[i] + d * row_d[i])
+        else:
+            for i in range(BLOCK):
+                out[i] += (a * row_a[i] + b * row_b[i]) + (c * row_c[i] + d * row_d[i])
 
 
 @numba.njit(**JIT)
@@ -67,8 +60,8 @@ def _decide_blocks(q, matrix, certificate, labels, opened, start, stop):
     """Pixels ``start:stop`` (whole blocks) of (N, P) float32 q; returns how many are open.
 
     Args:
-        matrix: (indptr, cols, vals, sizes): the lower-bound matrix's nonzero entries (float32)
-            row by row, and their magnitudes.
+        matrix: (indptr, cols, vals, sizes): the lower-bound matrix's entries (float32) row by
+            row, padded with zeros to groups of four, and their magnitudes.
         certificate: (coef, size_coef, reference): per decided class, float32 coefficients of
             ``Σ_k q_k`` and of the row's magnitude M_a; that of ``Σ_k q_k`` for the reference's
             rounding alone.
@@ -76,36 +69,36 @@ def _decide_blocks(q, matrix, certificate, labels, opened, start, stop):
     """
     indptr, cols, vals, sizes = matrix
     coef, size_coef, reference = certificate
-    n = q.shape[0]
+    n, every = q.shape[0], -(-q.shape[0] // 4) * 4
+    classes, ones = np.arange(every) % n, (np.arange(every) < n).astype(np.float32)
     cost, best = np.empty(BLOCK, np.float32), np.empty(BLOCK, np.float32)
-    second, arg = np.empty(BLOCK, np.float32), np.empty(BLOCK, np.float32)
-    total, classes, ones = np.empty(BLOCK, np.float32), np.arange(n), np.ones(n, np.float32)
+    second, total = np.empty(BLOCK, np.float32), np.empty(BLOCK, np.float32)
+    arg = np.empty(BLOCK, np.int32)
     count = 0
     for s in range(start, stop, BLOCK):
-        _sum_terms(q, s, classes, ones, 0, n, total)
+        _sum_groups(q, s, classes, ones, 0, every, total)
         best[:], second[:], arg[:] = np.inf, np.inf, 0
         for j in range(n):
-            _sum_terms(q, s, cols, vals, indptr[j], indptr[j + 1], cost)
-            label = np.float32(j)
+            _sum_groups(q, s, cols, vals, indptr[j], indptr[j + 1], cost)
+            label = np.int32(j)
             for i in range(BLOCK):  # branch-free, so that it vectorises; ties keep the lower j
-                y, b = cost[i], best[i]
-                second[i] = np.minimum(second[i], np.maximum(y, b))
-                arg[i] += (label - arg[i]) * np.float32(y < b)
-                best[i] = np.minimum(y, b)
+                y, low = cost[i], best[i]
+                second[i] = np.minimum(second[i], np.maximum(y, low))
+                arg[i] = label if y < low else arg[i]
+                best[i] = np.minimum(y, low)
         out, flags = labels[s : s + BLOCK], opened[s : s + BLOCK]
         for i in range(BLOCK):  # with M_a <= r_a Σ_k q_k: vectorised
-            label, gap = np.int64(arg[i]), second[i] - best[i]
+            label, gap = arg[i], second[i] - best[i]
             sure = (gap > coef[label] * total[i] + np.float32(TINY)) & (gap < np.inf)
             out[i], flags[i] = label, np.uint8(1) - np.uint8(sure)
         for i in range(BLOCK):  # the rest with M_a itself
             gap = second[i] - best[i]
             if flags[i] and gap > 0 and gap < np.inf:
-                size, label = np.float32(0), out[i]
+                size, label = np.float32(0), arg[i]
                 for t in range(indptr[label], indptr[label + 1]):
                     size += sizes[t] * q[cols[t], s + i]
                 need = size_coef[label] * size + reference * total[i] + np.float32(TINY)
-                sure = gap > need
-                flags[i] = np.uint8(1) - np.uint8(sure)
+                flags[i] = np.uint8(1) - np.uint8(gap > need)
             count += flags[i]
     return count
 
@@ -135,19 +128,18 @@ class SparseRule:
         g = 1.01 * margin / (1 - margin)
         # Lower bounds of the costs: entries moved down by g |E|, then rounded down.
         single = _round_down(sparse - g[:, None] * magnitude)
+        self.matrix = _padded_rows(single)
         # A row's lower bound lies within d M_a of its cost, M_a <= r_a Σ_k q_k.
         d = g + U32 * (1 + g) * (1 + 8 * U64) + gamma * (1 + g) * (1 + U32)
         reference = 2 * fast.eps * (total * scale).max().item()  # 2 eps T <= this Σ_k q_k
         shrink = (1 - U32) ** 3 * (1 - _gamma(_depth(torch.tensor(n))))  # computed Σ_k q_k
         up = (1 + U32) ** 2 / shrink * ROUNDING  # and the test's roundings, and the cast
         coef = ((d * magnitude.amax(1) + reference) * up).float().numpy()
-        # M_a itself from |lower| >= (1 - g)(1 - u)|E|, summed like Σ_k q_k (N terms at most).
-        size_coef = (d / ((1 - g) * (1 - U32)) * up / shrink).float().numpy()
+        # M_a itself from |lower| >= (1 - g)(1 - u)|E|, summed one term after another.
+        terms = torch.tensor(np.diff(self.matrix[0]))
+        shrink_row = (1 - U32) ** 3 * (1 - _gamma(terms))
+        size_coef = (d / ((1 - g) * (1 - U32)) * up * shrink / shrink_row).float().numpy()
         self.certificate = coef, size_coef, np.float32(reference * up)
-        indptr = torch.cat([torch.zeros(1, dtype=torch.long), nonzero.sum(1).cumsum(0)])
-        vals = single[nonzero].contiguous().numpy()
-        cols = nonzero.nonzero()[:, 1].contiguous().numpy()
-        self.matrix = indptr.numpy(), cols, vals, np.abs(vals)
         # Chunks: a float32 image without pixel-wise priors is read where it lies.
         as_is = fast.probs.dtype == torch.float32 and fast.pixel_priors is None
         self.step = fast.probs.shape[2] if as_is else CHUNK
@@ -179,10 +171,24 @@ def _round_down(values: torch.Tensor) -> torch.Tensor:
 
 
 def _depth(terms: torch.Tensor) -> torch.Tensor:
-    """The most roundings a term of a ``_sum_terms`` sum of ``terms`` terms can undergo: four in
-    its own pass (product, pair, pairs, accumulation), one in each later pass."""
-    passes = terms // 4 + (terms % 4 >= 2).long() + (terms % 2).long()
-    return passes + 3
+    """The most roundings a term of a sum of ``terms`` terms undergoes in ``_decide_blocks``:
+    four in its group's pass (product, pair, pairs, accumulation), one in each later pass."""
+    return (terms.clamp(min=1) + 3) // 4 + 3
+
+
+def _padded_rows(matrix: torch.Tensor) -> tuple[np.ndarray, ...]:
+    """(indptr, cols, vals, |vals|) of a float32 matrix's nonzero entries, row by row, each row
+    padded with zero terms to a positive multiple of four (on one of its columns: a zero times
+    a finite q adds nothing; a NaN or inf q opens the pixel anyway)."""
+    indptr, cols, vals = [0], [], []
+    for row in matrix:
+        (where,) = row.nonzero(as_tuple=True)
+        pad = -len(where) % 4 if len(where) else 4
+        cols += where.tolist() + [where[0].item() if len(where) else 0] * pad
+        vals += row[where].tolist() + [0.0] * pad
+        indptr.append(len(cols))
+    vals = np.array(vals, np.float32)
+    return np.array(indptr), np.array(cols), vals, np.abs(vals)
 
 
 def _gamma(m: torch.Tensor) -> torch.Tensor:

@@ -1,0 +1,134 @@
+"""The compiled single-rule kernel (``costseg.decision_sparse``) against the float64 reference.
+
+``decide`` runs it for CPU images of ``COMPILED_MIN_PIXELS`` pixels and more; here that limit
+is 0, so every image goes through it, including sizes that are not whole blocks of pixels.
+"""
+
+import pytest
+import torch
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from test_decision import LOW_PRECISION, VERTICES, near_ties, probabilities, reference, smooth
+
+from costseg import decision
+from costseg.costs import load_cost, symmetric_cost
+from costseg.decision import decide
+from costseg.decision_certified import U64, _Fast
+from costseg.decision_sparse import BLOCK, SparseRule
+
+FIXTURE_CHECK = HealthCheck.function_scoped_fixture  # the fixture only sets a module constant
+
+
+@pytest.fixture(autouse=True)
+def compiled(monkeypatch):
+    monkeypatch.setattr(decision, "COMPILED_MIN_PIXELS", 0)
+    monkeypatch.delenv("COSTSEG_NO_NUMBA", raising=False)
+
+
+def tensor_path(probs, cost, priors=None):
+    """``decide`` on matmuls and ``_top`` (the path for small images)."""
+    limit = decision.COMPILED_MIN_PIXELS
+    decision.COMPILED_MIN_PIXELS = 1 << 62
+    try:
+        return decide(probs, cost, priors)
+    finally:
+        decision.COMPILED_MIN_PIXELS = limit
+
+
+def test_the_kernel_decides_and_certifies_most_pixels(monkeypatch):
+    calls = []
+    chunk = SparseRule.chunk
+    monkeypatch.setattr(SparseRule, "chunk", lambda self, *a: calls.append(1) or chunk(self, *a))
+    probs = smooth((1, 19, 64, 80), 0)
+    assert torch.equal(decide(probs, VERTICES[2]), reference(probs, VERTICES[2]))
+    assert calls
+    for cost in VERTICES:
+        fast = _Fast(cost.double()[None], probs, None, 23 * U64)
+        labels = torch.empty(64 * 80, dtype=torch.long)
+        opened = SparseRule(fast, cost.double()[None]).chunk(probs[0].view(19, -1), labels)
+        assert len(opened) < 0.01 * len(labels), len(opened)
+
+
+@pytest.mark.parametrize("dtype", [*LOW_PRECISION, torch.float64])
+@pytest.mark.parametrize("name", ["robotistic", "altruistic", "egoistic"])
+def test_paper_matrices_with_priors(name, dtype):
+    cost = load_cost(name)
+    shape = (2, 19, 37, 53)  # 1961 pixels: three blocks of 512 and a part
+    for probs in (smooth(shape, 0, scale=12).to(dtype), smooth(shape, 1, scale=1).to(dtype)):
+        assert torch.equal(decide(probs, cost), reference(probs, cost))
+        gen = torch.Generator().manual_seed(2)
+        for priors in (torch.rand(19, generator=gen) + 1e-5, torch.rand(19, 37, 53) + 1e-5):
+            assert torch.equal(decide(probs, cost, priors), reference(probs, cost, priors))
+
+
+@pytest.mark.parametrize("name", ["robotistic", "altruistic", "egoistic"])
+def test_near_ties_within_float32_ulps(name):
+    cost = load_cost(name)
+    probs = near_ties(cost.double(), 1500, seed=4)
+    expected = reference(probs, cost)
+    assert torch.equal(decide(probs, cost), expected)
+    assert (expected.view(-1, 7) != expected.view(-1, 7)[:, :1]).any()
+
+
+@pytest.mark.parametrize("n", [2, 3, 5, 19])
+def test_random_and_sparse_matrices_near_ties(n):
+    """Dense random matrices, and matrices like the paper's: ones off the diagonal and a few
+    large costs (E sparse, with large and small magnitudes in one row)."""
+    gen = torch.Generator().manual_seed(n)
+    for sparse in (False, True):
+        for _ in range(5):
+            cost = torch.rand(n, n, generator=gen, dtype=torch.float64) * 3 + 0.1
+            if sparse:
+                large = torch.rand(n, n, generator=gen, dtype=torch.float64) < 0.15
+                cost = 1 + large * cost * 300
+            cost.fill_diagonal_(0)
+            probs = near_ties(cost, 150, seed=int(torch.randint(1 << 30, (1,), generator=gen)))
+            assert torch.equal(decide(probs, cost), reference(probs, cost))
+
+
+def test_costs_from_tiny_to_huge_and_degenerate_matrices():
+    probs = torch.cat([smooth((1, 4, 20, 30), 5), smooth((1, 4, 20, 30), 6, scale=0.5)])
+    huge = torch.tensor(
+        [[0, 1e30, 1e-30, 1], [1e-30, 0, 1e30, 1], [1, 1, 0, 1e-30], [1e30, 1e-30, 1, 0]]
+    )
+    zero_row = torch.ones(4, 4).fill_diagonal_(0)
+    zero_row[2] = 0  # a row equal to its columns' most frequent entries... but for its own
+    for cost in (huge, huge.T.contiguous(), torch.zeros(4, 4), torch.ones(4, 4), zero_row):
+        assert torch.equal(decide(probs, cost), reference(probs, cost)), cost
+    assert (decide(probs, torch.zeros(4, 4)) == 0).all()  # all costs tie: the lowest class
+
+
+def test_exact_ties_underflow_and_non_finite_probabilities():
+    probs = smooth((1, 19, 30, 40), 7)
+    probs[0, :, 0, :5] = 1 / 19  # exact ties
+    probs[0, :, 1, :5] = 1e-40  # subnormal in float32: costs underflow
+    probs[0, :, 2, :5] = 0.0
+    for cost in VERTICES:
+        assert torch.equal(decide(probs, cost), reference(probs, cost))
+    probs[0, 3, 3, :3] = torch.tensor([float("nan"), float("inf"), 0.0])
+    probs[0, :, 4, 0] = float("inf")
+    for cost in VERTICES:
+        assert torch.equal(decide(probs, cost), tensor_path(probs, cost))
+
+
+@pytest.mark.parametrize("shape", [(1, 19, 1, 1), (3, 19, 3, 5), (1, 19, 16, 32), (2, 19, 1, 1025)])
+def test_sizes_around_a_block(shape):
+    assert BLOCK == 512  # (1, 19, 16, 32) is one block; (2, 19, 1, 1025) two and a pixel
+    probs = smooth(shape, 8, scale=3)
+    for cost in VERTICES:
+        assert torch.equal(decide(probs, cost), reference(probs, cost))
+    assert torch.equal(decide(probs, None), probs.argmax(1))
+
+
+@settings(
+    max_examples=100, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(probabilities(), st.integers(0, 2**31), st.booleans())
+def test_random_costs_and_priors_match_the_reference(probs, seed, pixelwise):
+    _, n, h, w = probs.shape
+    gen = torch.Generator().manual_seed(seed)
+    cost = torch.randint(1, 5, (n, n), generator=gen).double() * (1 - torch.eye(n))
+    assert torch.equal(decide(probs, cost), reference(probs, cost))
+    assert torch.equal(decide(probs, symmetric_cost(n)), probs.argmax(1))
+    priors = torch.randint(1, 4, (n, h, w) if pixelwise else (n,), generator=gen) / 4
+    assert torch.equal(decide(probs, cost, priors), reference(probs, cost, priors))
