@@ -9,7 +9,13 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "costseg"
 CHAIN = [
     {"classes", "checkpoints", "options"},
     {"costs"},
-    {"decision_certified", "decision_numba", "decision_sparse", "decision_triton"},
+    {
+        "decision_certified",
+        "decision_mixing",
+        "decision_numba",
+        "decision_sparse",
+        "decision_triton",
+    },
     {"decision"},
     {"rules", "selection", "calibration", "calibration_sample", "guarantee"},
     {"data", "metrics", "models", "networks", "probs_files", "results"},
@@ -23,6 +29,7 @@ NO_LIGHTNING = {
     "costs",
     "decision",
     "decision_certified",
+    "decision_mixing",
     "decision_numba",
     "decision_sparse",
     "decision_triton",

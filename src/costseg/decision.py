@@ -170,13 +170,13 @@ def decide_mixtures(
     mix = _Mixer(weights64, fast, mixed)
     compiled = _cpu_kernel(fast, mix, mixed)
     for i in range(b):
-        for s, q in fast.chunks(i):
+        for s, q in fast.chunks(i, compiled and compiled.step):
             labels = out[i, :, s : s + q.shape[1]]
             if compiled is None:
                 exact_q = lambda pixels, i=i, s=s: fast.exact_q(i, s + pixels)  # noqa: E731
                 mix.chunk(fast.costs(q), exact_q, labels)
                 continue
-            grid, pixel = compiled.chunk(q, labels)
+            grid, pixel = compiled.chunk(q, out[i], s)  # the image's rows: written in place
             if len(grid):
                 pixels, inverse = torch.unique(pixel, return_inverse=True)
                 settled = compiled.settle(fast.exact_q(i, s + pixels), grid, inverse)
@@ -219,8 +219,10 @@ def _cpu_kernel(fast: _Fast, mix: _Mixer, shifted: torch.Tensor):
     if fast.probs.device.type != "cpu" or k <= v or _no_numba():
         return None
     try:
-        from costseg.decision_numba import NumbaMixer
+        from costseg.decision_numba import VERTICES, NumbaMixer
     except ImportError:
+        return None
+    if v > VERTICES:
         return None
     return NumbaMixer(fast, mix.weights64, mix.gamma, shifted)
 

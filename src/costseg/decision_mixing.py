@@ -1,0 +1,282 @@
+"""The compiled kernel behind :class:`costseg.decision_numba.NumbaMixer`: K mixtures of V vertex
+cost maps, decided block by block of pixels, each step vectorised over a block's pixels.
+
+The method is :class:`costseg.decision_certified._Mixer`'s, step for step, on the vertices'
+float32 costs (``_Fast.costs``: class-major, T last):
+
+1. each vertex's argmin and runner-up, certified as in ``_top`` (gap and floor);
+2. where every vertex picks the same class with a certified gap, every mixture picks it;
+3. elsewhere the candidates: classes that no vertex winner beats in every vertex by a certain
+   margin (``_Mixer._candidates``, the threshold in float64, rounded up); a single candidate
+   decides every mixture;
+4. else, per mixture, the candidates' mixed costs ``Σ_v w_kv x_v`` and ``T``, their argmin (the
+   lowest class on ties) and the same certificate with the mixing's rounding in ``γ``. Up to
+   SLOTS candidates per pixel sit side by side in slots (an empty slot costs BIG), so that all
+   the block's pixels are mixed together; pixels with more are gathered and mixed together too.
+
+Pairs left open (and every pair of a pixel whose ``T`` is not finite) are flagged for the float64
+re-check. Compiled on first use and cached beside this file.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+TINY = 2.0**-120  # as in decision_certified
+UNDERFLOW = 2.0**-60  # a runner-up below it: never certified
+BLOCK = 512  # pixels decided together: their vertex costs stay in cache
+SLOTS = 3  # candidates mixed side by side for every pixel of a block
+MANY = 2048  # pixels with more candidates, gathered to be mixed together: up to FEW slots,
+FEW = 2 * SLOTS  # or up to WIDEST (more than WIDEST candidates: left open)
+VERTICES = 4  # at most; fewer are padded with zero weights and costs
+WIDEST = 32  # classes at most (the slots of the second group of pixels with many candidates)
+BIG = np.float32(3.4e38)  # an empty slot's cost: above every real one (w >= 0, some w > 0)
+JIT = dict(nogil=True, cache=True, boundscheck=False, error_model="numpy")
+
+
+@numba.njit(**JIT)
+def _vertex_winners(costs, s, size, v_delta, v_floor, best, second, arg, agree, finite):
+    """Each vertex's argmin over classes at pixels ``s : s + size``; ``agree``: every vertex
+    picks vertex 0's class with a certified gap; ``finite``: every vertex's T is finite."""
+    v_count, n = costs.shape[0], costs.shape[1] - 1
+    for v in range(v_count):
+        low, runner, a = best[v], second[v], arg[v]
+        low[:size], runner[:size], a[:size] = costs[v, 0, s : s + size], np.inf, 0
+        for c in range(1, n):
+            row, label = costs[v, c, s : s + size], np.int32(c)
+            for i in range(size):  # branch-free, so that it vectorises; ties keep the lower c
+                y, b = row[i], low[i]
+                runner[i] = np.minimum(runner[i], np.maximum(y, b))
+                a[i] = label if y < b else a[i]
+                low[i] = np.minimum(y, b)
+        t = costs[v, n, s : s + size]
+        for i in range(size):
+            gap = (runner[i] - low[i] > v_delta * runner[i]) & (a[i] == arg[0, i])
+            sure = gap & (runner[i] >= v_floor * t[i] + np.float32(UNDERFLOW))
+            agree[i] = sure if v == 0 else agree[i] & sure
+            finite[i] = (t[i] < np.inf) if v == 0 else finite[i] & (t[i] < np.inf)
+
+
+@numba.njit(**JIT)
+def _candidates(costs, s, size, slack, t_factor, arg, threshold, beaten, free):
+    """``free[c, i]``: no vertex winner beats class c at pixel ``s + i`` in every vertex by a
+    certain margin."""
+    v_count, n = costs.shape[0], costs.shape[1] - 1
+    free[:, :size] = True
+    for u in range(v_count):
+        for v in range(v_count):
+            for i in range(size):  # in float64, then rounded up to float32
+                x_a, t = costs[v, arg[u, i], s + i], costs[v, n, s + i]
+                bound = (x_a * (1 + slack) + t * t_factor + TINY) / (1 - slack)
+                threshold[v, i] = np.float32(bound * (1 + 2.0**-22))
+        for c in range(n):
+            beaten[:size] = True
+            for v in range(v_count):
+                row, limit = costs[v, c, s : s + size], threshold[v]
+                for i in range(size):
+                    beaten[i] = beaten[i] & (row[i] > limit[i])
+            out = free[c]
+            for i in range(size):
+                out[i] = out[i] & (not beaten[i])
+
+
+@numba.njit(**JIT)
+def _mix_slots(xs, ts, cls, slots, size, weights, params, mixed, kept, labels, s, opened):
+    """Every mixture of pixels ``:size`` of the slot arrays (costs ``xs`` (VERTICES, slots, ·),
+    classes ``cls`` (slots, ·), T ``ts`` (VERTICES, ·)) into columns ``s : s + size`` of labels
+    and ``:size`` of opened; where ``mixed`` is 0 the flags are ``kept``. One pass per mixture:
+    with the slots (a literal) and the vertices fixed, the loop over pixels vectorises."""
+    numba.literally(slots)
+    m_delta, m_floor = np.float32(params[4]), np.float32(params[5])
+    for k in range(labels.shape[0]):
+        w0, w1, w2, w3 = weights[0, k], weights[1, k], weights[2, k], weights[3, k]
+        out, flags = labels[k, s : s + size], opened[k, :size]
+        for i in range(size):
+            p = i
+            total = (w0 * ts[0, p] + w1 * ts[1, p]) + (w2 * ts[2, p] + w3 * ts[3, p])
+            best = (w0 * xs[0, 0, p] + w1 * xs[1, 0, p]) + (w2 * xs[2, 0, p] + w3 * xs[3, 0, p])
+            second, label = np.float32(np.inf), cls[0, p]
+            for j in range(1, slots):  # slots in class order: ties keep the lower class
+                y = (w0 * xs[0, j, p] + w1 * xs[1, j, p]) + (w2 * xs[2, j, p] + w3 * xs[3, j, p])
+                second = np.minimum(second, np.maximum(y, best))
+                c = cls[j, p]  # loaded either way: a conditional load does not vectorise
+                label = c if y < best else label
+                best = np.minimum(y, best)
+            gap_ok = second - best > m_delta * second
+            sure = np.uint8(gap_ok & (second >= m_floor * total + np.float32(UNDERFLOW)))
+            out[i] = label
+            flags[i] = (np.uint8(1) - sure) * mixed[i] + kept[i] * (np.uint8(1) - mixed[i])
+
+
+@numba.njit(**JIT)
+def _mix_passes(xs, ts, cls, slots, size, weights, params, labels, opened):
+    """``_mix_slots`` for many slots (a runtime number): one pass over the pixels per slot and
+    vertex, every pair open where the certificate fails."""
+    m_delta, m_floor = np.float32(params[4]), np.float32(params[5])
+    best, second = np.empty(size, np.float32), np.empty(size, np.float32)
+    total, y, label = (
+        np.empty(size, np.float32),
+        np.empty(size, np.float32),
+        np.empty(size, np.int32),
+    )
+    for k in range(labels.shape[0]):
+        total[:] = 0
+        for v in range(VERTICES):
+            w, t = weights[v, k], ts[v, :size]
+            for i in range(size):
+                total[i] += w * t[i]
+        best[:], second[:], label[:] = np.inf, np.inf, cls[0, :size]
+        for j in range(slots):
+            y[:] = 0
+            for v in range(VERTICES):
+                w, row = weights[v, k], xs[v, j, :size]
+                for i in range(size):
+                    y[i] += w * row[i]
+            classes = cls[j, :size]
+            for i in range(size):  # slots in class order: ties keep the lower class
+                yy, b, c, old = y[i], best[i], classes[i], label[i]
+                second[i] = np.minimum(second[i], np.maximum(yy, b))
+                label[i] = c if yy < b else old
+                best[i] = np.minimum(yy, b)
+        out, flags = labels[k, :size], opened[k, :size]
+        for i in range(size):
+            sec = second[i]
+            gap_ok = sec - best[i] > m_delta * sec
+            out[i] = label[i]
+            flags[i] = np.uint8(1) - np.uint8(
+                gap_ok & (sec >= m_floor * total[i] + np.float32(UNDERFLOW))
+            )
+
+
+@numba.njit(inline="always", **JIT)
+def _fill_slots(costs, s, i, free, slots, xs, cls, column):
+    """Slots ``column`` of xs and cls from pixel ``s + i``'s candidates (``free[:, i]``); empty
+    slots cost BIG."""
+    v_count, n = costs.shape[0], costs.shape[1] - 1
+    j = 0
+    for c in range(n):
+        if j < slots and free[c, i]:
+            cls[j, column] = c
+            for v in range(v_count):
+                xs[v, j, column] = costs[v, c, s + i]
+            j += 1
+    for e in range(j, slots):
+        cls[e, column] = cls[0, column]
+        for v in range(v_count):
+            xs[v, e, column] = BIG
+
+
+@numba.njit(**JIT)
+def decide_chunk(costs, weights, params, labels, column, start, stop):
+    """Pixels ``start:stop`` of a chunk whose first pixel is the image's ``column``.
+
+    Args:
+        costs: (V, N + 1, P) float32 vertex costs (``_Fast.costs``), T last.
+        weights: (VERTICES, K) float32 mixture weights (zeros below the V vertices).
+        params: float64 [vertex Δ, vertex floor, candidate slack, candidate T factor,
+            mixture Δ, mixture floor] (rounded up for the float32 tests).
+        labels: (K, H·W) the image's labels, any integer type, written.
+
+    Returns:
+        (2, R) int64: the mixture and the chunk's pixel of each pair left open.
+    """
+    v_count, n, k_count = costs.shape[0], costs.shape[1] - 1, labels.shape[0]
+    v_delta, v_floor = np.float32(params[0]), np.float32(params[1])
+    best, second = np.empty((v_count, BLOCK), np.float32), np.empty((v_count, BLOCK), np.float32)
+    arg = np.empty((v_count, BLOCK), np.int32)
+    agree, finite = np.empty(BLOCK, np.bool_), np.empty(BLOCK, np.bool_)
+    threshold, beaten = np.empty((v_count, BLOCK), np.float32), np.empty(BLOCK, np.bool_)
+    free, count = np.empty((n, BLOCK), np.bool_), np.empty(BLOCK, np.int32)
+    base, mixed = np.empty(BLOCK, np.int32), np.empty(BLOCK, np.uint8)
+    kept, block_open = np.empty(BLOCK, np.uint8), np.empty((k_count, BLOCK), np.uint8)
+    xs = np.zeros((VERTICES, SLOTS, BLOCK), np.float32)
+    ts, cls = np.zeros((VERTICES, BLOCK), np.float32), np.empty((SLOTS, BLOCK), np.int32)
+    # Pixels with more candidates than SLOTS, gathered in two groups (up to FEW, up to WIDEST)
+    # of MANY pixels, each mixed together when full.
+    group_xs = np.empty((2, VERTICES, WIDEST, MANY), np.float32)
+    group_ts = np.empty((2, VERTICES, MANY), np.float32)
+    group_xs[:, v_count:], group_ts[:, v_count:] = 0, 0  # padding: zero costs, zero weights
+    group_cls, group_pixel = np.empty((2, WIDEST, MANY), np.int32), np.empty((2, MANY), np.int64)
+    group_size, widest = np.zeros(2, np.int64), 0  # widest: the most candidates in group 1
+    out, flags = np.empty((k_count, MANY), labels.dtype), np.empty((k_count, MANY), np.uint8)
+    pairs, found = np.empty((2, 1024), np.int64), 0
+    for s in range(start, stop, BLOCK):
+        size = min(BLOCK, stop - s)
+        _vertex_winners(costs, s, size, v_delta, v_floor, best, second, arg, agree, finite)
+        _candidates(costs, s, size, params[2], params[3], arg, threshold, beaten, free)
+        count[:size] = 0
+        for c in range(n - 1, -1, -1):
+            row = free[c]
+            for i in range(size):
+                count[i] += row[i]
+                base[i] = c if row[i] else base[i]
+        for i in range(size):  # agreeing vertices, or a single candidate, decide every mixture
+            base[i] = arg[0, i] if agree[i] else base[i]
+            contested = finite[i] & (not agree[i]) & (count[i] > 1)
+            mixed[i] = contested & (count[i] <= SLOTS)
+            kept[i] = (not finite[i]) | (contested & (count[i] > WIDEST))  # open: re-checked
+        for j in range(SLOTS):  # every pixel: its base label at cost 0, then empty slots
+            cls[j, :size] = base[:size]
+            for v in range(v_count):
+                xs[v, j, :size] = 0 if j == 0 else BIG
+        for v in range(v_count):
+            ts[v, :size] = costs[v, n, s : s + size]
+        for i in range(size):
+            if mixed[i]:
+                _fill_slots(costs, s, i, free, SLOTS, xs, cls, i)
+            elif finite[i] and not agree[i] and SLOTS < count[i] <= WIDEST:
+                group = 0 if count[i] <= FEW else 1
+                e = group_size[group]
+                _fill_slots(costs, s, i, free, WIDEST, group_xs[group], group_cls[group], e)
+                for v in range(v_count):
+                    group_ts[group, v, e] = costs[v, n, s + i]
+                group_pixel[group, e], group_size[group] = s + i, e + 1
+                widest = max(widest, count[i]) if group else widest
+        _mix_slots(
+            xs, ts, cls, SLOTS, size, weights, params, mixed, kept, labels, column + s, block_open
+        )
+        pairs, found = _collect(block_open, size, s, np.arange(size) + s, pairs, found)
+        for group in range(2):  # after the block's own labels; room for the next block
+            if group_size[group] > MANY - BLOCK or (s + BLOCK >= stop and group_size[group]):
+                gathered = group_xs[group], group_ts[group], group_cls[group]
+                size, slots = group_size[group], FEW if group == 0 else widest
+                _mix_group(*gathered, size, slots, weights, params, out, flags)
+                pixel = group_pixel[group]
+                for k in range(k_count):
+                    for e in range(size):
+                        labels[k, column + pixel[e]] = out[k, e]
+                pairs, found = _collect(flags, size, 0, pixel, pairs, found)
+                group_size[group], widest = 0, widest if group == 0 else 0
+    return pairs[:, :found].copy()
+
+
+@numba.njit(**JIT)
+def _mix_group(xs, ts, cls, size, slots, weights, params, out, flags):
+    """A group of gathered pixels (columns ``:size``; slots beyond a pixel's candidates cost
+    BIG), mixed together into out and flags."""
+    ones = np.ones(size, np.uint8)
+    if slots == FEW:
+        _mix_slots(xs, ts, cls, FEW, size, weights, params, ones, ones, out, 0, flags)
+    else:
+        _mix_passes(xs, ts, cls, slots, size, weights, params, out, flags)
+
+
+@numba.njit(**JIT)
+def _collect(flags, size, s, pixel, pairs, found):
+    """Appends (mixture, ``pixel[i]``) for every flag set in ``flags[:, :size]``."""
+    for k in range(flags.shape[0]):
+        row, any_set = flags[k], 0
+        for i in range(size):
+            any_set |= row[i]
+        if not any_set:
+            continue
+        for i in range(size):
+            if row[i]:
+                if found == pairs.shape[1]:  # full: twice as large
+                    larger = np.empty((2, 2 * found), np.int64)
+                    larger[:, :found] = pairs
+                    pairs = larger
+                pairs[0, found], pairs[1, found] = k, pixel[i]
+                found += 1
+    return pairs, found
