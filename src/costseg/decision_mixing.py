@@ -227,8 +227,8 @@ def decide_chunk(costs, weights, params, labels, column, start, stop):
                 _fill_slots(costs, s, i, free, SLOTS, xs, cls, i)
             elif finite[i] and not agree[i] and SLOTS < count[i] <= WIDEST:
                 group = 0 if count[i] <= FEW else 1
-                e = group_size[group]
-                _fill_slots(costs, s, i, free, WIDEST, group_xs[group], group_cls[group], e)
+                e, slots = group_size[group], FEW if group == 0 else WIDEST
+                _fill_slots(costs, s, i, free, slots, group_xs[group], group_cls[group], e)
                 for v in range(v_count):
                     group_ts[group, v, e] = costs[v, n, s + i]
                 group_pixel[group, e], group_size[group] = s + i, e + 1
@@ -255,11 +255,7 @@ def decide_chunk(costs, weights, params, labels, column, start, stop):
 def _mix_group(xs, ts, cls, size, slots, weights, params, out, flags):
     """A group of gathered pixels (columns ``:size``; slots beyond a pixel's candidates cost
     BIG), mixed together into out and flags."""
-    ones = np.ones(size, np.uint8)
-    if slots == FEW:
-        _mix_slots(xs, ts, cls, FEW, size, weights, params, ones, ones, out, 0, flags)
-    else:
-        _mix_passes(xs, ts, cls, slots, size, weights, params, out, flags)
+    _mix_passes(xs, ts, cls, slots, size, weights, params, out, flags)
 
 
 @numba.njit(**JIT)
