@@ -46,9 +46,9 @@ def _vertex_winners(costs, s, size, v_delta, v_floor, best, second, arg, agree, 
         for c in range(1, n):
             row, label = costs[v, c, s : s + size], np.int32(c)
             for i in range(size):  # branch-free, so that it vectorises; ties keep the lower c
-                y, b = row[i], low[i]
+                y, b, old = row[i], low[i], a[i]
                 runner[i] = np.minimum(runner[i], np.maximum(y, b))
-                a[i] = label if y < b else a[i]
+                a[i] = label if y < b else old
                 low[i] = np.minimum(y, b)
         t = costs[v, n, s : s + size]
         for i in range(size):
@@ -209,10 +209,12 @@ def decide_chunk(costs, weights, params, labels, column, start, stop):
         for c in range(n - 1, -1, -1):
             row = free[c]
             for i in range(size):
+                old = base[i]
                 count[i] += row[i]
-                base[i] = c if row[i] else base[i]
+                base[i] = c if row[i] else old
         for i in range(size):  # agreeing vertices, or a single candidate, decide every mixture
-            base[i] = arg[0, i] if agree[i] else base[i]
+            first, lowest = arg[0, i], base[i]
+            base[i] = first if agree[i] else lowest
             contested = finite[i] & (not agree[i]) & (count[i] > 1)
             mixed[i] = contested & (count[i] <= SLOTS)
             kept[i] = (not finite[i]) | (contested & (count[i] > WIDEST))  # open: re-checked

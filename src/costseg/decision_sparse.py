@@ -79,12 +79,17 @@ def _decide_blocks(q, matrix, certificate, labels, opened, start, stop):
         _sum_groups(q, s, classes, ones, 0, every, total)
         best[:], second[:], arg[:] = np.inf, np.inf, 0
         for j in range(n):
-            _sum_groups(q, s, cols, vals, indptr[j], indptr[j + 1], cost)
+            last = indptr[j + 1] - 4  # the last group joins the pass that keeps the best two
+            _sum_groups(q, s, cols, vals, indptr[j], last, cost)
+            a, b, c, d = vals[last], vals[last + 1], vals[last + 2], vals[last + 3]
+            row_a, row_b = q[cols[last], s : s + BLOCK], q[cols[last + 1], s : s + BLOCK]
+            row_c, row_d = q[cols[last + 2], s : s + BLOCK], q[cols[last + 3], s : s + BLOCK]
             label = np.int32(j)
             for i in range(BLOCK):  # branch-free, so that it vectorises; ties keep the lower j
-                y, low = cost[i], best[i]
+                group = (a * row_a[i] + b * row_b[i]) + (c * row_c[i] + d * row_d[i])
+                y, low, old = cost[i] + group, best[i], arg[i]
                 second[i] = np.minimum(second[i], np.maximum(y, low))
-                arg[i] = label if y < low else arg[i]
+                arg[i] = label if y < low else old
                 best[i] = np.minimum(y, low)
         out, flags = labels[s : s + BLOCK], opened[s : s + BLOCK]
         for i in range(BLOCK):  # with M_a <= r_a Σ_k q_k: vectorised
