@@ -6,7 +6,7 @@ On (1, 19, H, W) float32 probabilities (softmax of smooth random logits, the rec
 ``scripts/bench.py``), on the CPU and, when there is one, on the GPU: one read pass ``p.sum()``,
 ``torch.argmax(p, 1)``, single-rule ``decide`` (egoistic) and ``decide_mixtures`` over the
 66-point barycentric grid (robotistic / altruistic / egoistic vertices, unscaled), on the CPU
-also without numba's kernel. Each timing is the best of several repeats after a warm-up; every
+also without numba's kernels. Each timing is the best of several repeats after a warm-up; every
 ratio compares timings of the same run.
 """
 
@@ -58,9 +58,10 @@ def bench(device: str, shape: tuple[int, int, int, int], repeats: int) -> None:
     t_mix = best_time(lambda: decide_mixtures(probs, VERTICES, grid), max(1, repeats // 3), sync)
     fine = barycentric_grid(0.05)
     t_fine = best_time(lambda: decide_mixtures(probs, VERTICES, fine), 1, sync)
-    t_ops = None
-    if device == "cpu":  # the same without numba's kernel: _Mixer's tensor operations
+    t_ops = t_decide_ops = None
+    if device == "cpu":  # the same without numba's kernels: matmuls, _top, _Mixer
         os.environ["COSTSEG_NO_NUMBA"] = "1"
+        t_decide_ops = best_time(lambda: decide(probs, VERTICES[2]), repeats, sync)
         t_ops = best_time(lambda: decide_mixtures(probs, VERTICES, grid), 1, sync)
         del os.environ["COSTSEG_NO_NUMBA"]
     threads = f", {torch.get_num_threads()} threads" if device == "cpu" else ""
@@ -68,6 +69,8 @@ def bench(device: str, shape: tuple[int, int, int, int], repeats: int) -> None:
     print(f"  p.sum() (one read pass)        {1e3 * t_sum:8.3f} ms")
     print(f"  torch.argmax(p, 1)             {1e3 * t_argmax:8.3f} ms")
     print(f"  decide (egoistic)              {1e3 * t_decide:8.3f} ms")
+    if t_decide_ops:
+        print(f"  same, tensor ops               {1e3 * t_decide_ops:8.3f} ms   (without numba)")
     print(f"  decide_mixtures, {len(grid)} points    {1e3 * t_mix:8.3f} ms")
     print(f"  decide_mixtures, {len(fine)} points   {1e3 * t_fine:8.3f} ms")
     if t_ops:

@@ -13,7 +13,9 @@ matrix into ``-λI``, whose costs ``-λ q`` keep every tie of q: the robotistic 
 1. on the CPU, float32 costs, one matmul per chunk of pixels that stays in cache, with
    ``C - C.min(0) >= 0`` plus a row ``T`` bounding the reference's costs: sums of nonnegative
    terms err by at most ``γ`` times their own value, so the gap between the best two certifies
-   the reference's decision, or not (``_Fast``, ``_top``); on a GPU, one Triton kernel
+   the reference's decision, or not (``_Fast``, ``_top``); for large images one compiled pass
+   over the matrix's sparse part instead, certified row by row
+   (:mod:`costseg.decision_sparse`); on a GPU, one Triton kernel
    (:mod:`costseg.decision_triton`) sums the same costs in float64 in registers and certifies
    them the same way, K mixtures in the same read of the probabilities;
 2. the same certificate in float64 (matmuls again) for the few pixels left open (``_top64``);
@@ -25,8 +27,8 @@ mixed. Where every vertex picks the same class with a certified gap, so does eve
 Elsewhere only classes that no vertex winner beats in every vertex can win; two or three such
 candidates are decided by the signs of mixed cost differences, more by mixing their costs; near
 ties go to stages 2 and 3 on the mixed matrix of ``mix_costs``: the result equals ``decide`` on it.
-On the CPU one compiled pass per chunk does the same pixel by pixel (:mod:`costseg.decision_numba`,
-each pixel's vertex costs in cache while all K mixtures are decided); on a GPU, Triton's kernel.
+On the CPU a compiled kernel does the same block by block of pixels, each step vectorised over
+the block (:mod:`costseg.decision_numba`, :mod:`costseg.decision_mixing`); on a GPU, Triton's.
 """
 
 from __future__ import annotations
@@ -200,7 +202,7 @@ def _gpu_kernel(fast: _Fast):
 def _sparse_rule(fast: _Fast, cost: torch.Tensor):
     """:class:`costseg.decision_sparse.SparseRule` for CPU images of at least
     ``COMPILED_MIN_PIXELS`` where numba imports, else None (matmuls and ``_top``). Importing numba
-    and loading the kernel (about 0.3 s) pays off at Cityscapes scale, not for one small image."""
+    and loading the kernel (about 0.8 s) pays off at Cityscapes scale, not for one small image."""
     probs = fast.probs
     if probs.device.type != "cpu" or probs.shape[2] < COMPILED_MIN_PIXELS or _no_numba():
         return None
@@ -212,9 +214,9 @@ def _sparse_rule(fast: _Fast, cost: torch.Tensor):
 
 
 def _cpu_kernel(fast: _Fast, mix: _Mixer, shifted: torch.Tensor):
-    """:class:`costseg.decision_numba.NumbaMixer` for a grid of mixtures (more than vertices) of
-    CPU tensors where numba imports, else None (``_Mixer``'s tensor operations). A few named
-    rules do not pay for importing numba (about 0.8 s before the first image)."""
+    """:class:`costseg.decision_numba.NumbaMixer` for a grid of mixtures (more than vertices, at
+    most ``VERTICES``) of CPU tensors where numba imports, else None (``_Mixer``'s tensor
+    operations). A few named rules do not pay for importing numba (about 0.8 s)."""
     k, v = mix.weights64.shape
     if fast.probs.device.type != "cpu" or k <= v or _no_numba():
         return None

@@ -12,7 +12,8 @@ float32 costs (``_Fast.costs``: class-major, T last):
 4. else, per mixture, the candidates' mixed costs ``Σ_v w_kv x_v`` and ``T``, their argmin (the
    lowest class on ties) and the same certificate with the mixing's rounding in ``γ``. Up to
    SLOTS candidates per pixel sit side by side in slots (an empty slot costs BIG), so that all
-   the block's pixels are mixed together; pixels with more are gathered and mixed together too.
+   the block's pixels are mixed in one pass per mixture; pixels with more candidates are
+   gathered (two groups: up to FEW, up to WIDEST) and mixed in passes over slots.
 
 Pairs left open (and every pair of a pixel whose ``T`` is not finite) are flagged for the float64
 re-check. Compiled on first use and cached beside this file.
@@ -82,12 +83,11 @@ def _candidates(costs, s, size, slack, t_factor, arg, threshold, beaten, free):
 
 
 @numba.njit(**JIT)
-def _mix_slots(xs, ts, cls, slots, size, weights, params, mixed, kept, labels, s, opened):
-    """Every mixture of pixels ``:size`` of the slot arrays (costs ``xs`` (VERTICES, slots, ·),
-    classes ``cls`` (slots, ·), T ``ts`` (VERTICES, ·)) into columns ``s : s + size`` of labels
+def _mix_slots(xs, ts, cls, size, weights, params, mixed, kept, labels, s, opened):
+    """Every mixture of pixels ``:size`` of the slot arrays (costs ``xs`` (VERTICES, SLOTS, ·),
+    classes ``cls`` (SLOTS, ·), T ``ts`` (VERTICES, ·)) into columns ``s : s + size`` of labels
     and ``:size`` of opened; where ``mixed`` is 0 the flags are ``kept``. One pass per mixture:
-    with the slots (a literal) and the vertices fixed, the loop over pixels vectorises."""
-    numba.literally(slots)
+    with the slots and the vertices fixed, the loop over pixels vectorises."""
     m_delta, m_floor = np.float32(params[4]), np.float32(params[5])
     for k in range(labels.shape[0]):
         w0, w1, w2, w3 = weights[0, k], weights[1, k], weights[2, k], weights[3, k]
@@ -97,7 +97,7 @@ def _mix_slots(xs, ts, cls, slots, size, weights, params, mixed, kept, labels, s
             total = (w0 * ts[0, p] + w1 * ts[1, p]) + (w2 * ts[2, p] + w3 * ts[3, p])
             best = (w0 * xs[0, 0, p] + w1 * xs[1, 0, p]) + (w2 * xs[2, 0, p] + w3 * xs[3, 0, p])
             second, label = np.float32(np.inf), cls[0, p]
-            for j in range(1, slots):  # slots in class order: ties keep the lower class
+            for j in range(1, SLOTS):  # slots in class order: ties keep the lower class
                 y = (w0 * xs[0, j, p] + w1 * xs[1, j, p]) + (w2 * xs[2, j, p] + w3 * xs[3, j, p])
                 second = np.minimum(second, np.maximum(y, best))
                 c = cls[j, p]  # loaded either way: a conditional load does not vectorise
@@ -235,33 +235,24 @@ def decide_chunk(costs, weights, params, labels, column, start, stop):
                     group_ts[group, v, e] = costs[v, n, s + i]
                 group_pixel[group, e], group_size[group] = s + i, e + 1
                 widest = max(widest, count[i]) if group else widest
-        _mix_slots(
-            xs, ts, cls, SLOTS, size, weights, params, mixed, kept, labels, column + s, block_open
-        )
-        pairs, found = _collect(block_open, size, s, np.arange(size) + s, pairs, found)
+        _mix_slots(xs, ts, cls, size, weights, params, mixed, kept, labels, column + s, block_open)
+        pairs, found = _collect(block_open, size, np.arange(size) + s, pairs, found)
         for group in range(2):  # after the block's own labels; room for the next block
             if group_size[group] > MANY - BLOCK or (s + BLOCK >= stop and group_size[group]):
                 gathered = group_xs[group], group_ts[group], group_cls[group]
                 size, slots = group_size[group], FEW if group == 0 else widest
-                _mix_group(*gathered, size, slots, weights, params, out, flags)
+                _mix_passes(*gathered, slots, size, weights, params, out, flags)
                 pixel = group_pixel[group]
                 for k in range(k_count):
                     for e in range(size):
                         labels[k, column + pixel[e]] = out[k, e]
-                pairs, found = _collect(flags, size, 0, pixel, pairs, found)
+                pairs, found = _collect(flags, size, pixel, pairs, found)
                 group_size[group], widest = 0, widest if group == 0 else 0
     return pairs[:, :found].copy()
 
 
 @numba.njit(**JIT)
-def _mix_group(xs, ts, cls, size, slots, weights, params, out, flags):
-    """A group of gathered pixels (columns ``:size``; slots beyond a pixel's candidates cost
-    BIG), mixed together into out and flags."""
-    _mix_passes(xs, ts, cls, slots, size, weights, params, out, flags)
-
-
-@numba.njit(**JIT)
-def _collect(flags, size, s, pixel, pairs, found):
+def _collect(flags, size, pixel, pairs, found):
     """Appends (mixture, ``pixel[i]``) for every flag set in ``flags[:, :size]``."""
     for k in range(flags.shape[0]):
         row, any_set = flags[k], 0

@@ -1,19 +1,20 @@
 """Single-rule decisions on the CPU in one compiled pass (numba), from a sparse matrix.
 
 A column constant changes no decision (:mod:`costseg.decision`), so with ``c_k`` the most
-frequent entry of column k, ``C = 1 cᵀ + E`` decides as ``E`` does: ``argmin_j Σ_k E_jk q_k``.
-E is sparse for the usual matrices (robotistic: ``-I``; the paper's others add the large costs
-of missing a vulnerable class), so a pixel costs nnz(E) multiply-adds instead of N², and the
-kernel reads each block of probabilities once, from the cache, for the costs, the best two and
-the certificate.
+frequent entry of column k, ``C = 1 cᵀ + E`` decides as E: ``argmin_j e_j``, ``e_j = Σ_k E_jk
+q_k``. E is sparse for the usual matrices (robotistic: ``-I``; the paper's others add the large
+costs of missing a vulnerable class), so a pixel costs nnz(E) multiply-adds instead of N²,
+summed four terms per pass over a block of pixels that stays in cache.
 
-**Certificate.** Float32 sums of terms of either sign err by at most ``γ Σ_k |E_jk| q_k <= γ M``
-with ``M = Σ_k m_k q_k``, ``m_k = max_j |E_jk|``; the reference (float64, shifted by the column
-maxima, which differs from E by a column constant) by at most ``eps T`` (``_Fast``'s T). So the
-smallest sum a and the runner-up b certify the reference's decision a when
-``x_b - x_a > 2γ M + 2 eps T``: a row ``bound`` summed like a cost, rounded up, plus a tiny
-constant for underflow. A NaN or infinite q makes that bound NaN or infinite: never certified.
-The pixels left open go to ``_Fast.settle`` (float64 certificate, then the reference).
+**Certificate.** The kernel sums ``L = E - g |E|``, rounded down to float32: its float32 sums
+``l_j`` lie at or below ``e_j`` whatever their rounding (``g`` covers the row's depth of
+rounding and q's three roundings), and within ``d M_j`` of it, ``M_j = Σ_k |E_jk| q_k``. The
+smallest, ``l_a``, certifies the reference's decision a (float64; within ``eps T`` of exact,
+``_Fast``'s T) when every other ``l_b`` exceeds ``l_a + d M_a + 2 eps T``: first with
+``M_a <= r_a Σ_k q_k`` (``r_a``: the row's largest magnitude), vectorised; where that fails,
+with ``M_a`` itself. A NaN or infinite q makes ``Σ_k q_k`` NaN or infinite: never certified.
+The pixels left open go to ``_Fast.settle`` (float64 certificate, then the reference). As in the
+whole decision layer, probabilities are >= 0.
 """
 
 from __future__ import annotations
@@ -56,8 +57,8 @@ def _sum_groups(q, s, cols, vals, first, last, out):
 
 
 @numba.njit(**JIT)
-def _decide_blocks(q, matrix, certificate, labels, opened, start, stop):
-    """Pixels ``start:stop`` (whole blocks) of (N, P) float32 q; returns how many are open.
+def _decide_blocks(q, matrix, certificate, labels, start, stop):
+    """Pixels ``start:stop`` (whole blocks) of (N, P) float32 q; returns those left open.
 
     Args:
         matrix: (indptr, cols, vals, sizes): the lower-bound matrix's entries (float32) row by
@@ -65,7 +66,7 @@ def _decide_blocks(q, matrix, certificate, labels, opened, start, stop):
         certificate: (coef, size_coef, reference): per decided class, float32 coefficients of
             ``Σ_k q_k`` and of the row's magnitude M_a; that of ``Σ_k q_k`` for the reference's
             rounding alone.
-        labels: (P,) int64 output; opened: (P,) uint8 output, 1 where open.
+        labels: (P,) int64 output.
     """
     indptr, cols, vals, sizes = matrix
     coef, size_coef, reference = certificate
@@ -73,8 +74,8 @@ def _decide_blocks(q, matrix, certificate, labels, opened, start, stop):
     classes, ones = np.arange(every) % n, (np.arange(every) < n).astype(np.float32)
     cost, best = np.empty(BLOCK, np.float32), np.empty(BLOCK, np.float32)
     second, total = np.empty(BLOCK, np.float32), np.empty(BLOCK, np.float32)
-    arg = np.empty(BLOCK, np.int32)
-    count = 0
+    arg, flags = np.empty(BLOCK, np.int32), np.empty(BLOCK, np.uint8)
+    opened, count = np.empty(1024, np.int64), 0
     for s in range(start, stop, BLOCK):
         _sum_groups(q, s, classes, ones, 0, every, total)
         best[:], second[:], arg[:] = np.inf, np.inf, 0
@@ -91,7 +92,7 @@ def _decide_blocks(q, matrix, certificate, labels, opened, start, stop):
                 second[i] = np.minimum(second[i], np.maximum(y, low))
                 arg[i] = label if y < low else old
                 best[i] = np.minimum(y, low)
-        out, flags = labels[s : s + BLOCK], opened[s : s + BLOCK]
+        out = labels[s : s + BLOCK]
         for i in range(BLOCK):  # with M_a <= r_a Σ_k q_k: vectorised
             label, gap = arg[i], second[i] - best[i]
             sure = (gap > coef[label] * total[i] + np.float32(TINY)) & (gap < np.inf)
@@ -104,8 +105,11 @@ def _decide_blocks(q, matrix, certificate, labels, opened, start, stop):
                     size += sizes[t] * q[cols[t], s + i]
                 need = size_coef[label] * size + reference * total[i] + np.float32(TINY)
                 flags[i] = np.uint8(1) - np.uint8(gap > need)
-            count += flags[i]
-    return count
+            if flags[i]:
+                if count == len(opened):  # full: twice as large
+                    opened = np.concatenate((opened, np.empty(count, np.int64)))
+                opened[count], count = s + i, count + 1
+    return opened[:count].copy()
 
 
 class SparseRule:
@@ -152,20 +156,16 @@ class SparseRule:
     def chunk(self, q: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
         """(N, P) float32 q → (P,) int64 labels written into ``labels``; returns the open pixels."""
         q, n, p = q.contiguous().numpy(), q.shape[0], q.shape[1]
-        whole = p - p % BLOCK
-        out, opened = labels.numpy(), np.empty(p, np.uint8)
-        args = (self.matrix, self.certificate)
-        total = sum(_in_pieces(_decide_blocks, (q, *args, out, opened), whole, BLOCK))
+        whole, out, args = p - p % BLOCK, labels.numpy(), (self.matrix, self.certificate)
+        opened = _in_pieces(_decide_blocks, (q, *args, out), whole, BLOCK)
         if whole < p:  # the last pixels, padded to a block
             tail = np.zeros((n, BLOCK), np.float32)
             tail[:, : p - whole] = q[:, whole:]
-            tail_labels, tail_open = np.empty(BLOCK, np.int64), np.empty(BLOCK, np.uint8)
-            _decide_blocks(tail, *args, tail_labels, tail_open, 0, BLOCK)
-            out[whole:], opened[whole:] = tail_labels[: p - whole], tail_open[: p - whole]
-            total += int(opened[whole:].sum())
-        if not total:
-            return torch.zeros(0, dtype=torch.long)
-        return torch.from_numpy(opened).nonzero()[:, 0]
+            tail_labels = np.empty(BLOCK, np.int64)
+            tail_open = _decide_blocks(tail, *args, tail_labels, 0, BLOCK)
+            out[whole:] = tail_labels[: p - whole]
+            opened.append(tail_open[tail_open < p - whole] + whole)
+        return torch.from_numpy(np.concatenate(opened))
 
 
 def _round_down(values: torch.Tensor) -> torch.Tensor:
