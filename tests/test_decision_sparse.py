@@ -5,18 +5,15 @@ is 0, so every image goes through it, including sizes that are not whole blocks 
 """
 
 import pytest
+import test_decision
 import torch
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
-from test_decision import LOW_PRECISION, VERTICES, near_ties, probabilities, reference, smooth
+from test_decision import LOW_PRECISION, VERTICES, near_ties, reference, smooth
 
 from costseg import decision
-from costseg.costs import load_cost, symmetric_cost
+from costseg.costs import load_cost
 from costseg.decision import decide
 from costseg.decision_certified import U64, _Fast
 from costseg.decision_sparse import BLOCK, SparseRule
-
-FIXTURE_CHECK = HealthCheck.function_scoped_fixture  # the fixture only sets a module constant
 
 
 @pytest.fixture(autouse=True)
@@ -120,15 +117,9 @@ def test_sizes_around_a_block(shape):
     assert torch.equal(decide(probs, None), probs.argmax(1))
 
 
-@settings(
-    max_examples=100, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
-)
-@given(probabilities(), st.integers(0, 2**31), st.booleans())
-def test_random_costs_and_priors_match_the_reference(probs, seed, pixelwise):
-    _, n, h, w = probs.shape
-    gen = torch.Generator().manual_seed(seed)
-    cost = torch.randint(1, 5, (n, n), generator=gen).double() * (1 - torch.eye(n))
-    assert torch.equal(decide(probs, cost), reference(probs, cost))
-    assert torch.equal(decide(probs, symmetric_cost(n)), probs.argmax(1))
-    priors = torch.randint(1, 4, (n, h, w) if pixelwise else (n,), generator=gen) / 4
-    assert torch.equal(decide(probs, cost, priors), reference(probs, cost, priors))
+def test_property_tests_of_the_decision_layer():
+    """test_decision's property-based tests (exact ties, scale invariance, random matrices and
+    priors against the reference), here through the kernel."""
+    test_decision.test_symmetric_rule_is_argmax_including_ties()
+    test_decision.test_scale_invariance()
+    test_decision.test_random_costs_and_priors_match_the_reference()
