@@ -93,14 +93,13 @@ def _mix_slots(xs, ts, cls, size, weights, params, mixed, kept, labels, s, opene
         w0, w1, w2, w3 = weights[0, k], weights[1, k], weights[2, k], weights[3, k]
         out, flags = labels[k, s : s + size], opened[k, :size]
         for i in range(size):
-            p = i
-            total = (w0 * ts[0, p] + w1 * ts[1, p]) + (w2 * ts[2, p] + w3 * ts[3, p])
-            best = (w0 * xs[0, 0, p] + w1 * xs[1, 0, p]) + (w2 * xs[2, 0, p] + w3 * xs[3, 0, p])
-            second, label = np.float32(np.inf), cls[0, p]
+            total = (w0 * ts[0, i] + w1 * ts[1, i]) + (w2 * ts[2, i] + w3 * ts[3, i])
+            best = (w0 * xs[0, 0, i] + w1 * xs[1, 0, i]) + (w2 * xs[2, 0, i] + w3 * xs[3, 0, i])
+            second, label = np.float32(np.inf), cls[0, i]
             for j in range(1, SLOTS):  # slots in class order: ties keep the lower class
-                y = (w0 * xs[0, j, p] + w1 * xs[1, j, p]) + (w2 * xs[2, j, p] + w3 * xs[3, j, p])
+                y = (w0 * xs[0, j, i] + w1 * xs[1, j, i]) + (w2 * xs[2, j, i] + w3 * xs[3, j, i])
                 second = np.minimum(second, np.maximum(y, best))
-                c = cls[j, p]  # loaded either way: a conditional load does not vectorise
+                c = cls[j, i]  # loaded either way: a conditional load does not vectorise
                 label = c if y < best else label
                 best = np.minimum(y, best)
             gap_ok = second - best > m_delta * second
