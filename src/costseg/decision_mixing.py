@@ -24,7 +24,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-TINY = 2.0**-120  # as in decision_certified
+from costseg.decision_certified import TINY
+
 UNDERFLOW = 2.0**-60  # a runner-up below it: never certified
 BLOCK = 512  # pixels decided together: their vertex costs stay in cache
 SLOTS = 3  # candidates mixed side by side for every pixel of a block

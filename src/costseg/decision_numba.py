@@ -126,7 +126,7 @@ def _in_pieces(kernel, args: tuple, count: int, align: int = 1) -> list:
 
 @cache
 def _threads() -> ThreadPoolExecutor:
-    return ThreadPoolExecutor(len(os.sched_getaffinity(0)), thread_name_prefix="mixtures")
+    return ThreadPoolExecutor(len(os.sched_getaffinity(0)), thread_name_prefix="decision")
 
 
 os.register_at_fork(after_in_child=_threads.cache_clear)  # a forked child has none of its threads
