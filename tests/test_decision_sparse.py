@@ -40,9 +40,13 @@ def test_the_kernel_decides_and_certifies_most_pixels(monkeypatch):
     assert torch.equal(decide(probs, VERTICES[2]), reference(probs, VERTICES[2]))
     assert calls
     for cost in VERTICES:
-        fast = _Fast(cost.double()[None], probs, None, 23 * U64)
+        cost = cost.double()[None]
+        rule = SparseRule(_Fast(cost, probs, None, 23 * U64), cost, decision._shift(cost))
         labels = torch.empty(64 * 80, dtype=torch.long)
-        opened = SparseRule(fast, cost.double()[None]).chunk(probs[0].view(19, -1), labels)
+        assert not len(rule.chunk(probs[0].view(19, -1), labels))  # open: the reference here
+        assert torch.equal(labels, reference(probs, cost[0]).view(-1))
+        rule.reference64 = None  # open pixels returned
+        opened = rule.chunk(probs[0].view(19, -1), labels)
         assert len(opened) < 0.01 * len(labels), len(opened)
 
 
@@ -108,9 +112,12 @@ def test_exact_ties_underflow_and_non_finite_probabilities():
         assert torch.equal(decide(probs, cost), tensor_path(probs, cost))
 
 
-@pytest.mark.parametrize("shape", [(1, 19, 1, 1), (3, 19, 3, 5), (1, 19, 16, 32), (2, 19, 1, 1025)])
+# one pixel, 15, one block, two blocks and a pixel
+SHAPES = [(1, 19, 1, 1), (3, 19, 3, 5), (1, 19, 1, BLOCK), (2, 19, 1, 2 * BLOCK + 1)]
+
+
+@pytest.mark.parametrize("shape", SHAPES)
 def test_sizes_around_a_block(shape):
-    assert BLOCK == 512  # (1, 19, 16, 32) is one block; (2, 19, 1, 1025) two and a pixel
     probs = smooth(shape, 8, scale=3)
     for cost in VERTICES:
         assert torch.equal(decide(probs, cost), reference(probs, cost))

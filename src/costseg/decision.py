@@ -99,7 +99,7 @@ def decide(
             if len(redo):
                 out[i, redo] = fast.settle(fast.exact_q(i, redo), shifted)
         return out.view(b, h, w)
-    rule = _sparse_rule(fast, cost)
+    rule = _sparse_rule(fast, cost, shifted)
     for i in range(b):
         redo, q64 = [], []
         for s, q in fast.chunks(i, rule and rule.step):
@@ -199,7 +199,7 @@ def _gpu_kernel(fast: _Fast):
     return decision_triton
 
 
-def _sparse_rule(fast: _Fast, cost: torch.Tensor):
+def _sparse_rule(fast: _Fast, cost: torch.Tensor, shifted: torch.Tensor):
     """:class:`costseg.decision_sparse.SparseRule` for CPU images of at least
     ``COMPILED_MIN_PIXELS`` where numba imports, else None (matmuls and ``_top``). Importing numba
     and loading the kernel (about 0.8 s) pays off at Cityscapes scale, not for one small image."""
@@ -210,7 +210,7 @@ def _sparse_rule(fast: _Fast, cost: torch.Tensor):
         from costseg.decision_sparse import SparseRule
     except ImportError:
         return None
-    return SparseRule(fast, cost)
+    return SparseRule(fast, cost, shifted)
 
 
 def _cpu_kernel(fast: _Fast, mix: _Mixer, shifted: torch.Tensor):

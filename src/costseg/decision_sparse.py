@@ -3,18 +3,22 @@
 A column constant changes no decision (:mod:`costseg.decision`), so with ``c_k`` the most
 frequent entry of column k, ``C = 1 cᵀ + E`` decides as E: ``argmin_j e_j``, ``e_j = Σ_k E_jk
 q_k``. E is sparse for the usual matrices (robotistic: ``-I``; the paper's others add the large
-costs of missing a vulnerable class), so a pixel costs nnz(E) multiply-adds instead of N²,
-summed four terms per pass over a block of pixels that stays in cache.
+costs of missing a vulnerable class), and rows of the same kind share most entries (the
+egoistic matrix's seven static classes differ only on the diagonal). So rows are grouped
+(:func:`_shared_rows`): a group's shared entries B are summed once per pixel, each row adds its
+own rest ``D_j = E_j - B``. The sums run over a block of pixels that stays in cache, up to four
+terms per pass.
 
-**Certificate.** The kernel sums ``L = E - g |E|``, rounded down to float32: its float32 sums
-``l_j`` lie at or below ``e_j`` whatever their rounding (``g`` covers the row's depth of
-rounding and q's three roundings), and within ``d M_j`` of it, ``M_j = Σ_k |E_jk| q_k``. The
-smallest, ``l_a``, certifies the reference's decision a (float64; within ``eps T`` of exact,
-``_Fast``'s T) when every other ``l_b`` exceeds ``l_a + d M_a + 2 eps T``: first with
-``M_a <= r_a Σ_k q_k`` (``r_a``: the row's largest magnitude), vectorised; where that fails,
-with ``M_a`` itself. A NaN or infinite q makes ``Σ_k q_k`` NaN or infinite: never certified.
-The pixels left open go to ``_Fast.settle`` (float64 certificate, then the reference). As in the
-whole decision layer, probabilities are >= 0.
+**Certificate.** The kernel sums ``L = B' + D'_j``, the entries moved down by ``g |.|`` and
+rounded down to float32: its float32 sums ``l_j`` lie at or below ``e_j`` whatever their
+rounding (``g`` covers the row's depth of rounding and q's three roundings), and within ``d M_j``
+of it, ``M_j = Σ_k (|B_k| + |D_jk|) q_k``. The smallest, ``l_a``, certifies the reference's
+decision a (float64; within ``eps T`` of exact, ``_Fast``'s T) when every other ``l_b`` exceeds
+``l_a + d M_a + 2 eps T``: first with ``M_a <= r_a Σ_k q_k`` (``r_a``: the row's largest
+magnitude), vectorised; where that fails, with ``M_a`` itself. A NaN or infinite q makes
+``Σ_k q_k`` NaN or infinite: never certified. The pixels left open go to ``_Fast.settle``
+(float64 certificate, then the reference). As in the whole decision layer, probabilities are
+>= 0.
 """
 
 from __future__ import annotations
@@ -28,9 +32,11 @@ import torch
 from costseg.decision_certified import TINY, U32, U64, _Fast
 from costseg.decision_numba import _in_pieces
 
-BLOCK = 512  # pixels decided together: (N x BLOCK) float32 probabilities stay in cache
+BLOCK = 1024  # pixels decided together: (N x BLOCK) float32 probabilities stay in cache
 CHUNK = 1 << 20  # pixels converted to float32 q at once (other types, pixel-wise priors)
 ROUNDING = 1 + 2.0**-20  # rounds the float64 bound's coefficients up past their float32 casts
+PASS = 4  # terms summed per pass
+ZERO, TOTAL = 0, 1  # rows of the kernel's buffer: zeros; Σ_k q_k. Then groups, rows, +inf.
 
 
 # fastmath "contract" only: multiply-adds fused (one rounding less), NaN and inf kept.
@@ -38,90 +44,154 @@ JIT = dict(nogil=True, cache=True, boundscheck=False, error_model="numpy", fastm
 
 
 @numba.njit(**JIT)
-def _sum_groups(q, s, cols, vals, first, last, out):
-    """``out = Σ_t vals[t] q[cols[t], s : s + BLOCK]`` for t in ``first:last``, four terms per
-    pass (loads and stores, not arithmetic, bound a pass; the rounding bound holds in any order
-    of summation)."""
-    if first == last:
-        out[:] = 0
-    for t in range(first, last, 4):
-        a, b, c, d = vals[t], vals[t + 1], vals[t + 2], vals[t + 3]
-        row_a, row_b = q[cols[t], s : s + BLOCK], q[cols[t + 1], s : s + BLOCK]
-        row_c, row_d = q[cols[t + 2], s : s + BLOCK], q[cols[t + 3], s : s + BLOCK]
+def _sums(q, s, cols, vals, first, stop, prefix, out):
+    """``out = prefix + Σ_t vals[t] q[cols[t], s : s + BLOCK]`` for t in ``first:stop``, up to
+    four terms per pass (loads and stores, not arithmetic, bound a pass). Each term is rounded
+    at most four times in its pass and once in each later one. ``prefix`` is another row than
+    ``out``: loops on two rows that might overlap would not vectorise."""
+    for t in range(first, stop, PASS):
+        count, last = min(PASS, stop - t), stop - 1
+        tb, tc, td = min(t + 1, last), min(t + 2, last), min(t + 3, last)
+        a, b, c, d = vals[t], vals[tb], vals[tc], vals[td]
+        row_a, row_b = q[cols[t], s : s + BLOCK], q[cols[tb], s : s + BLOCK]
+        row_c, row_d = q[cols[tc], s : s + BLOCK], q[cols[td], s : s + BLOCK]
         if t == first:
-            for i in range(BLOCK):
-                out[i] = (a * row_a[i] + b * row_b[i]) + (c * row_c[i] + d * row_d[i])
-        else:
+            if count == 4:
+                for i in range(BLOCK):
+                    pair = a * row_a[i] + b * row_b[i]
+                    out[i] = prefix[i] + (pair + (c * row_c[i] + d * row_d[i]))
+            elif count == 3:
+                for i in range(BLOCK):
+                    out[i] = prefix[i] + ((a * row_a[i] + b * row_b[i]) + c * row_c[i])
+            elif count == 2:
+                for i in range(BLOCK):
+                    out[i] = prefix[i] + (a * row_a[i] + b * row_b[i])
+            else:
+                for i in range(BLOCK):
+                    out[i] = prefix[i] + a * row_a[i]
+        elif count == 4:
             for i in range(BLOCK):
                 out[i] += (a * row_a[i] + b * row_b[i]) + (c * row_c[i] + d * row_d[i])
+        elif count == 3:
+            for i in range(BLOCK):
+                out[i] += (a * row_a[i] + b * row_b[i]) + c * row_c[i]
+        elif count == 2:
+            for i in range(BLOCK):
+                out[i] += a * row_a[i] + b * row_b[i]
+        else:
+            for i in range(BLOCK):
+                out[i] += a * row_a[i]
 
 
 @numba.njit(**JIT)
-def _decide_blocks(q, matrix, certificate, labels, start, stop):
-    """Pixels ``start:stop`` (whole blocks) of (N, P) float32 q; returns those left open.
+def _best_two(work, results, best, second, arg):
+    """Smallest and second smallest of the rows ``work[results]`` (a multiple of four; ties keep
+    the first), four rows per pass, branch-free so that it vectorises."""
+    best[:], second[:], arg[:] = np.inf, np.inf, 0
+    for j in range(0, len(results), 4):
+        row_a, row_b = work[results[j]], work[results[j + 1]]
+        row_c, row_d = work[results[j + 2]], work[results[j + 3]]
+        ja, jb, jc, jd = np.int32(j), np.int32(j + 1), np.int32(j + 2), np.int32(j + 3)
+        for i in range(BLOCK):
+            low, high, label = best[i], second[i], arg[i]
+            y = row_a[i]
+            high, label = np.minimum(high, np.maximum(y, low)), ja if y < low else label
+            low = np.minimum(y, low)
+            y = row_b[i]
+            high, label = np.minimum(high, np.maximum(y, low)), jb if y < low else label
+            low = np.minimum(y, low)
+            y = row_c[i]
+            high, label = np.minimum(high, np.maximum(y, low)), jc if y < low else label
+            low = np.minimum(y, low)
+            y = row_d[i]
+            high, label = np.minimum(high, np.maximum(y, low)), jd if y < low else label
+            low = np.minimum(y, low)
+            best[i], second[i], arg[i] = low, high, label
+
+
+@numba.njit(nogil=True, cache=True, boundscheck=False, error_model="numpy")
+def _reference_pixels(q, shifted_t, priors, labels, start, stop):
+    """``_reference`` for pixels ``start:stop`` of (R, N) float32 q (exactly p): ``p / π`` in
+    float64, then each product and sum rounded once (no fastmath: called from Python, as numba
+    compiles a callee with its caller's flags), ascending k; the first minimum. -1 where a cost
+    is NaN (left to torch's reference)."""
+    n = q.shape[1]
+    costs = np.empty(n, np.float64)
+    for r in range(start, stop):
+        costs[:] = 0.0
+        for k in range(n):
+            x = np.float64(q[r, k]) / priors[k]
+            for j in range(n):
+                costs[j] = costs[j] + shifted_t[k, j] * x
+        best = 0
+        for j in range(n):
+            if costs[j] < costs[best]:
+                best = j
+        labels[r] = -1 if np.isnan(costs).any() else best
+
+
+@numba.njit(**JIT)
+def _decide_blocks(q, program, certificate, labels, start, stop):
+    """Pixels ``start:stop`` (whole blocks) of (N, P) float32 q; returns those left open and
+    their (R, N) q, gathered while in cache.
 
     Args:
-        matrix: (indptr, cols, vals, sizes): the lower-bound matrix's entries (float32) row by
-            row, padded with zeros to groups of four, and their magnitudes.
-        certificate: (coef, size_coef, reference): per decided class, float32 coefficients of
-            ``Σ_k q_k`` and of the row's magnitude M_a; that of ``Σ_k q_k`` for the reference's
-            rounding alone.
+        program: (passes, cols, vals, results, rows): each pass ``(out, prefix, first, stop)``
+            writes ``work[out] = work[prefix] + Σ`` of terms ``first:stop`` (float32 ``cols``,
+            ``vals``): Σ_k q_k, then the groups' shared sums, then the rows; ``results``: each
+            class's row of ``work``, padded to a multiple of four with the +inf row; ``rows``:
+            the buffer's row count.
+        certificate: (coef, support, reference): per decided class, the float32 coefficient
+            of ``Σ_k q_k`` over its support and that sum's row of ``work``; the coefficient of
+            ``Σ_k q_k`` for the reference's rounding.
         labels: (P,) int64 output.
     """
-    indptr, cols, vals, sizes = matrix
-    coef, size_coef, reference = certificate
-    n, every = q.shape[0], -(-q.shape[0] // 4) * 4
-    classes, ones = np.arange(every) % n, (np.arange(every) < n).astype(np.float32)
-    cost, best = np.empty(BLOCK, np.float32), np.empty(BLOCK, np.float32)
-    second, total = np.empty(BLOCK, np.float32), np.empty(BLOCK, np.float32)
-    arg, flags = np.empty(BLOCK, np.int32), np.empty(BLOCK, np.uint8)
+    passes, cols, vals, results, rows = program
+    coef, support, reference = certificate
+    n = q.shape[0]
+    work = np.zeros((rows, BLOCK), np.float32)
+    work[rows - 1] = np.inf
+    best, second = np.empty(BLOCK, np.float32), np.empty(BLOCK, np.float32)
+    arg, flags = np.empty(BLOCK, np.int32), np.empty(BLOCK, np.int32)
+    index = np.empty(BLOCK, np.int64)
     opened, count = np.empty(1024, np.int64), 0
+    values, total = np.empty((1024, n), np.float32), work[TOTAL]
     for s in range(start, stop, BLOCK):
-        _sum_groups(q, s, classes, ones, 0, every, total)
-        best[:], second[:], arg[:] = np.inf, np.inf, 0
-        for j in range(n):
-            last = indptr[j + 1] - 4  # the last group joins the pass that keeps the best two
-            _sum_groups(q, s, cols, vals, indptr[j], last, cost)
-            a, b, c, d = vals[last], vals[last + 1], vals[last + 2], vals[last + 3]
-            row_a, row_b = q[cols[last], s : s + BLOCK], q[cols[last + 1], s : s + BLOCK]
-            row_c, row_d = q[cols[last + 2], s : s + BLOCK], q[cols[last + 3], s : s + BLOCK]
-            label = np.int32(j)
-            for i in range(BLOCK):  # branch-free, so that it vectorises; ties keep the lower j
-                group = (a * row_a[i] + b * row_b[i]) + (c * row_c[i] + d * row_d[i])
-                y, low, old = cost[i] + group, best[i], arg[i]
-                second[i] = np.minimum(second[i], np.maximum(y, low))
-                arg[i] = label if y < low else old
-                best[i] = np.minimum(y, low)
+        for p in range(len(passes)):
+            out, prefix, first, last = passes[p]
+            _sums(q, s, cols, vals, first, last, work[prefix], work[out])
+        _best_two(work, results, best, second, arg)
         out = labels[s : s + BLOCK]
-        for i in range(BLOCK):  # with M_a <= r_a Σ_k q_k: vectorised
+        for i in range(BLOCK):  # M_a <= r_a Σ_k q_k over a's support
             label, gap = arg[i], second[i] - best[i]
-            sure = (gap > coef[label] * total[i] + np.float32(TINY)) & (gap < np.inf)
-            out[i], flags[i] = label, np.uint8(1) - np.uint8(sure)
-        for i in range(BLOCK):  # the rest with M_a itself
-            gap = second[i] - best[i]
-            if flags[i] and gap > 0 and gap < np.inf:
-                size, label = np.float32(0), arg[i]
-                for t in range(indptr[label], indptr[label + 1]):
-                    size += sizes[t] * q[cols[t], s + i]
-                need = size_coef[label] * size + reference * total[i] + np.float32(TINY)
-                flags[i] = np.uint8(1) - np.uint8(gap > need)
-            if flags[i]:
-                if count == len(opened):  # full: twice as large
-                    opened = np.concatenate((opened, np.empty(count, np.int64)))
-                opened[count], count = s + i, count + 1
-    return opened[:count].copy()
+            need = coef[label] * work[support[label], i] + reference * total[i]
+            sure = (gap > need + np.float32(TINY)) & (gap < np.inf)
+            out[i], flags[i] = label, np.int32(1) - np.int32(sure)
+        unsure = 0
+        for i in range(BLOCK):  # the pixels left open, gathered
+            index[unsure] = i
+            unsure += flags[i]
+        if count + unsure > len(opened):  # full: twice as large
+            opened = np.concatenate((opened, np.empty(len(opened) + BLOCK, np.int64)))
+            values = np.concatenate((values, np.empty((len(values) + BLOCK, n), np.float32)))
+        for r in range(unsure):
+            opened[count + r] = s + index[r]
+            for k in range(n):
+                values[count + r, k] = q[k, s + index[r]]
+        count += unsure
+    return opened[:count].copy(), values[:count].copy()
 
 
 class SparseRule:
-    """One matrix's sparse part E, float32, and its certificate, for :func:`_decide_blocks`.
+    """One matrix's grouped sparse part, float32, and its certificate, for :func:`_decide_blocks`.
 
     Args:
         fast: the matrix's ``_Fast`` (priors, T's coefficients and ``eps``; the open pixels'
             re-check).
-        cost: (1, N, N) float64 cost matrix.
+        cost: (1, N, N) float64 cost matrix; shifted: (1, N, N) the reference's.
     """
 
-    def __init__(self, fast: _Fast, cost: torch.Tensor) -> None:
+    def __init__(self, fast: _Fast, cost: torch.Tensor, shifted: torch.Tensor) -> None:
         n = cost.shape[-1]
         sparse = cost[0] - cost[0].mode(0, keepdim=True).values
         total = fast.weight64[n].cpu()  # T's coefficients: R_k, bounding |reference cost| / q_k
@@ -130,70 +200,152 @@ class SparseRule:
         top = sparse.abs().max().item()
         scale = 2.0 ** -math.frexp(top)[1] if top > 0 else 1.0  # exact: keeps float32 in range
         sparse = sparse * scale
-        magnitude, nonzero = sparse.abs(), sparse != 0
-        # Row j's float32 sum: terms rounded at most depth_j times, q three times before.
-        gamma = (1 + U32) ** 3 * (1 + _gamma(_depth(nonzero.sum(1)))) - 1
+        group, shared = _shared_rows(sparse.numpy())
+        group, shared = torch.from_numpy(group), torch.from_numpy(shared)
+        base = _with_zeros(shared)[group]  # (N, N): each row's B (group -1: the zero row)
+        own = sparse - base  # D; B + D = E within u64 |D|, far inside g's 1 % slack
+        magnitude = base.abs() + own.abs()
+        steps = _with_zeros(_passes((shared != 0).sum(1)))[group] + _passes((own != 0).sum(1))
+        # Row j's float32 sum: terms rounded at most passes + 3 times, q three times before.
+        gamma = (1 + U32) ** 3 * (1 + _gamma(steps + 3)) - 1
         margin = gamma * (1 + U32) * (1 + 8 * U64)  # 8 u64: the float64 steps before
-        g = 1.01 * margin / (1 - margin)
-        # Lower bounds of the costs: entries moved down by g |E|, then rounded down.
-        single = _round_down(sparse - g[:, None] * magnitude)
-        self.matrix = _padded_rows(single)
-        # A row's lower bound lies within d M_a of its cost, M_a <= r_a Σ_k q_k.
+        g, g_shared = 1.01 * margin / (1 - margin), torch.zeros(len(shared), dtype=torch.float64)
+        for index in range(len(shared)):  # a group's shared sum: one g for its rows
+            members = group == index
+            g[members] = g_shared[index] = g[members].max()
+        # Lower bounds of the costs: entries moved down by g |.|, then rounded down.
+        shared = _round_down(shared - g_shared[:, None] * shared.abs())
+        own = _round_down(own - g[:, None] * own.abs())
+        sums, support = _supports(magnitude, group)
+        self.program = _program(sums, shared, own, group.numpy())
+        # A row's lower bound lies within d M_a of its cost, M_a <= r_a Σ_k q_k over its
+        # group's support.
         d = g + U32 * (1 + g) * (1 + 8 * U64) + gamma * (1 + g) * (1 + U32)
         reference = 2 * fast.eps * (total * scale).max().item()  # 2 eps T <= this Σ_k q_k
-        shrink = (1 - U32) ** 3 * (1 - _gamma(_depth(torch.tensor(n))))  # computed Σ_k q_k
-        up = (1 + U32) ** 2 / shrink * ROUNDING  # and the test's roundings, and the cast
-        coef = ((d * magnitude.amax(1) + reference) * up).float().numpy()
-        # M_a itself from |lower| >= (1 - g)(1 - u)|E|, summed one term after another.
-        terms = torch.tensor(np.diff(self.matrix[0]))
-        shrink_row = (1 - U32) ** 3 * (1 - _gamma(terms))
-        size_coef = (d / ((1 - g) * (1 - U32)) * up * shrink / shrink_row).float().numpy()
-        self.certificate = coef, size_coef, np.float32(reference * up)
+        shrink = (1 - U32) ** 3 * (1 - _gamma(_passes(torch.tensor(n)) + 3))  # computed Σ_k q_k
+        up = (1 + U32) ** 3 / shrink * ROUNDING  # and the test's roundings, and the cast
+        coef = (d * magnitude.amax(1) * up).float().numpy()  # of the support's Σ_k q_k
+        self.certificate = coef, support, np.float32(reference * up)
+        # Open pixels: the reference here where q is exactly p (no pixel-wise priors; float32
+        # and narrower types), else _Fast.settle.
+        self.reference64 = None
+        if fast.pixel_priors is None and fast.probs.dtype != torch.float64:
+            global_priors = fast.priors is not None
+            priors = fast.priors.cpu().double() if global_priors else torch.ones(n).double()
+            self.reference64 = shifted[0].cpu().t().contiguous().numpy(), priors.numpy()
         # Chunks: a float32 image without pixel-wise priors is read where it lies.
         as_is = fast.probs.dtype == torch.float32 and fast.pixel_priors is None
         self.step = fast.probs.shape[2] if as_is else CHUNK
 
     def chunk(self, q: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
-        """(N, P) float32 q → (P,) int64 labels written into ``labels``; returns the open pixels."""
+        """(N, P) float32 q → (P,) int64 labels written into ``labels``; returns the pixels left
+        to ``_Fast.settle``: those open where q is not exactly p, else those with NaN costs."""
         q, n, p = q.contiguous().numpy(), q.shape[0], q.shape[1]
-        whole, out, args = p - p % BLOCK, labels.numpy(), (self.matrix, self.certificate)
-        opened = _in_pieces(_decide_blocks, (q, *args, out), whole, BLOCK)
+        whole, out, args = p - p % BLOCK, labels.numpy(), (self.program, self.certificate)
+        pieces = _in_pieces(_decide_blocks, (q, *args, out), whole, BLOCK)
         if whole < p:  # the last pixels, padded to a block
             tail = np.zeros((n, BLOCK), np.float32)
             tail[:, : p - whole] = q[:, whole:]
             tail_labels = np.empty(BLOCK, np.int64)
-            tail_open = _decide_blocks(tail, *args, tail_labels, 0, BLOCK)
+            opened, values = _decide_blocks(tail, *args, tail_labels, 0, BLOCK)
             out[whole:] = tail_labels[: p - whole]
-            opened.append(tail_open[tail_open < p - whole] + whole)
-        return torch.from_numpy(np.concatenate(opened))
+            pieces.append((opened[opened < p - whole] + whole, values[opened < p - whole]))
+        opened = np.concatenate([part[0] for part in pieces])
+        values = np.concatenate([part[1] for part in pieces])
+        if self.reference64 is not None and len(opened):  # the reference, on these q
+            decided = np.empty(len(opened), np.int64)
+            _in_pieces(_reference_pixels, (values, *self.reference64, decided), len(opened))
+            out[opened] = decided
+            opened = opened[decided < 0]
+        return torch.from_numpy(opened)
+
+
+def _shared_rows(sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Groups of rows with shared entries: (N,) each row's group (-1: none) and (G, N) the
+    groups' shared entries B (per column, a nonzero value that two members or more have).
+
+    Greedy: the group that saves the most terms (less a pass per group) is taken first, seeded
+    by each free row with the free rows that share two entries or more with it, less those that
+    would not save a term."""
+    n = len(sparse)
+    group, shared, free = np.full(n, -1), [], np.ones(n, bool)
+    same = ((sparse[:, None] == sparse[None]) & (sparse[None] != 0)).sum(2) >= 2
+    while True:
+        best = (0, None, None)
+        for seed in np.flatnonzero(free):
+            members = np.flatnonzero(free & same[seed])
+            while len(members) >= 2:  # drop the members that save nothing, until none does
+                rows = sparse[members]
+                agree = (rows[:, None] == rows[None]).sum(1)  # members with each one's entry
+                base = np.where(agree.max(0) >= 2, rows[agree.argmax(0), np.arange(n)], 0.0)
+                saves = np.count_nonzero(rows, 1) - np.count_nonzero(rows - base, 1)
+                if (saves > 0).all():
+                    saving = saves.sum() - np.count_nonzero(base) - PASS
+                    if saving > best[0]:
+                        best = (saving, members, base)
+                    break
+                members = members[saves > 0]
+        if best[1] is None:
+            return group, np.array(shared).reshape(-1, n)
+        group[best[1]], free[best[1]] = len(shared), False
+        shared.append(best[2])
+
+
+def _program(sums: torch.Tensor, shared: torch.Tensor, own: torch.Tensor, group) -> tuple:
+    """``_decide_blocks``' program (see there) for (S, N) sums of q (Σ_k q_k, then the
+    supports'), (G, N) groups' shared entries, (N, N) rows' own entries."""
+    n, first_shared, first_own = len(own), len(sums), len(sums) + len(shared)
+    matrix = torch.cat([sums, shared, own])
+    ptr, cols, vals = _terms(matrix)
+    out = np.arange(len(matrix)) + TOTAL  # work's rows
+    prefix = np.full(len(matrix), ZERO)
+    prefix[first_own:] = np.where(group >= 0, group + TOTAL + first_shared, ZERO)
+    some = ptr[1:] > ptr[:-1]  # rows with terms
+    passes = np.stack([out, prefix, ptr[:-1], ptr[1:]], 1)[some]
+    results = np.where(some[first_own:], out[first_own:], prefix[first_own:])
+    rows = TOTAL + len(matrix) + 1  # and the +inf row, last
+    results = np.concatenate([results, np.full(-n % 4, rows - 1)])
+    return passes.astype(np.int64), cols, vals, results.astype(np.int64), rows
+
+
+def _supports(magnitude: torch.Tensor, group: torch.Tensor) -> tuple[torch.Tensor, np.ndarray]:
+    """Sums of q over the rows' supports (a group's rows: their union), for the vectorised
+    certificate: (S, N) their indicators, Σ_k q_k first, and (N,) each row's in ``work``. A
+    row on one column uses Σ_k q_k."""
+    support = magnitude != 0
+    for index in range(int(group.max()) + 1):
+        members = group == index
+        support[members] = support[members].any(0)
+    support[support.sum(1) < 2] = True
+    sums = support.unique(dim=0)
+    sums = torch.cat([torch.ones(1, len(support), dtype=torch.bool), sums[~sums.all(1)]])
+    rows = (sums[:, None] == support[None]).all(2).int().argmax(0) + TOTAL
+    return sums.double(), rows.numpy()
+
+
+def _terms(matrix: torch.Tensor) -> tuple[np.ndarray, ...]:
+    """(ptr, cols, float32 vals) of a float32-exact matrix's nonzero entries, row by row."""
+    matrix = matrix.float()
+    ptr = np.concatenate([[0], np.cumsum((matrix != 0).sum(1).numpy())])
+    rows, cols = matrix.nonzero(as_tuple=True)
+    return ptr, cols.numpy(), matrix[rows, cols].numpy()
+
+
+def _with_zeros(values: torch.Tensor) -> torch.Tensor:
+    """``values`` and a last row of zeros, which index -1 picks."""
+    return torch.cat([values, values.new_zeros(1, *values.shape[1:])])
 
 
 def _round_down(values: torch.Tensor) -> torch.Tensor:
-    """float64 → float32, each rounded down."""
+    """float64 → float32 (as float64), each rounded down."""
     single = values.float()
     above = single.double() > values
-    return torch.where(above, torch.nextafter(single, torch.tensor(-math.inf)), single)
+    return torch.where(above, torch.nextafter(single, torch.tensor(-math.inf)), single).double()
 
 
-def _depth(terms: torch.Tensor) -> torch.Tensor:
-    """The most roundings a term of a sum of ``terms`` terms undergoes in ``_decide_blocks``:
-    four in its group's pass (product, pair, pairs, accumulation), one in each later pass."""
-    return (terms.clamp(min=1) + 3) // 4 + 3
-
-
-def _padded_rows(matrix: torch.Tensor) -> tuple[np.ndarray, ...]:
-    """(indptr, cols, vals, |vals|) of a float32 matrix's nonzero entries, row by row, each row
-    padded with zero terms to a positive multiple of four (on one of its columns: a zero times
-    a finite q adds nothing; a NaN or inf q opens the pixel anyway)."""
-    indptr, cols, vals = [0], [], []
-    for row in matrix:
-        (where,) = row.nonzero(as_tuple=True)
-        pad = -len(where) % 4 if len(where) else 4
-        cols += where.tolist() + [where[0].item() if len(where) else 0] * pad
-        vals += row[where].tolist() + [0.0] * pad
-        indptr.append(len(cols))
-    vals = np.array(vals, np.float32)
-    return np.array(indptr), np.array(cols), vals, np.abs(vals)
+def _passes(terms: torch.Tensor) -> torch.Tensor:
+    """Passes of up to four terms for sums of ``terms`` terms."""
+    return (terms + PASS - 1) // PASS
 
 
 def _gamma(m: torch.Tensor) -> torch.Tensor:
