@@ -11,6 +11,7 @@ CHAIN = [
     {"costs"},
     {
         "decision_certified",
+        "decision_groups",
         "decision_mixing",
         "decision_numba",
         "decision_sparse",
@@ -29,6 +30,7 @@ NO_LIGHTNING = {
     "costs",
     "decision",
     "decision_certified",
+    "decision_groups",
     "decision_mixing",
     "decision_numba",
     "decision_sparse",

@@ -30,13 +30,12 @@ import numpy as np
 import torch
 
 from costseg.decision_certified import TINY, U32, U64, _Fast
+from costseg.decision_groups import PASS, TOTAL, grouping, program, supports, with_zeros
 from costseg.decision_numba import _in_pieces
 
 BLOCK = 1024  # pixels decided together: (N x BLOCK) float32 probabilities stay in cache
 CHUNK = 1 << 20  # pixels converted to float32 q at once (other types, pixel-wise priors)
 ROUNDING = 1 + 2.0**-20  # rounds the float64 bound's coefficients up past their float32 casts
-PASS = 4  # terms summed per pass
-ZERO, TOTAL = 0, 1  # rows of the kernel's buffer: zeros; Σ_k q_k. Then groups, rows, +inf.
 
 
 # fastmath "contract" only: multiply-adds fused (one rounding less), NaN and inf kept.
@@ -86,27 +85,27 @@ def _sums(q, s, cols, vals, first, stop, prefix, out):
 @numba.njit(**JIT)
 def _best_two(work, results, best, second, arg):
     """Smallest and second smallest of the rows ``work[results]`` (a multiple of four; ties keep
-    the first), four rows per pass, branch-free so that it vectorises."""
+    the first), four rows per pass. Plain selects, which compile to min and max instructions:
+    NaN costs are skipped, but a pixel with any (from a NaN or infinite q) has a non-finite
+    ``Σ_k q_k`` and is never certified."""
     best[:], second[:], arg[:] = np.inf, np.inf, 0
     for j in range(0, len(results), 4):
         row_a, row_b = work[results[j]], work[results[j + 1]]
         row_c, row_d = work[results[j + 2]], work[results[j + 3]]
-        ja, jb, jc, jd = np.int32(j), np.int32(j + 1), np.int32(j + 2), np.int32(j + 3)
         for i in range(BLOCK):
             low, high, label = best[i], second[i], arg[i]
-            y = row_a[i]
-            high, label = np.minimum(high, np.maximum(y, low)), ja if y < low else label
-            low = np.minimum(y, low)
-            y = row_b[i]
-            high, label = np.minimum(high, np.maximum(y, low)), jb if y < low else label
-            low = np.minimum(y, low)
-            y = row_c[i]
-            high, label = np.minimum(high, np.maximum(y, low)), jc if y < low else label
-            low = np.minimum(y, low)
-            y = row_d[i]
-            high, label = np.minimum(high, np.maximum(y, low)), jd if y < low else label
-            low = np.minimum(y, low)
+            low, high, label = _keep(row_a[i], np.int32(j), low, high, label)
+            low, high, label = _keep(row_b[i], np.int32(j + 1), low, high, label)
+            low, high, label = _keep(row_c[i], np.int32(j + 2), low, high, label)
+            low, high, label = _keep(row_d[i], np.int32(j + 3), low, high, label)
             best[i], second[i], arg[i] = low, high, label
+
+
+@numba.njit(inline="always", **JIT)
+def _keep(y, j, low, high, label):
+    """Best two after one more cost y of class j: (smallest, second smallest, its class)."""
+    above = y if y > low else low
+    return (y if y < low else low), (above if above < high else high), (j if y < low else label)
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False, error_model="numpy")
@@ -200,12 +199,12 @@ class SparseRule:
         top = sparse.abs().max().item()
         scale = 2.0 ** -math.frexp(top)[1] if top > 0 else 1.0  # exact: keeps float32 in range
         sparse = sparse * scale
-        group, shared = _shared_rows(sparse.numpy())
+        group, shared = grouping(sparse.numpy())
         group, shared = torch.from_numpy(group), torch.from_numpy(shared)
-        base = _with_zeros(shared)[group]  # (N, N): each row's B (group -1: the zero row)
+        base = with_zeros(shared)[group]  # (N, N): each row's B (group -1: the zero row)
         own = sparse - base  # D; B + D = E within u64 |D|, far inside g's 1 % slack
         magnitude = base.abs() + own.abs()
-        steps = _with_zeros(_passes((shared != 0).sum(1)))[group] + _passes((own != 0).sum(1))
+        steps = with_zeros(_passes((shared != 0).sum(1)))[group] + _passes((own != 0).sum(1))
         # Row j's float32 sum: terms rounded at most passes + 3 times, q three times before.
         gamma = (1 + U32) ** 3 * (1 + _gamma(steps + 3)) - 1
         margin = gamma * (1 + U32) * (1 + 8 * U64)  # 8 u64: the float64 steps before
@@ -216,8 +215,8 @@ class SparseRule:
         # Lower bounds of the costs: entries moved down by g |.|, then rounded down.
         shared = _round_down(shared - g_shared[:, None] * shared.abs())
         own = _round_down(own - g[:, None] * own.abs())
-        sums, support = _supports(magnitude, group)
-        self.program = _program(sums, shared, own, group.numpy())
+        sums, support = supports(magnitude, group)
+        self.program = program(sums, shared, own, group.numpy())
         # A row's lower bound lies within d M_a of its cost, M_a <= r_a Σ_k q_k over its
         # group's support.
         d = g + U32 * (1 + g) * (1 + 8 * U64) + gamma * (1 + g) * (1 + U32)
@@ -258,82 +257,6 @@ class SparseRule:
             out[opened] = decided
             opened = opened[decided < 0]
         return torch.from_numpy(opened)
-
-
-def _shared_rows(sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Groups of rows with shared entries: (N,) each row's group (-1: none) and (G, N) the
-    groups' shared entries B (per column, a nonzero value that two members or more have).
-
-    Greedy: the group that saves the most terms (less a pass per group) is taken first, seeded
-    by each free row with the free rows that share two entries or more with it, less those that
-    would not save a term."""
-    n = len(sparse)
-    group, shared, free = np.full(n, -1), [], np.ones(n, bool)
-    same = ((sparse[:, None] == sparse[None]) & (sparse[None] != 0)).sum(2) >= 2
-    while True:
-        best = (0, None, None)
-        for seed in np.flatnonzero(free):
-            members = np.flatnonzero(free & same[seed])
-            while len(members) >= 2:  # drop the members that save nothing, until none does
-                rows = sparse[members]
-                agree = (rows[:, None] == rows[None]).sum(1)  # members with each one's entry
-                base = np.where(agree.max(0) >= 2, rows[agree.argmax(0), np.arange(n)], 0.0)
-                saves = np.count_nonzero(rows, 1) - np.count_nonzero(rows - base, 1)
-                if (saves > 0).all():
-                    saving = saves.sum() - np.count_nonzero(base) - PASS
-                    if saving > best[0]:
-                        best = (saving, members, base)
-                    break
-                members = members[saves > 0]
-        if best[1] is None:
-            return group, np.array(shared).reshape(-1, n)
-        group[best[1]], free[best[1]] = len(shared), False
-        shared.append(best[2])
-
-
-def _program(sums: torch.Tensor, shared: torch.Tensor, own: torch.Tensor, group) -> tuple:
-    """``_decide_blocks``' program (see there) for (S, N) sums of q (Σ_k q_k, then the
-    supports'), (G, N) groups' shared entries, (N, N) rows' own entries."""
-    n, first_shared, first_own = len(own), len(sums), len(sums) + len(shared)
-    matrix = torch.cat([sums, shared, own])
-    ptr, cols, vals = _terms(matrix)
-    out = np.arange(len(matrix)) + TOTAL  # work's rows
-    prefix = np.full(len(matrix), ZERO)
-    prefix[first_own:] = np.where(group >= 0, group + TOTAL + first_shared, ZERO)
-    some = ptr[1:] > ptr[:-1]  # rows with terms
-    passes = np.stack([out, prefix, ptr[:-1], ptr[1:]], 1)[some]
-    results = np.where(some[first_own:], out[first_own:], prefix[first_own:])
-    rows = TOTAL + len(matrix) + 1  # and the +inf row, last
-    results = np.concatenate([results, np.full(-n % 4, rows - 1)])
-    return passes.astype(np.int64), cols, vals, results.astype(np.int64), rows
-
-
-def _supports(magnitude: torch.Tensor, group: torch.Tensor) -> tuple[torch.Tensor, np.ndarray]:
-    """Sums of q over the rows' supports (a group's rows: their union), for the vectorised
-    certificate: (S, N) their indicators, Σ_k q_k first, and (N,) each row's in ``work``. A
-    row on one column uses Σ_k q_k."""
-    support = magnitude != 0
-    for index in range(int(group.max()) + 1):
-        members = group == index
-        support[members] = support[members].any(0)
-    support[support.sum(1) < 2] = True
-    sums = support.unique(dim=0)
-    sums = torch.cat([torch.ones(1, len(support), dtype=torch.bool), sums[~sums.all(1)]])
-    rows = (sums[:, None] == support[None]).all(2).int().argmax(0) + TOTAL
-    return sums.double(), rows.numpy()
-
-
-def _terms(matrix: torch.Tensor) -> tuple[np.ndarray, ...]:
-    """(ptr, cols, float32 vals) of a float32-exact matrix's nonzero entries, row by row."""
-    matrix = matrix.float()
-    ptr = np.concatenate([[0], np.cumsum((matrix != 0).sum(1).numpy())])
-    rows, cols = matrix.nonzero(as_tuple=True)
-    return ptr, cols.numpy(), matrix[rows, cols].numpy()
-
-
-def _with_zeros(values: torch.Tensor) -> torch.Tensor:
-    """``values`` and a last row of zeros, which index -1 picks."""
-    return torch.cat([values, values.new_zeros(1, *values.shape[1:])])
 
 
 def _round_down(values: torch.Tensor) -> torch.Tensor:
