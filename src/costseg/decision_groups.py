@@ -3,8 +3,6 @@ supports' sums of q for the certificate, and the kernel's program of passes."""
 
 from __future__ import annotations
 
-from functools import lru_cache
-
 import numpy as np
 import torch
 
@@ -12,19 +10,7 @@ PASS = 4  # terms summed per pass
 ZERO, TOTAL = 0, 1  # rows of the kernel's buffer: zeros; Σ_k q_k. Then supports, groups, rows.
 
 
-def grouping(sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_shared_rows` of a float64 matrix, cached: the same matrix comes image after
-    image."""
-    group, shared = _cached_rows(sparse.tobytes(), len(sparse))
-    return group.copy(), shared.copy()
-
-
-@lru_cache(maxsize=64)
-def _cached_rows(matrix: bytes, n: int) -> tuple[np.ndarray, np.ndarray]:
-    return _shared_rows(np.frombuffer(matrix).reshape(n, n))
-
-
-def _shared_rows(sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def shared_rows(sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Groups of rows with shared entries: (N,) each row's group (-1: none) and (G, N) the
     groups' shared entries B (per column, a nonzero value that two members or more have).
 

@@ -24,13 +24,14 @@ magnitude), vectorised; where that fails, with ``M_a`` itself. A NaN or infinite
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 
 import numba
 import numpy as np
 import torch
 
 from costseg.decision_certified import TINY, U32, U64, _Fast
-from costseg.decision_groups import PASS, TOTAL, grouping, program, supports, with_zeros
+from costseg.decision_groups import PASS, TOTAL, program, shared_rows, supports, with_zeros
 from costseg.decision_numba import _in_pieces
 
 BLOCK = 1024  # pixels decided together: (N x BLOCK) float32 probabilities stay in cache
@@ -192,45 +193,17 @@ class SparseRule:
 
     def __init__(self, fast: _Fast, cost: torch.Tensor, shifted: torch.Tensor) -> None:
         n = cost.shape[-1]
-        sparse = cost[0] - cost[0].mode(0, keepdim=True).values
         total = fast.weight64[n].cpu()  # T's coefficients: R_k, bounding |reference cost| / q_k
-        if fast.priors is not None and fast.priors.ndim == 1:  # global priors: into the columns
-            sparse, total = sparse / fast.priors.cpu().double(), total / fast.priors.cpu().double()
-        top = sparse.abs().max().item()
-        scale = 2.0 ** -math.frexp(top)[1] if top > 0 else 1.0  # exact: keeps float32 in range
-        sparse = sparse * scale
-        group, shared = grouping(sparse.numpy())
-        group, shared = torch.from_numpy(group), torch.from_numpy(shared)
-        base = with_zeros(shared)[group]  # (N, N): each row's B (group -1: the zero row)
-        own = sparse - base  # D; B + D = E within u64 |D|, far inside g's 1 % slack
-        magnitude = base.abs() + own.abs()
-        steps = with_zeros(_passes((shared != 0).sum(1)))[group] + _passes((own != 0).sum(1))
-        # Row j's float32 sum: terms rounded at most passes + 3 times, q three times before.
-        gamma = (1 + U32) ** 3 * (1 + _gamma(steps + 3)) - 1
-        margin = gamma * (1 + U32) * (1 + 8 * U64)  # 8 u64: the float64 steps before
-        g, g_shared = 1.01 * margin / (1 - margin), torch.zeros(len(shared), dtype=torch.float64)
-        for index in range(len(shared)):  # a group's shared sum: one g for its rows
-            members = group == index
-            g[members] = g_shared[index] = g[members].max()
-        # Lower bounds of the costs: entries moved down by g |.|, then rounded down.
-        shared = _round_down(shared - g_shared[:, None] * shared.abs())
-        own = _round_down(own - g[:, None] * own.abs())
-        sums, support = supports(magnitude, group)
-        self.program = program(sums, shared, own, group.numpy())
-        # A row's lower bound lies within d M_a of its cost, M_a <= r_a Σ_k q_k over its
-        # group's support.
-        d = g + U32 * (1 + g) * (1 + 8 * U64) + gamma * (1 + g) * (1 + U32)
-        reference = 2 * fast.eps * (total * scale).max().item()  # 2 eps T <= this Σ_k q_k
-        shrink = (1 - U32) ** 3 * (1 - _gamma(_passes(torch.tensor(n)) + 3))  # computed Σ_k q_k
-        up = (1 + U32) ** 3 / shrink * ROUNDING  # and the test's roundings, and the cast
-        coef = (d * magnitude.amax(1) * up).float().numpy()  # of the support's Σ_k q_k
-        self.certificate = coef, support, np.float32(reference * up)
+        folded = fast.priors is not None and fast.priors.ndim == 1  # global priors: in E
+        priors = fast.priors.cpu().double() if folded else torch.ones(n, dtype=torch.float64)
+        matrices = (cost[0], total, priors)
+        self.program, self.certificate = _prepared(
+            *(x.numpy().tobytes() for x in matrices), fast.eps
+        )
         # Open pixels: the reference here where q is exactly p (no pixel-wise priors; float32
         # and narrower types), else _Fast.settle.
         self.reference64 = None
         if fast.pixel_priors is None and fast.probs.dtype != torch.float64:
-            global_priors = fast.priors is not None
-            priors = fast.priors.cpu().double() if global_priors else torch.ones(n).double()
             self.reference64 = shifted[0].cpu().t().contiguous().numpy(), priors.numpy()
         # Chunks: a float32 image without pixel-wise priors is read where it lies.
         as_is = fast.probs.dtype == torch.float32 and fast.pixel_priors is None
@@ -257,6 +230,46 @@ class SparseRule:
             out[opened] = decided
             opened = opened[decided < 0]
         return torch.from_numpy(opened)
+
+
+@lru_cache(maxsize=32)
+def _prepared(cost: bytes, total: bytes, priors: bytes, eps: float) -> tuple:
+    """The kernel's program and certificate for a float64 (N, N) matrix, T's (N,) coefficients
+    and (N,) global priors (ones where none), cached: the same matrix comes image after image."""
+    total, priors = (torch.from_numpy(np.frombuffer(x).copy()) for x in (total, priors))
+    n = len(total)
+    cost = torch.from_numpy(np.frombuffer(cost).copy()).view(n, n)
+    sparse = cost - cost.mode(0, keepdim=True).values
+    sparse, total = sparse / priors, total / priors  # global priors: into the columns
+    top = sparse.abs().max().item()
+    scale = 2.0 ** -math.frexp(top)[1] if top > 0 else 1.0  # exact: keeps float32 in range
+    sparse = sparse * scale
+    group, shared = shared_rows(sparse.numpy())
+    group, shared = torch.from_numpy(group), torch.from_numpy(shared)
+    base = with_zeros(shared)[group]  # (N, N): each row's B (group -1: the zero row)
+    own = sparse - base  # D; B + D = E within u64 |D|, far inside g's 1 % slack
+    magnitude = base.abs() + own.abs()
+    steps = with_zeros(_passes((shared != 0).sum(1)))[group] + _passes((own != 0).sum(1))
+    # Row j's float32 sum: terms rounded at most passes + 3 times, q three times before.
+    gamma = (1 + U32) ** 3 * (1 + _gamma(steps + 3)) - 1
+    margin = gamma * (1 + U32) * (1 + 8 * U64)  # 8 u64: the float64 steps before
+    g, g_shared = 1.01 * margin / (1 - margin), torch.zeros(len(shared), dtype=torch.float64)
+    for index in range(len(shared)):  # a group's shared sum: one g for its rows
+        members = group == index
+        g[members] = g_shared[index] = g[members].max()
+    # Lower bounds of the costs: entries moved down by g |.|, then rounded down.
+    shared = _round_down(shared - g_shared[:, None] * shared.abs())
+    own = _round_down(own - g[:, None] * own.abs())
+    sums, support = supports(magnitude, group)
+    plan = program(sums, shared, own, group.numpy())
+    # A row's lower bound lies within d M_a of its cost, M_a <= r_a Σ_k q_k over its
+    # group's support.
+    d = g + U32 * (1 + g) * (1 + 8 * U64) + gamma * (1 + g) * (1 + U32)
+    reference = 2 * eps * (total * scale).max().item()  # 2 eps T <= this Σ_k q_k
+    shrink = (1 - U32) ** 3 * (1 - _gamma(_passes(torch.tensor(n)) + 3))  # computed Σ_k q_k
+    up = (1 + U32) ** 3 / shrink * ROUNDING  # and the test's roundings, and the cast
+    coef = (d * magnitude.amax(1) * up).float().numpy()  # of the support's Σ_k q_k
+    return plan, (coef, support, np.float32(reference * up))
 
 
 def _round_down(values: torch.Tensor) -> torch.Tensor:
