@@ -50,12 +50,20 @@ def program(sums: torch.Tensor, shared: torch.Tensor, own: torch.Tensor, group) 
     out = np.arange(len(matrix)) + TOTAL  # work's rows
     prefix = np.full(len(matrix), ZERO)
     prefix[first_own:] = np.where(group >= 0, group + TOTAL + first_shared, ZERO)
-    some = ptr[1:] > ptr[:-1]  # rows with terms
-    passes = np.stack([out, prefix, ptr[:-1], ptr[1:]], 1)[some]
+    # Each row's last own term joins the pass that keeps the best two (none: 0 × q_0).
+    stop, has = ptr[1:].copy(), ptr[first_own + 1 :] > ptr[first_own:-1]
+    last = np.where(has, ptr[first_own + 1 :] - 1, 0)
+    stop[first_own:] -= has
+    fused_cols = np.where(has, cols[last] if len(cols) else 0, 0)
+    fused_vals = np.where(has, vals[last] if len(vals) else 0, 0).astype(np.float32)
+    some = stop > ptr[:-1]  # passes with terms
+    passes = np.stack([out, prefix, ptr[:-1], stop], 1)[some]
     results = np.where(some[first_own:], out[first_own:], prefix[first_own:])
-    rows = TOTAL + len(matrix) + 1  # and the +inf row, last
-    results = np.concatenate([results, np.full(-n % 4, rows - 1)])
-    return passes.astype(np.int64), cols, vals, results.astype(np.int64), rows
+    rows, pad = TOTAL + len(matrix) + 1, -n % 4  # and the +inf row, last
+    results = np.concatenate([results, np.full(pad, rows - 1)]).astype(np.int64)
+    fused = np.concatenate([fused_cols, np.zeros(pad, np.int64)]).astype(np.int64)
+    fused_vals = np.concatenate([fused_vals, np.zeros(pad, np.float32)])
+    return passes.astype(np.int64), cols, vals, (results, fused, fused_vals), rows
 
 
 def supports(magnitude: torch.Tensor, group: torch.Tensor) -> tuple[torch.Tensor, np.ndarray]:

@@ -84,21 +84,26 @@ def _sums(q, s, cols, vals, first, stop, prefix, out):
 
 
 @numba.njit(**JIT)
-def _best_two(work, results, best, second, arg):
-    """Smallest and second smallest of the rows ``work[results]`` (a multiple of four; ties keep
-    the first), four rows per pass. Plain selects, which compile to min and max instructions:
-    NaN costs are skipped, but a pixel with any (from a NaN or infinite q) has a non-finite
-    ``Σ_k q_k`` and is never certified."""
+def _best_two(q, s, work, rows, best, second, arg):
+    """Smallest and second smallest of the costs ``work[prefix] + val q[col, s : s + BLOCK]``
+    for ``rows = (prefix, col, val)`` (a multiple of four; ties keep the first), four per pass.
+    Plain selects, which compile to min and max instructions: NaN costs are skipped, but a
+    pixel with any (from a NaN or infinite q) has a non-finite ``Σ_k q_k`` and is never
+    certified."""
+    prefix, cols, vals = rows
     best[:], second[:], arg[:] = np.inf, np.inf, 0
-    for j in range(0, len(results), 4):
-        row_a, row_b = work[results[j]], work[results[j + 1]]
-        row_c, row_d = work[results[j + 2]], work[results[j + 3]]
+    for j in range(0, len(prefix), 4):
+        row_a, row_b = work[prefix[j]], work[prefix[j + 1]]
+        row_c, row_d = work[prefix[j + 2]], work[prefix[j + 3]]
+        q_a, q_b = q[cols[j], s : s + BLOCK], q[cols[j + 1], s : s + BLOCK]
+        q_c, q_d = q[cols[j + 2], s : s + BLOCK], q[cols[j + 3], s : s + BLOCK]
+        a, b, c, d = vals[j], vals[j + 1], vals[j + 2], vals[j + 3]
         for i in range(BLOCK):
             low, high, label = best[i], second[i], arg[i]
-            low, high, label = _keep(row_a[i], np.int32(j), low, high, label)
-            low, high, label = _keep(row_b[i], np.int32(j + 1), low, high, label)
-            low, high, label = _keep(row_c[i], np.int32(j + 2), low, high, label)
-            low, high, label = _keep(row_d[i], np.int32(j + 3), low, high, label)
+            low, high, label = _keep(row_a[i] + a * q_a[i], np.int32(j), low, high, label)
+            low, high, label = _keep(row_b[i] + b * q_b[i], np.int32(j + 1), low, high, label)
+            low, high, label = _keep(row_c[i] + c * q_c[i], np.int32(j + 2), low, high, label)
+            low, high, label = _keep(row_d[i] + d * q_d[i], np.int32(j + 3), low, high, label)
             best[i], second[i], arg[i] = low, high, label
 
 
@@ -138,9 +143,10 @@ def _decide_blocks(q, program, certificate, labels, start, stop):
     Args:
         program: (passes, cols, vals, results, rows): each pass ``(out, prefix, first, stop)``
             writes ``work[out] = work[prefix] + Σ`` of terms ``first:stop`` (float32 ``cols``,
-            ``vals``): Σ_k q_k, then the groups' shared sums, then the rows; ``results``: each
-            class's row of ``work``, padded to a multiple of four with the +inf row; ``rows``:
-            the buffer's row count.
+            ``vals``): Σ_k q_k, the supports' sums, the groups' shared sums, then the rows but
+            their last term; ``results``: (prefix, col, val) of each class's cost, ``work[prefix]
+            + val q[col]``, padded to a multiple of four with the +inf row; ``rows``: the
+            buffer's row count.
         certificate: (coef, support, reference): per decided class, the float32 coefficient
             of ``Σ_k q_k`` over its support and that sum's row of ``work``; the coefficient of
             ``Σ_k q_k`` for the reference's rounding.
@@ -160,7 +166,7 @@ def _decide_blocks(q, program, certificate, labels, start, stop):
         for p in range(len(passes)):
             out, prefix, first, last = passes[p]
             _sums(q, s, cols, vals, first, last, work[prefix], work[out])
-        _best_two(work, results, best, second, arg)
+        _best_two(q, s, work, results, best, second, arg)
         out = labels[s : s + BLOCK]
         for i in range(BLOCK):  # M_a <= r_a Σ_k q_k over a's support
             label, gap = arg[i], second[i] - best[i]
@@ -249,7 +255,8 @@ def _prepared(cost: bytes, total: bytes, priors: bytes, eps: float) -> tuple:
     base = with_zeros(shared)[group]  # (N, N): each row's B (group -1: the zero row)
     own = sparse - base  # D; B + D = E within u64 |D|, far inside g's 1 % slack
     magnitude = base.abs() + own.abs()
-    steps = with_zeros(_passes((shared != 0).sum(1)))[group] + _passes((own != 0).sum(1))
+    terms = (own != 0).sum(1)  # the last one in the pass that keeps the best two
+    steps = with_zeros(_passes((shared != 0).sum(1)))[group] + _passes(terms - 1) + (terms > 0)
     # Row j's float32 sum: terms rounded at most passes + 3 times, q three times before.
     gamma = (1 + U32) ** 3 * (1 + _gamma(steps + 3)) - 1
     margin = gamma * (1 + U32) * (1 + 8 * U64)  # 8 u64: the float64 steps before
