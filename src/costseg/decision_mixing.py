@@ -37,6 +37,16 @@ BIG = np.float32(3.4e38)  # an empty slot's cost: above every real one (w >= 0, 
 JIT = dict(nogil=True, cache=True, boundscheck=False, error_model="numpy")
 
 
+@numba.njit(inline="always", **JIT)
+def keep(y, c, low, high, label):
+    """Best two after one more cost y of class c: (smallest, second smallest, its class); ties
+    keep the earlier class. Plain selects, which compile to min and max instructions: NaN costs
+    are skipped, which is safe where a pixel with any is never certified (its T, or its sum of
+    q, is not finite)."""
+    above = y if y > low else low
+    return (y if y < low else low), (above if above < high else high), (c if y < low else label)
+
+
 @numba.njit(**JIT)
 def _vertex_winners(costs, s, size, v_delta, v_floor, best, second, arg, agree, finite):
     """Each vertex's argmin over classes at pixels ``s : s + size``; ``agree``: every vertex
@@ -48,10 +58,7 @@ def _vertex_winners(costs, s, size, v_delta, v_floor, best, second, arg, agree, 
         for c in range(1, n):
             row, label = costs[v, c, s : s + size], np.int32(c)
             for i in range(size):  # branch-free, so that it vectorises; ties keep the lower c
-                y, b, old = row[i], low[i], a[i]
-                runner[i] = np.minimum(runner[i], np.maximum(y, b))
-                a[i] = label if y < b else old
-                low[i] = np.minimum(y, b)
+                low[i], runner[i], a[i] = keep(row[i], label, low[i], runner[i], a[i])
         t = costs[v, n, s : s + size]
         for i in range(size):
             gap = (runner[i] - low[i] > v_delta * runner[i]) & (a[i] == arg[0, i])
@@ -99,10 +106,8 @@ def _mix_slots(xs, ts, cls, size, weights, params, mixed, kept, labels, s, opene
             second, label = np.float32(np.inf), cls[0, i]
             for j in range(1, SLOTS):  # slots in class order: ties keep the lower class
                 y = (w0 * xs[0, j, i] + w1 * xs[1, j, i]) + (w2 * xs[2, j, i] + w3 * xs[3, j, i])
-                second = np.minimum(second, np.maximum(y, best))
                 c = cls[j, i]  # loaded either way: a conditional load does not vectorise
-                label = c if y < best else label
-                best = np.minimum(y, best)
+                best, second, label = keep(y, c, best, second, label)
             gap_ok = second - best > m_delta * second
             sure = np.uint8(gap_ok & (second >= m_floor * total + np.float32(UNDERFLOW)))
             out[i] = label
@@ -111,34 +116,21 @@ def _mix_slots(xs, ts, cls, size, weights, params, mixed, kept, labels, s, opene
 
 @numba.njit(**JIT)
 def _mix_passes(xs, ts, cls, slots, size, weights, params, labels, opened):
-    """``_mix_slots`` for many slots (a runtime number): one pass over the pixels per slot and
-    vertex, every pair open where the certificate fails."""
+    """``_mix_slots`` for many slots (a runtime number): one pass over the pixels per slot,
+    every pair open where the certificate fails."""
     m_delta, m_floor = np.float32(params[4]), np.float32(params[5])
     best, second = np.empty(size, np.float32), np.empty(size, np.float32)
-    total, y, label = (
-        np.empty(size, np.float32),
-        np.empty(size, np.float32),
-        np.empty(size, np.int32),
-    )
+    total, label = np.empty(size, np.float32), np.empty(size, np.int32)
     for k in range(labels.shape[0]):
-        total[:] = 0
-        for v in range(VERTICES):
-            w, t = weights[v, k], ts[v, :size]
+        w0, w1, w2, w3 = weights[0, k], weights[1, k], weights[2, k], weights[3, k]
+        for i in range(size):
+            total[i] = (w0 * ts[0, i] + w1 * ts[1, i]) + (w2 * ts[2, i] + w3 * ts[3, i])
+        best[:size], second[:size], label[:size] = np.inf, np.inf, cls[0, :size]
+        for j in range(slots):  # slots in class order: ties keep the lower class
             for i in range(size):
-                total[i] += w * t[i]
-        best[:], second[:], label[:] = np.inf, np.inf, cls[0, :size]
-        for j in range(slots):
-            y[:] = 0
-            for v in range(VERTICES):
-                w, row = weights[v, k], xs[v, j, :size]
-                for i in range(size):
-                    y[i] += w * row[i]
-            classes = cls[j, :size]
-            for i in range(size):  # slots in class order: ties keep the lower class
-                yy, b, c, old = y[i], best[i], classes[i], label[i]
-                second[i] = np.minimum(second[i], np.maximum(yy, b))
-                label[i] = c if yy < b else old
-                best[i] = np.minimum(yy, b)
+                y = (w0 * xs[0, j, i] + w1 * xs[1, j, i]) + (w2 * xs[2, j, i] + w3 * xs[3, j, i])
+                c = cls[j, i]  # loaded either way: a conditional load does not vectorise
+                best[i], second[i], label[i] = keep(y, c, best[i], second[i], label[i])
         out, flags = labels[k, :size], opened[k, :size]
         for i in range(size):
             sec = second[i]

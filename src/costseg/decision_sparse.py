@@ -32,6 +32,7 @@ import torch
 
 from costseg.decision_certified import TINY, U32, U64, _Fast
 from costseg.decision_groups import PASS, TOTAL, program, shared_rows, supports, with_zeros
+from costseg.decision_mixing import keep
 from costseg.decision_numba import _in_pieces
 
 BLOCK = 1024  # pixels decided together: (N x BLOCK) float32 probabilities stay in cache
@@ -100,18 +101,11 @@ def _best_two(q, s, work, rows, best, second, arg):
         a, b, c, d = vals[j], vals[j + 1], vals[j + 2], vals[j + 3]
         for i in range(BLOCK):
             low, high, label = best[i], second[i], arg[i]
-            low, high, label = _keep(row_a[i] + a * q_a[i], np.int32(j), low, high, label)
-            low, high, label = _keep(row_b[i] + b * q_b[i], np.int32(j + 1), low, high, label)
-            low, high, label = _keep(row_c[i] + c * q_c[i], np.int32(j + 2), low, high, label)
-            low, high, label = _keep(row_d[i] + d * q_d[i], np.int32(j + 3), low, high, label)
+            low, high, label = keep(row_a[i] + a * q_a[i], np.int32(j), low, high, label)
+            low, high, label = keep(row_b[i] + b * q_b[i], np.int32(j + 1), low, high, label)
+            low, high, label = keep(row_c[i] + c * q_c[i], np.int32(j + 2), low, high, label)
+            low, high, label = keep(row_d[i] + d * q_d[i], np.int32(j + 3), low, high, label)
             best[i], second[i], arg[i] = low, high, label
-
-
-@numba.njit(inline="always", **JIT)
-def _keep(y, j, low, high, label):
-    """Best two after one more cost y of class j: (smallest, second smallest, its class)."""
-    above = y if y > low else low
-    return (y if y < low else low), (above if above < high else high), (j if y < low else label)
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False, error_model="numpy")
