@@ -116,8 +116,9 @@ def _mix_slots(xs, ts, cls, size, weights, params, mixed, kept, labels, s, opene
 
 @numba.njit(**JIT)
 def _mix_passes(xs, ts, cls, slots, size, weights, params, labels, opened):
-    """``_mix_slots`` for many slots (a runtime number): one pass over the pixels per slot,
-    every pair open where the certificate fails."""
+    """``_mix_slots`` for many slots (a runtime number; past an odd one, the arrays hold an empty
+    slot): one pass over the pixels per two slots, every pair open where the certificate
+    fails."""
     m_delta, m_floor = np.float32(params[4]), np.float32(params[5])
     best, second = np.empty(size, np.float32), np.empty(size, np.float32)
     total, label = np.empty(size, np.float32), np.empty(size, np.int32)
@@ -126,11 +127,14 @@ def _mix_passes(xs, ts, cls, slots, size, weights, params, labels, opened):
         for i in range(size):
             total[i] = (w0 * ts[0, i] + w1 * ts[1, i]) + (w2 * ts[2, i] + w3 * ts[3, i])
         best[:size], second[:size], label[:size] = np.inf, np.inf, cls[0, :size]
-        for j in range(slots):  # slots in class order: ties keep the lower class
+        for j in range(0, slots, 2):  # two per pass, in class order: ties keep the lower
+            h = j + 1  # past an odd last slot: an empty one (BIG), which changes nothing
             for i in range(size):
                 y = (w0 * xs[0, j, i] + w1 * xs[1, j, i]) + (w2 * xs[2, j, i] + w3 * xs[3, j, i])
-                c = cls[j, i]  # loaded either way: a conditional load does not vectorise
-                best[i], second[i], label[i] = keep(y, c, best[i], second[i], label[i])
+                z = (w0 * xs[0, h, i] + w1 * xs[1, h, i]) + (w2 * xs[2, h, i] + w3 * xs[3, h, i])
+                c, d = cls[j, i], cls[h, i]  # loaded either way: conditional loads do not vectorise
+                low, high, arg = keep(y, c, best[i], second[i], label[i])
+                best[i], second[i], label[i] = keep(z, d, low, high, arg)
         out, flags = labels[k, :size], opened[k, :size]
         for i in range(size):
             sec = second[i]
