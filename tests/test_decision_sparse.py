@@ -4,6 +4,7 @@
 is 0, so every image goes through it, including sizes that are not whole blocks of pixels.
 """
 
+import numpy as np
 import pytest
 import test_decision
 import torch
@@ -13,6 +14,7 @@ from costseg import decision
 from costseg.costs import load_cost
 from costseg.decision import decide
 from costseg.decision_certified import U64, _Fast
+from costseg.decision_groups import shared_rows
 from costseg.decision_sparse import BLOCK, SparseRule
 
 
@@ -85,6 +87,38 @@ def test_random_and_sparse_matrices_near_ties(n):
             cost.fill_diagonal_(0)
             probs = near_ties(cost, 150, seed=int(torch.randint(1 << 30, (1,), generator=gen)))
             assert torch.equal(decide(probs, cost), reference(probs, cost))
+
+
+@pytest.mark.parametrize("n", [7, 19, 30])
+def test_matrices_with_groups_of_rows_near_ties(n):
+    """Three groups of rows, each sharing one random row but the diagonal (a group's shared
+    sum, each row's own rest), and duplicated rows (no rest of their own: exact ties), with near
+    ties."""
+    gen = torch.Generator().manual_seed(n)
+    for _ in range(4):
+        kinds = torch.rand(3, n, generator=gen, dtype=torch.float64) * 300 + 1
+        cost = kinds[torch.arange(n) % 3]
+        cost.fill_diagonal_(0)
+        cost[-1] = cost[-4]  # a duplicate
+        sparse = cost - cost.mode(0, keepdim=True).values
+        group = shared_rows(sparse.numpy())[0]
+        assert (group >= 0).sum() >= n // 3, group  # the grouped path is taken
+        probs = near_ties(cost, 150, seed=int(torch.randint(1 << 30, (1,), generator=gen)))
+        assert torch.equal(decide(probs, cost), reference(probs, cost))
+
+
+def test_rows_of_the_egoistic_matrix_grouped():
+    """Its seven static classes share their entries but the diagonal: one group, one own term
+    each; every row is its group's shared entries plus its own."""
+    cost = load_cost("egoistic").double()
+    sparse = (cost - cost.mode(0, keepdim=True).values).numpy()
+    group, shared = shared_rows(sparse)
+    static = [2, 3, 4, 5, 8, 17, 18]
+    assert len(set(group[static].tolist())) == 1 and group[static[0]] >= 0
+    own = sparse - np.where(group[:, None] >= 0, shared[group], 0)
+    assert (np.count_nonzero(own[static], 1) == 1).all()
+    terms = np.count_nonzero(shared) + np.count_nonzero(own)
+    assert terms < np.count_nonzero(sparse) / 2, terms
 
 
 def test_costs_from_tiny_to_huge_and_degenerate_matrices():
