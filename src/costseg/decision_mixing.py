@@ -24,8 +24,6 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from costseg.decision_certified import TINY
-
 UNDERFLOW = 2.0**-60  # a runner-up below it: never certified
 BLOCK = 512  # pixels decided together: their vertex costs stay in cache
 SLOTS = 3  # candidates mixed side by side for every pixel of a block
@@ -47,6 +45,30 @@ def keep(y, c, low, high, label):
     return (y if y < low else low), (above if above < high else high), (c if y < low else label)
 
 
+@numba.njit(**JIT, fastmath={"contract"})
+def _vertex_costs(q, s, size, weight, out):
+    """``out[:, :size] = weight @ q[:, s : s + size]``: float32 (R, N) weights, R a multiple of
+    four and N even (zero padding), four rows and two terms per pass (any order of summation
+    is within ``_Fast.gamma``'s dot product; multiply-adds fused, NaN and inf kept)."""
+    for r in range(0, weight.shape[0], 4):
+        out_a, out_b, out_c, out_d = out[r], out[r + 1], out[r + 2], out[r + 3]
+        for k in range(0, weight.shape[1], 2):
+            q_k, q_l = q[k, s : s + size], q[min(k + 1, q.shape[0] - 1), s : s + size]
+            a, b, c, d = weight[r, k], weight[r + 1, k], weight[r + 2, k], weight[r + 3, k]
+            e, f = weight[r, k + 1], weight[r + 1, k + 1]
+            g, h = weight[r + 2, k + 1], weight[r + 3, k + 1]
+            if k == 0:
+                for i in range(size):
+                    out_a[i], out_b[i] = a * q_k[i] + e * q_l[i], b * q_k[i] + f * q_l[i]
+                    out_c[i], out_d[i] = c * q_k[i] + g * q_l[i], d * q_k[i] + h * q_l[i]
+            else:
+                for i in range(size):
+                    out_a[i] += a * q_k[i] + e * q_l[i]
+                    out_b[i] += b * q_k[i] + f * q_l[i]
+                    out_c[i] += c * q_k[i] + g * q_l[i]
+                    out_d[i] += d * q_k[i] + h * q_l[i]
+
+
 @numba.njit(**JIT)
 def _vertex_winners(costs, s, size, v_delta, v_floor, best, second, arg, agree, finite):
     """Each vertex's argmin over classes at pixels ``s : s + size``; ``agree``: every vertex
@@ -54,11 +76,20 @@ def _vertex_winners(costs, s, size, v_delta, v_floor, best, second, arg, agree, 
     v_count, n = costs.shape[0], costs.shape[1] - 1
     for v in range(v_count):
         low, runner, a = best[v], second[v], arg[v]
-        low[:size], runner[:size], a[:size] = costs[v, 0, s : s + size], np.inf, 0
-        for c in range(1, n):
-            row, label = costs[v, c, s : s + size], np.int32(c)
-            for i in range(size):  # branch-free, so that it vectorises; ties keep the lower c
-                low[i], runner[i], a[i] = keep(row[i], label, low[i], runner[i], a[i])
+        low[:size], runner[:size], a[:size] = np.inf, np.inf, 0
+        for c in range(0, n - n % 4, 4):  # four classes per pass; ties keep the lower c
+            row_a, row_b = costs[v, c, s : s + size], costs[v, c + 1, s : s + size]
+            row_c, row_d = costs[v, c + 2, s : s + size], costs[v, c + 3, s : s + size]
+            for i in range(size):
+                x, y, z = low[i], runner[i], a[i]
+                x, y, z = keep(row_a[i], np.int32(c), x, y, z)
+                x, y, z = keep(row_b[i], np.int32(c + 1), x, y, z)
+                x, y, z = keep(row_c[i], np.int32(c + 2), x, y, z)
+                low[i], runner[i], a[i] = keep(row_d[i], np.int32(c + 3), x, y, z)
+        for c in range(n - n % 4, n):
+            row = costs[v, c, s : s + size]
+            for i in range(size):
+                low[i], runner[i], a[i] = keep(row[i], np.int32(c), low[i], runner[i], a[i])
         t = costs[v, n, s : s + size]
         for i in range(size):
             gap = (runner[i] - low[i] > v_delta * runner[i]) & (a[i] == arg[0, i])
@@ -68,17 +99,19 @@ def _vertex_winners(costs, s, size, v_delta, v_floor, best, second, arg, agree, 
 
 
 @numba.njit(**JIT)
-def _candidates(costs, s, size, slack, t_factor, arg, threshold, beaten, free):
+def _candidates(costs, s, size, coef, arg, threshold, beaten, free):
     """``free[c, i]``: no vertex winner beats class c at pixel ``s + i`` in every vertex by a
-    certain margin."""
+    certain margin: ``x_c > (x_a (1 + slack) + t T + TINY) / (1 - slack)``, computed as
+    ``coef · (x_a, T, 1)`` in float32 (coefficients rounded up past its roundings; all terms
+    >= 0, so the result lies above the bound)."""
     v_count, n = costs.shape[0], costs.shape[1] - 1
+    on_x, on_t, alone = np.float32(coef[0]), np.float32(coef[1]), np.float32(coef[2])
     free[:, :size] = True
     for u in range(v_count):
         for v in range(v_count):
-            for i in range(size):  # in float64, then rounded up to float32
+            for i in range(size):
                 x_a, t = costs[v, arg[u, i], s + i], costs[v, n, s + i]
-                bound = (x_a * (1 + slack) + t * t_factor + TINY) / (1 - slack)
-                threshold[v, i] = np.float32(bound * (1 + 2.0**-22))
+                threshold[v, i] = (on_x * x_a + on_t * t) + alone
         for c in range(n):
             beaten[:size] = True
             for v in range(v_count):
@@ -96,7 +129,7 @@ def _mix_slots(xs, ts, cls, size, weights, params, mixed, kept, labels, s, opene
     classes ``cls`` (SLOTS, ·), T ``ts`` (VERTICES, ·)) into columns ``s : s + size`` of labels
     and ``:size`` of opened; where ``mixed`` is 0 the flags are ``kept``. One pass per mixture:
     with the slots and the vertices fixed, the loop over pixels vectorises."""
-    m_delta, m_floor = np.float32(params[4]), np.float32(params[5])
+    m_delta, m_floor = np.float32(params[5]), np.float32(params[6])
     for k in range(labels.shape[0]):
         w0, w1, w2, w3 = weights[0, k], weights[1, k], weights[2, k], weights[3, k]
         out, flags = labels[k, s : s + size], opened[k, :size]
@@ -119,7 +152,7 @@ def _mix_passes(xs, ts, cls, slots, size, weights, params, labels, opened):
     """``_mix_slots`` for many slots (a runtime number; past an odd one, the arrays hold an empty
     slot): one pass over the pixels per two slots, every pair open where the certificate
     fails."""
-    m_delta, m_floor = np.float32(params[4]), np.float32(params[5])
+    m_delta, m_floor = np.float32(params[5]), np.float32(params[6])
     best, second = np.empty(size, np.float32), np.empty(size, np.float32)
     total, label = np.empty(size, np.float32), np.empty(size, np.int32)
     for k in range(labels.shape[0]):
@@ -164,20 +197,25 @@ def _fill_slots(costs, s, i, free, slots, xs, cls, column):
 
 
 @numba.njit(**JIT)
-def decide_chunk(costs, weights, params, labels, column, start, stop):
+def decide_chunk(q, weight, weights, params, labels, column, start, stop):
     """Pixels ``start:stop`` of a chunk whose first pixel is the image's ``column``.
 
     Args:
-        costs: (V, N + 1, P) float32 vertex costs (``_Fast.costs``), T last.
+        q: (N, P) float32 ``p / π`` of the chunk's pixels.
+        weight: (R, N') float32 ``_Fast.weight``, zero-padded (see :func:`_vertex_costs`):
+            the vertex costs, class-major, T last, computed block by block in cache.
         weights: (VERTICES, K) float32 mixture weights (zeros below the V vertices).
-        params: float64 [vertex Δ, vertex floor, candidate slack, candidate T factor,
-            mixture Δ, mixture floor] (rounded up for the float32 tests).
+        params: float64 [vertex Δ, vertex floor, the candidates' three coefficients
+            (``_candidates``), mixture Δ, mixture floor] (rounded up for the float32 tests).
         labels: (K, H·W) the image's labels, any integer type, written.
 
     Returns:
         (2, R) int64: the mixture and the chunk's pixel of each pair left open.
     """
-    v_count, n, k_count = costs.shape[0], costs.shape[1] - 1, labels.shape[0]
+    n, k_count = q.shape[0], labels.shape[0]
+    v_count = weight.shape[0] // (n + 1)  # padding: fewer than n + 1 rows
+    block_costs = np.empty((weight.shape[0], BLOCK), np.float32)
+    costs = block_costs[: v_count * (n + 1)].reshape(v_count, n + 1, BLOCK)
     v_delta, v_floor = np.float32(params[0]), np.float32(params[1])
     best, second = np.empty((v_count, BLOCK), np.float32), np.empty((v_count, BLOCK), np.float32)
     arg = np.empty((v_count, BLOCK), np.int32)
@@ -199,8 +237,9 @@ def decide_chunk(costs, weights, params, labels, column, start, stop):
     pairs, found = np.empty((2, 1024), np.int64), 0
     for s in range(start, stop, BLOCK):
         size = min(BLOCK, stop - s)
-        _vertex_winners(costs, s, size, v_delta, v_floor, best, second, arg, agree, finite)
-        _candidates(costs, s, size, params[2], params[3], arg, threshold, beaten, free)
+        _vertex_costs(q, s, size, weight, block_costs)
+        _vertex_winners(costs, 0, size, v_delta, v_floor, best, second, arg, agree, finite)
+        _candidates(costs, 0, size, params[2:5], arg, threshold, beaten, free)
         count[:size] = 0
         for c in range(n - 1, -1, -1):
             row = free[c]
@@ -219,16 +258,16 @@ def decide_chunk(costs, weights, params, labels, column, start, stop):
             for v in range(v_count):
                 xs[v, j, :size] = 0 if j == 0 else BIG
         for v in range(v_count):
-            ts[v, :size] = costs[v, n, s : s + size]
+            ts[v, :size] = costs[v, n, :size]
         for i in range(size):
             if mixed[i]:
-                _fill_slots(costs, s, i, free, SLOTS, xs, cls, i)
+                _fill_slots(costs, 0, i, free, SLOTS, xs, cls, i)
             elif finite[i] and not agree[i] and SLOTS < count[i] <= WIDEST:
                 group = 0 if count[i] <= FEW else 1
                 e, slots = group_size[group], FEW if group == 0 else WIDEST
-                _fill_slots(costs, s, i, free, slots, group_xs[group], group_cls[group], e)
+                _fill_slots(costs, 0, i, free, slots, group_xs[group], group_cls[group], e)
                 for v in range(v_count):
-                    group_ts[group, v, e] = costs[v, n, s + i]
+                    group_ts[group, v, e] = costs[v, n, i]
                 group_pixel[group, e], group_size[group] = s + i, e + 1
                 widest = max(widest, count[i]) if group else widest
         _mix_slots(xs, ts, cls, size, weights, params, mixed, kept, labels, column + s, block_open)

@@ -18,7 +18,7 @@ import numba
 import numpy as np
 import torch
 
-from costseg.decision_certified import U64, _Fast, _reference
+from costseg.decision_certified import TINY, U64, _Fast, _reference
 from costseg.decision_mixing import VERTICES, decide_chunk
 
 
@@ -72,16 +72,22 @@ class NumbaMixer:
         self.fast, self.weights = fast, np.zeros((VERTICES, k), np.float32)  # zeros: padding
         self.weights[:v] = weights.t().float().numpy()
         self.weights64, self.shifted = weights.double().contiguous().numpy(), shifted
-        self.step = CHUNK
+        rows, n = fast.weight.shape  # zero-padded for decision_mixing._vertex_costs
+        self.weight = np.zeros((-(-rows // 4) * 4, n + n % 2), np.float32)
+        self.weight[:rows, :n] = fast.weight.cpu().numpy()
+        # Chunks: a float32 image without pixel-wise priors is read where it lies.
+        as_is = fast.probs.dtype == torch.float32 and fast.pixel_priors is None
+        self.step = fast.probs.shape[2] if as_is else CHUNK
         # the float64 re-check: V more nonnegative terms
         self.gamma64 = (1 + fast.gamma64) * (1 + v * U64 / (1 - v * U64)) - 1
         gamma, eps, rounding = fast.gamma, fast.eps, 1 + 2.0**-20  # the float tests' rounding
+        slack = 2 * gamma / (1 - gamma) * 1.01  # as _Mixer._candidates
+        candidates = np.array([1 + slack, 4 * eps, TINY]) / (1 - slack) * rounding
         self.params = np.array(
             [
                 2.5 * gamma / (1 - gamma) * rounding,
                 10 * eps / gamma * rounding,
-                2 * gamma / (1 - gamma) * 1.01,  # as _Mixer._candidates
-                4 * eps,
+                *_up32(candidates),  # float32, rounded up: x_a's, T's and the constant's
                 2.5 * mix_gamma / (1 - mix_gamma) * rounding,
                 10 * eps / mix_gamma * rounding,
             ]
@@ -91,8 +97,8 @@ class NumbaMixer:
         """(N, P) float32 q of pixels ``column :`` → their labels, written into the image's
         (K, H·W) ``labels``; returns (2, R) the mixture and the chunk's pixel of each pair left
         open."""
-        costs = self.fast.costs(q.detach()).numpy()  # (V, N + 1, P), class-major
-        args = (costs, self.weights, self.params, labels.numpy(), column)
+        q = q.detach().contiguous().numpy()
+        args = (q, self.weight, self.weights, self.params, labels.numpy(), column)
         pairs = _in_pieces(decide_chunk, args, q.shape[1])
         return torch.from_numpy(np.concatenate(pairs, 1))
 
@@ -113,6 +119,12 @@ class NumbaMixer:
             matrices = self.shifted[grid[unsure]]
             labels[unsure] = _reference(q[pixel[unsure]], matrices)
         return labels
+
+
+def _up32(values: np.ndarray) -> np.ndarray:
+    """float64 → the float32 values at or above them (as float64)."""
+    single = values.astype(np.float32)
+    return np.where(single < values, np.nextafter(single, np.float32(np.inf)), single).astype(float)
 
 
 def _in_pieces(kernel, args: tuple, count: int, align: int = 1) -> list:
