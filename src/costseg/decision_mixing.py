@@ -29,7 +29,7 @@ BLOCK = 512  # pixels decided together: their vertex costs stay in cache
 SLOTS = 3  # candidates mixed side by side for every pixel of a block
 MANY = 2048  # pixels with more candidates, gathered to be mixed together: up to FEW slots,
 FEW = 2 * SLOTS  # or up to WIDEST (more than WIDEST candidates: left open)
-VERTICES = 4  # at most; fewer are padded with zero weights and costs
+VERTICES = 3  # at most (a sweep's triangle); fewer are padded with zero weights and costs
 WIDEST = 32  # classes at most (the slots of the second group of pixels with many candidates)
 BIG = np.float32(3.4e38)  # an empty slot's cost: above every real one (w >= 0, some w > 0)
 JIT = dict(nogil=True, cache=True, boundscheck=False, error_model="numpy")
@@ -131,14 +131,14 @@ def _mix_slots(xs, ts, cls, size, weights, params, mixed, kept, labels, s, opene
     with the slots and the vertices fixed, the loop over pixels vectorises."""
     m_delta, m_floor = np.float32(params[5]), np.float32(params[6])
     for k in range(labels.shape[0]):
-        w0, w1, w2, w3 = weights[0, k], weights[1, k], weights[2, k], weights[3, k]
+        w0, w1, w2 = weights[0, k], weights[1, k], weights[2, k]
         out, flags = labels[k, s : s + size], opened[k, :size]
         for i in range(size):
-            total = (w0 * ts[0, i] + w1 * ts[1, i]) + (w2 * ts[2, i] + w3 * ts[3, i])
-            best = (w0 * xs[0, 0, i] + w1 * xs[1, 0, i]) + (w2 * xs[2, 0, i] + w3 * xs[3, 0, i])
+            total = (w0 * ts[0, i] + w1 * ts[1, i]) + w2 * ts[2, i]
+            best = (w0 * xs[0, 0, i] + w1 * xs[1, 0, i]) + w2 * xs[2, 0, i]
             second, label = np.float32(np.inf), cls[0, i]
             for j in range(1, SLOTS):  # slots in class order: ties keep the lower class
-                y = (w0 * xs[0, j, i] + w1 * xs[1, j, i]) + (w2 * xs[2, j, i] + w3 * xs[3, j, i])
+                y = (w0 * xs[0, j, i] + w1 * xs[1, j, i]) + w2 * xs[2, j, i]
                 c = cls[j, i]  # loaded either way: a conditional load does not vectorise
                 best, second, label = keep(y, c, best, second, label)
             gap_ok = second - best > m_delta * second
@@ -156,15 +156,15 @@ def _mix_passes(xs, ts, cls, slots, size, weights, params, labels, opened):
     best, second = np.empty(size, np.float32), np.empty(size, np.float32)
     total, label = np.empty(size, np.float32), np.empty(size, np.int32)
     for k in range(labels.shape[0]):
-        w0, w1, w2, w3 = weights[0, k], weights[1, k], weights[2, k], weights[3, k]
+        w0, w1, w2 = weights[0, k], weights[1, k], weights[2, k]
         for i in range(size):
-            total[i] = (w0 * ts[0, i] + w1 * ts[1, i]) + (w2 * ts[2, i] + w3 * ts[3, i])
+            total[i] = (w0 * ts[0, i] + w1 * ts[1, i]) + w2 * ts[2, i]
         best[:size], second[:size], label[:size] = np.inf, np.inf, cls[0, :size]
         for j in range(0, slots, 2):  # two per pass, in class order: ties keep the lower
             h = j + 1  # past an odd last slot: an empty one (BIG), which changes nothing
             for i in range(size):
-                y = (w0 * xs[0, j, i] + w1 * xs[1, j, i]) + (w2 * xs[2, j, i] + w3 * xs[3, j, i])
-                z = (w0 * xs[0, h, i] + w1 * xs[1, h, i]) + (w2 * xs[2, h, i] + w3 * xs[3, h, i])
+                y = (w0 * xs[0, j, i] + w1 * xs[1, j, i]) + w2 * xs[2, j, i]
+                z = (w0 * xs[0, h, i] + w1 * xs[1, h, i]) + w2 * xs[2, h, i]
                 c, d = cls[j, i], cls[h, i]  # loaded either way: conditional loads do not vectorise
                 low, high, arg = keep(y, c, best[i], second[i], label[i])
                 best[i], second[i], label[i] = keep(z, d, low, high, arg)
@@ -197,13 +197,13 @@ def _fill_slots(costs, s, i, free, slots, xs, cls, column):
 
 
 @numba.njit(**JIT)
-def decide_chunk(q, weight, weights, params, labels, column, start, stop):
+def decide_chunk(q, weight, v_count, weights, params, labels, column, start, stop):
     """Pixels ``start:stop`` of a chunk whose first pixel is the image's ``column``.
 
     Args:
         q: (N, P) float32 ``p / π`` of the chunk's pixels.
         weight: (R, N') float32 ``_Fast.weight``, zero-padded (see :func:`_vertex_costs`):
-            the vertex costs, class-major, T last, computed block by block in cache.
+            the v_count vertices' costs, class-major, T last, computed block by block in cache.
         weights: (VERTICES, K) float32 mixture weights (zeros below the V vertices).
         params: float64 [vertex Δ, vertex floor, the candidates' three coefficients
             (``_candidates``), mixture Δ, mixture floor] (rounded up for the float32 tests).
@@ -213,7 +213,6 @@ def decide_chunk(q, weight, weights, params, labels, column, start, stop):
         (2, R) int64: the mixture and the chunk's pixel of each pair left open.
     """
     n, k_count = q.shape[0], labels.shape[0]
-    v_count = weight.shape[0] // (n + 1)  # padding: fewer than n + 1 rows
     block_costs = np.empty((weight.shape[0], BLOCK), np.float32)
     costs = block_costs[: v_count * (n + 1)].reshape(v_count, n + 1, BLOCK)
     v_delta, v_floor = np.float32(params[0]), np.float32(params[1])

@@ -98,7 +98,8 @@ class NumbaMixer:
         (K, H·W) ``labels``; returns (2, R) the mixture and the chunk's pixel of each pair left
         open."""
         q = q.detach().contiguous().numpy()
-        args = (q, self.weight, self.weights, self.params, labels.numpy(), column)
+        vertices = self.weights64.shape[1]
+        args = (q, self.weight, vertices, self.weights, self.params, labels.numpy(), column)
         pairs = _in_pieces(decide_chunk, args, q.shape[1])
         return torch.from_numpy(np.concatenate(pairs, 1))
 
