@@ -10,6 +10,7 @@ CHAIN = [
     {"classes", "checkpoints", "options"},
     {"costs"},
     {
+        "decision_blocks",
         "decision_certified",
         "decision_groups",
         "decision_mixing",
@@ -29,6 +30,7 @@ CHAIN = [
 NO_LIGHTNING = {
     "costs",
     "decision",
+    "decision_blocks",
     "decision_certified",
     "decision_groups",
     "decision_mixing",

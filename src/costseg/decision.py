@@ -14,7 +14,8 @@ matrix into ``-λI``, whose costs ``-λ q`` keep every tie of q: the robotistic 
    ``C - C.min(0) >= 0`` plus a row ``T`` bounding the reference's costs: sums of nonnegative
    terms err by at most ``γ`` times their own value, so the gap between the best two certifies
    the reference's decision, or not (``_Fast``, ``_top``); for large images one compiled pass
-   over the matrix's sparse part instead, certified row by row
+   over the matrix's sparse part instead, rows that share entries summed together, certified
+   row by row, the pixels left open decided by the reference itself where q is exactly p
    (:mod:`costseg.decision_sparse`); on a GPU, one Triton kernel
    (:mod:`costseg.decision_triton`) sums the same costs in float64 in registers and certifies
    them the same way, K mixtures in the same read of the probabilities;

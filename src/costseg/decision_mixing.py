@@ -2,18 +2,19 @@
 cost maps, decided block by block of pixels, each step vectorised over a block's pixels.
 
 The method is :class:`costseg.decision_certified._Mixer`'s, step for step, on the vertices'
-float32 costs (``_Fast.costs``: class-major, T last):
+float32 costs (``_Fast.costs``: class-major, T last), computed for each block of pixels in
+cache (:func:`costseg.decision_blocks.block_products`) instead of over the whole image:
 
 1. each vertex's argmin and runner-up, certified as in ``_top`` (gap and floor);
 2. where every vertex picks the same class with a certified gap, every mixture picks it;
 3. elsewhere the candidates: classes that no vertex winner beats in every vertex by a certain
-   margin (``_Mixer._candidates``, the threshold in float64, rounded up); a single candidate
-   decides every mixture;
+   margin (``_Mixer._candidates``; the threshold in float32 with coefficients rounded up past
+   its roundings); a single candidate decides every mixture;
 4. else, per mixture, the candidates' mixed costs ``Σ_v w_kv x_v`` and ``T``, their argmin (the
    lowest class on ties) and the same certificate with the mixing's rounding in ``γ``. Up to
    SLOTS candidates per pixel sit side by side in slots (an empty slot costs BIG), so that all
    the block's pixels are mixed in one pass per mixture; pixels with more candidates are
-   gathered (two groups: up to FEW, up to WIDEST) and mixed in passes over slots.
+   gathered (two groups: up to FEW, up to WIDEST) and mixed in passes over two slots each.
 
 Pairs left open (and every pair of a pixel whose ``T`` is not finite) are flagged for the float64
 re-check. Compiled on first use and cached beside this file.
@@ -24,6 +25,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from costseg.decision_blocks import block_products, keep
+
 UNDERFLOW = 2.0**-60  # a runner-up below it: never certified
 BLOCK = 512  # pixels decided together: their vertex costs stay in cache
 SLOTS = 3  # candidates mixed side by side for every pixel of a block
@@ -33,40 +36,6 @@ VERTICES = 3  # at most (a sweep's triangle); fewer are padded with zero weights
 WIDEST = 32  # classes at most (the slots of the second group of pixels with many candidates)
 BIG = np.float32(3.4e38)  # an empty slot's cost: above every real one (w >= 0, some w > 0)
 JIT = dict(nogil=True, cache=True, boundscheck=False, error_model="numpy")
-
-
-@numba.njit(inline="always", **JIT)
-def keep(y, c, low, high, label):
-    """Best two after one more cost y of class c: (smallest, second smallest, its class); ties
-    keep the earlier class. Plain selects, which compile to min and max instructions: NaN costs
-    are skipped, which is safe where a pixel with any is never certified (its T, or its sum of
-    q, is not finite)."""
-    above = y if y > low else low
-    return (y if y < low else low), (above if above < high else high), (c if y < low else label)
-
-
-@numba.njit(**JIT, fastmath={"contract"})
-def _vertex_costs(q, s, size, weight, out):
-    """``out[:, :size] = weight @ q[:, s : s + size]``: float32 (R, N) weights, R a multiple of
-    four and N even (zero padding), four rows and two terms per pass (any order of summation
-    is within ``_Fast.gamma``'s dot product; multiply-adds fused, NaN and inf kept)."""
-    for r in range(0, weight.shape[0], 4):
-        out_a, out_b, out_c, out_d = out[r], out[r + 1], out[r + 2], out[r + 3]
-        for k in range(0, weight.shape[1], 2):
-            q_k, q_l = q[k, s : s + size], q[min(k + 1, q.shape[0] - 1), s : s + size]
-            a, b, c, d = weight[r, k], weight[r + 1, k], weight[r + 2, k], weight[r + 3, k]
-            e, f = weight[r, k + 1], weight[r + 1, k + 1]
-            g, h = weight[r + 2, k + 1], weight[r + 3, k + 1]
-            if k == 0:
-                for i in range(size):
-                    out_a[i], out_b[i] = a * q_k[i] + e * q_l[i], b * q_k[i] + f * q_l[i]
-                    out_c[i], out_d[i] = c * q_k[i] + g * q_l[i], d * q_k[i] + h * q_l[i]
-            else:
-                for i in range(size):
-                    out_a[i] += a * q_k[i] + e * q_l[i]
-                    out_b[i] += b * q_k[i] + f * q_l[i]
-                    out_c[i] += c * q_k[i] + g * q_l[i]
-                    out_d[i] += d * q_k[i] + h * q_l[i]
 
 
 @numba.njit(**JIT)
@@ -202,7 +171,7 @@ def decide_chunk(q, weight, v_count, weights, params, labels, column, start, sto
 
     Args:
         q: (N, P) float32 ``p / π`` of the chunk's pixels.
-        weight: (R, N') float32 ``_Fast.weight``, zero-padded (see :func:`_vertex_costs`):
+        weight: (R, N') float32 ``_Fast.weight``, zero-padded (see ``block_products``):
             the v_count vertices' costs, class-major, T last, computed block by block in cache.
         weights: (VERTICES, K) float32 mixture weights (zeros below the V vertices).
         params: float64 [vertex Δ, vertex floor, the candidates' three coefficients
@@ -236,7 +205,7 @@ def decide_chunk(q, weight, v_count, weights, params, labels, column, start, sto
     pairs, found = np.empty((2, 1024), np.int64), 0
     for s in range(start, stop, BLOCK):
         size = min(BLOCK, stop - s)
-        _vertex_costs(q, s, size, weight, block_costs)
+        block_products(q, s, size, weight, block_costs)
         _vertex_winners(costs, 0, size, v_delta, v_floor, best, second, arg, agree, finite)
         _candidates(costs, 0, size, params[2:5], arg, threshold, beaten, free)
         count[:size] = 0

@@ -2,7 +2,8 @@
 
 The same method as :class:`costseg.decision_certified._Mixer`, which runs it as a sequence of
 tensor operations over a chunk, each a pass over memory. Here :func:`costseg.decision_mixing.
-decide_chunk` decides a chunk's K mixtures block by block of pixels, the vertex costs in cache;
+decide_chunk` decides a chunk's K mixtures block by block of pixels, computing the vertex
+costs in cache (a float32 image without pixel-wise priors is one chunk, read where it lies);
 the pairs left open (and every pair of a pixel whose ``T`` is not finite) go to the float64
 re-check, also compiled (``_settle_pairs``, stage 2), then to the reference. Compiled on first
 use and cached beside the modules.

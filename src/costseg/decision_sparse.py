@@ -30,9 +30,9 @@ import numba
 import numpy as np
 import torch
 
+from costseg.decision_blocks import keep
 from costseg.decision_certified import TINY, U32, U64, _Fast
 from costseg.decision_groups import PASS, TOTAL, program, shared_rows, supports, with_zeros
-from costseg.decision_mixing import keep
 from costseg.decision_numba import _in_pieces
 
 BLOCK = 1024  # pixels decided together: (N x BLOCK) float32 probabilities stay in cache
