@@ -79,14 +79,16 @@ def test_other_numbers_of_vertices(count):
 
 
 def test_several_chunks_and_priors(monkeypatch):
-    monkeypatch.setattr("costseg.decision_numba.CHUNK", 1000)  # 3 chunks and a part per image
+    """A float32 image without pixel-wise priors is one chunk; float16 images and pixel-wise
+    priors go chunk by chunk (here 3 chunks and a part per image)."""
+    monkeypatch.setattr("costseg.decision_numba.CHUNK", 1000)
     assert CHUNK > 1000
     weights = barycentric_grid(0.2)
-    probs = smooth((2, 19, 40, 83), 5, scale=4)
     priors = torch.rand(19, generator=torch.Generator().manual_seed(3)) + 0.01
-    for pri in (None, priors, torch.rand(19, 40, 83) + 0.01):
-        expected = loop(probs, VERTICES, weights, pri)
-        assert torch.equal(decide_mixtures(probs, VERTICES, weights, pri).long(), expected)
+    for probs in (smooth((2, 19, 40, 83), 5, scale=4), smooth((1, 19, 40, 83), 6).half()):
+        for pri in (None, priors, torch.rand(19, 40, 83) + 0.01):
+            expected = loop(probs, VERTICES, weights, pri)
+            assert torch.equal(decide_mixtures(probs, VERTICES, weights, pri).long(), expected)
 
 
 def test_kernel_certifies_most_pairs():
