@@ -5,20 +5,22 @@ frequent entry of column k, ``C = 1 cᵀ + E`` decides as E: ``argmin_j e_j``, `
 q_k``. E is sparse for the usual matrices (robotistic: ``-I``; the paper's others add the large
 costs of missing a vulnerable class), and rows of the same kind share most entries (the
 egoistic matrix's seven static classes differ only on the diagonal). So rows are grouped
-(:func:`_shared_rows`): a group's shared entries B are summed once per pixel, each row adds its
-own rest ``D_j = E_j - B``. The sums run over a block of pixels that stays in cache, up to four
-terms per pass.
+(:func:`costseg.decision_groups.shared_rows`): a group's shared entries B are summed once per
+pixel, each row adds its own rest ``D_j = E_j - B``. The sums run over a block of pixels that
+stays in cache, up to four terms per pass; each row's last term joins the pass that keeps the
+best two.
 
 **Certificate.** The kernel sums ``L = B' + D'_j``, the entries moved down by ``g |.|`` and
 rounded down to float32: its float32 sums ``l_j`` lie at or below ``e_j`` whatever their
 rounding (``g`` covers the row's depth of rounding and q's three roundings), and within ``d M_j``
 of it, ``M_j = Σ_k (|B_k| + |D_jk|) q_k``. The smallest, ``l_a``, certifies the reference's
 decision a (float64; within ``eps T`` of exact, ``_Fast``'s T) when every other ``l_b`` exceeds
-``l_a + d M_a + 2 eps T``: first with ``M_a <= r_a Σ_k q_k`` (``r_a``: the row's largest
-magnitude), vectorised; where that fails, with ``M_a`` itself. A NaN or infinite q makes
-``Σ_k q_k`` NaN or infinite: never certified. The pixels left open go to ``_Fast.settle``
-(float64 certificate, then the reference). As in the whole decision layer, probabilities are
->= 0.
+``l_a + d M_a + 2 eps T``, with ``M_a <= r_a Σ_k q_k`` over the columns of a's group (``r_a``:
+the row's largest magnitude), vectorised. A NaN or infinite q makes ``Σ_k q_k`` NaN or infinite:
+never certified. The pixels left open are decided by the float64 reference itself, on their q
+gathered while in cache, where q is exactly p (no pixel-wise priors; float32 and narrower
+types); else, and for NaN costs, they go to ``_Fast.settle``. As in the whole decision layer,
+probabilities are >= 0.
 """
 
 from __future__ import annotations
