@@ -73,7 +73,7 @@ class NumbaMixer:
         self.fast, self.weights = fast, np.zeros((VERTICES, k), np.float32)  # zeros: padding
         self.weights[:v] = weights.t().float().numpy()
         self.weights64, self.shifted = weights.double().contiguous().numpy(), shifted
-        rows, n = fast.weight.shape  # zero-padded for decision_mixing._vertex_costs
+        rows, n = fast.weight.shape  # zero-padded for decision_blocks.block_products
         self.weight = np.zeros((-(-rows // 4) * 4, n + n % 2), np.float32)
         self.weight[:rows, :n] = fast.weight.cpu().numpy()
         # Chunks: a float32 image without pixel-wise priors is read where it lies.
