@@ -5,19 +5,20 @@ import ast
 from pathlib import Path
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "costseg"
+DECISION_KERNELS = {  # decision.py's fast paths
+    "decision_blocks",
+    "decision_certified",
+    "decision_groups",
+    "decision_mixing",
+    "decision_numba",
+    "decision_sparse",
+    "decision_triton",
+}
 # Lower layers first; a module may import its own layer or lower ones.
 CHAIN = [
     {"classes", "checkpoints", "options"},
     {"costs"},
-    {
-        "decision_blocks",
-        "decision_certified",
-        "decision_groups",
-        "decision_mixing",
-        "decision_numba",
-        "decision_sparse",
-        "decision_triton",
-    },
+    DECISION_KERNELS,
     {"decision"},
     {"rules", "selection", "calibration", "calibration_sample", "guarantee"},
     {"data", "metrics", "models", "networks", "probs_files", "results"},
@@ -30,13 +31,7 @@ CHAIN = [
 NO_LIGHTNING = {
     "costs",
     "decision",
-    "decision_blocks",
-    "decision_certified",
-    "decision_groups",
-    "decision_mixing",
-    "decision_numba",
-    "decision_sparse",
-    "decision_triton",
+    *DECISION_KERNELS,
     "rules",
     "selection",
     "calibration",

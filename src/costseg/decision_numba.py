@@ -76,9 +76,7 @@ class NumbaMixer:
         rows, n = fast.weight.shape  # zero-padded for decision_blocks.block_products
         self.weight = np.zeros((-(-rows // 4) * 4, n + n % 2), np.float32)
         self.weight[:rows, :n] = fast.weight.cpu().numpy()
-        # Chunks: a float32 image without pixel-wise priors is read where it lies.
-        as_is = fast.probs.dtype == torch.float32 and fast.pixel_priors is None
-        self.step = fast.probs.shape[2] if as_is else CHUNK
+        self.step = chunk_step(fast, CHUNK)
         # the float64 re-check: V more nonnegative terms
         self.gamma64 = (1 + fast.gamma64) * (1 + v * U64 / (1 - v * U64)) - 1
         gamma, eps, rounding = fast.gamma, fast.eps, 1 + 2.0**-20  # the float tests' rounding
@@ -121,6 +119,13 @@ class NumbaMixer:
             matrices = self.shifted[grid[unsure]]
             labels[unsure] = _reference(q[pixel[unsure]], matrices)
         return labels
+
+
+def chunk_step(fast: _Fast, chunk: int) -> int:
+    """Pixels per chunk for the compiled kernels: a float32 image without pixel-wise priors is
+    read where it lies, whole; others are converted to float32 q ``chunk`` pixels at a time."""
+    as_is = fast.probs.dtype == torch.float32 and fast.pixel_priors is None
+    return fast.probs.shape[2] if as_is else chunk
 
 
 def _up32(values: np.ndarray) -> np.ndarray:

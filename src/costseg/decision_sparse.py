@@ -35,7 +35,7 @@ import torch
 from costseg.decision_blocks import keep
 from costseg.decision_certified import TINY, U32, U64, _Fast
 from costseg.decision_groups import PASS, TOTAL, program, shared_rows, supports, with_zeros
-from costseg.decision_numba import _in_pieces
+from costseg.decision_numba import _in_pieces, chunk_step
 
 BLOCK = 1024  # pixels decided together: (N x BLOCK) float32 probabilities stay in cache
 CHUNK = 1 << 20  # pixels converted to float32 q at once (other types, pixel-wise priors)
@@ -207,9 +207,7 @@ class SparseRule:
         self.reference64 = None
         if fast.pixel_priors is None and fast.probs.dtype != torch.float64:
             self.reference64 = shifted[0].cpu().t().contiguous().numpy(), priors.numpy()
-        # Chunks: a float32 image without pixel-wise priors is read where it lies.
-        as_is = fast.probs.dtype == torch.float32 and fast.pixel_priors is None
-        self.step = fast.probs.shape[2] if as_is else CHUNK
+        self.step = chunk_step(fast, CHUNK)
 
     def chunk(self, q: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
         """(N, P) float32 q → (P,) int64 labels written into ``labels``; returns the pixels left
