@@ -16,6 +16,7 @@ nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader
 echo "CPU cores: $(nproc)"
 python tests/decision_kernel_cases.py --device cuda 2>&1 | tail -n 3
 python scripts/bench_decision.py --devices cuda | tee "$out/bench_decision.txt"
+[ -f gpu/kernel_probe.py ] && python gpu/kernel_probe.py 2>&1 | grep -v "^STAGE\|^USDT" | tee "$out/kernel_probe.txt"
 python scripts/bench_pipeline.py --ckpt_path "$ckpt" --sections full-resolution --images 8 \
   | tee "$out/bench_pipeline.txt"
 python scripts/toy_as_cityscapes.py /tmp/standin4 --train 1 --val 4 >/dev/null
@@ -28,7 +29,9 @@ opts = EvalOptions(ckpt_path=sys.argv[1], data_root="/tmp/standin4", sweep=0.05,
                    progress=False, overwrite=True, output_dir="/tmp/sweep_profile")
 run(plan(opts))  # warm-up
 cProfile.run("run(plan(opts))", "/tmp/sweep.prof")
-pstats.Stats("/tmp/sweep.prof").sort_stats("cumulative").print_stats(25)
+stats = pstats.Stats("/tmp/sweep.prof")
+stats.sort_stats("cumulative").print_stats(40)
+stats.sort_stats("tottime").print_stats(15)
 PY
 python - "$ckpt" "$out" <<'PY' | tail -n 3
 import sys

@@ -57,3 +57,12 @@ def test_segment_errors_without_maps_counts_as_with_them() -> None:
     for key in ("fp", "fn", "n_pred", "n_gt"):
         assert torch.equal(without.compute()[key], with_maps.compute()[key])
     assert with_maps.compute()["fp"].sum() > 0  # the case counts something
+
+
+@pytest.mark.parametrize("shape", [(1, 1, 8), (2, 3, 13), (1, 4, 5 * 7)])
+def test_masks_packed_in_torch_equal_numpy_packbits(shape: tuple[int, int, int]) -> None:
+    # The GPU's packing (8 times fewer bytes to copy) against numpy's, odd pixel counts included.
+    from costseg.metrics.segments import _pack_bits
+
+    masks = torch.rand(shape, generator=torch.Generator().manual_seed(sum(shape))) > 0.5
+    assert np.array_equal(_pack_bits(masks).numpy(), np.packbits(masks.numpy(), axis=-1))

@@ -34,6 +34,7 @@ the block (:mod:`costseg.decision_numba`, :mod:`costseg.decision_mixing`); on a 
 
 from __future__ import annotations
 
+import copy
 import functools
 import os
 
@@ -85,21 +86,20 @@ def decide(
     if cost.shape != (n, n):
         raise ValueError(f"cost matrix must be {n}x{n} for {n} classes, got {tuple(cost.shape)}")
     cost = cost.to(torch.float64).cpu()[None]  # small: prepared on the CPU
-    shifted = _shift(cost).to(probs.device)  # the reference's matrix, for the re-checks
-    fast = _Fast(
-        cost, probs, _priors(priors, n, *probs.shape[2:], probs), eps=(n + 4) * U64
-    )  # eps: the reference's rounding per T
+    fast = _fast(cost, probs, _priors(priors, n, *probs.shape[2:], probs), eps=(n + 4) * U64)
+    # eps: the reference's rounding per T
     b, _, h, w = probs.shape
     out = torch.empty(b, h * w, dtype=torch.long, device=probs.device)
     if kernel := _gpu_kernel(fast):
-        one = torch.ones(1, 1, dtype=torch.float64)
+        rule = kernel.rule(fast.folded, torch.ones(1, 1, dtype=torch.float64), fast.eps, out.device)
         for i in range(b):
-            labels = out[i : i + 1]
-            redo = kernel.certified_argmin(fast.probs[i], fast.folded, one, fast.eps, labels)
-            redo = redo[0].nonzero()[:, 0]
-            if len(redo):
+            opened = rule(fast.probs[i], out[i : i + 1])
+            if opened is not None:
+                redo = opened[0].nonzero()[:, 0]
+                shifted = _shift(cost).to(probs.device)
                 out[i, redo] = fast.settle(fast.exact_q(i, redo), shifted)
         return out.view(b, h, w)
+    shifted = _shift(cost).to(probs.device)  # the reference's matrix, for the re-checks
     rule = _sparse_rule(fast, cost, shifted)
     for i in range(b):
         redo, q64 = [], []
@@ -153,23 +153,27 @@ def decide_mixtures(
         )
     if not bool((weights >= 0).all() and (weights > 0).any(1).all()):
         raise ValueError("mixture weights must be >= 0 with a positive entry in each row")
-    mixed = _shift(mix_costs(vertices, weights).to(probs.device))  # the reference's matrices
     # eps: the reference's rounding on a mixed matrix (and that of mix_costs), per T.
     priors = _priors(priors, n, *probs.shape[2:], probs)
-    fast = _Fast(vertices.double(), probs, priors, (n + 8) * U64)
+    fast = _fast(vertices.double().cpu(), probs, priors, (n + 8) * U64)
     b, _, h, w = probs.shape
     dtype = torch.uint8 if n <= 256 else torch.long  # K label maps add up
     out = torch.empty(b, len(weights), h * w, dtype=dtype, device=probs.device)
-    weights64 = weights.to(probs.device, torch.float64)
+    # The reference's matrices and the weights, for the re-checks.
+    mixed = lambda: _shift(mix_costs(vertices, weights).to(probs.device))  # noqa: E731
+    weights64 = lambda: weights.to(probs.device, torch.float64)  # noqa: E731
     if kernel := _gpu_kernel(fast):
+        rule = kernel.rule(fast.folded, weights, fast.eps, out.device)
         for i in range(b):
-            opened = kernel.certified_argmin(fast.probs[i], fast.folded, weights, fast.eps, out[i])
+            opened = rule(fast.probs[i], out[i])
+            if opened is None:
+                continue
             grid, pixel = opened.nonzero().unbind(1)
-            if len(grid):
-                pixels, inverse = torch.unique(pixel, return_inverse=True)
-                settled = fast.settle(fast.exact_q(i, pixels), mixed, grid, weights64, inverse)
-                out[i, grid, pixel] = settled.to(dtype)
+            pixels, inverse = torch.unique(pixel, return_inverse=True)
+            settled = fast.settle(fast.exact_q(i, pixels), mixed(), grid, weights64(), inverse)
+            out[i, grid, pixel] = settled.to(dtype)
         return out.view(b, len(weights), h, w)
+    mixed, weights64 = mixed(), weights64()
     mix = _Mixer(weights64, fast, mixed)
     compiled = _cpu_kernel(fast, mix, mixed)
     for i in range(b):
@@ -185,6 +189,30 @@ def decide_mixtures(
                 settled = compiled.settle(fast.exact_q(i, s + pixels), grid, inverse)
                 labels[grid, pixel] = settled.to(dtype)
     return out.view(b, len(weights), h, w)
+
+
+def _fast(matrices: torch.Tensor, probs: torch.Tensor, priors, eps: float) -> _Fast:
+    """``_Fast(matrices, probs, priors, eps)``; its matrix part is prepared once per matrices,
+    global priors, device and matmul precision (small copies to a GPU cost more than the kernel)."""
+    if priors is not None and priors.ndim > 1:
+        return _Fast(matrices, probs, priors, eps)
+    key = None if priors is None else priors.double().cpu().numpy().tobytes()
+    precision = torch.get_float32_matmul_precision(), torch.backends.cuda.matmul.allow_tf32
+    template = _fast_template(
+        matrices.numpy().tobytes(), matrices.shape, key, eps, probs.device, precision
+    )
+    fast = copy.copy(template)
+    fast.probs, fast.priors = probs.reshape(*probs.shape[:2], -1), priors
+    return fast
+
+
+@functools.lru_cache(maxsize=64)
+def _fast_template(matrices: bytes, shape, priors: bytes | None, eps: float, device, precision):
+    """A ``_Fast`` of these matrices and global priors for a stand-in image (see ``_fast``)."""
+    as_tensor = lambda data: torch.frombuffer(bytearray(data), dtype=torch.float64)  # noqa: E731
+    matrices = as_tensor(matrices).view(shape)
+    priors = None if priors is None else as_tensor(priors).to(device)
+    return _Fast(matrices, torch.empty(1, shape[-1], 1, 1, device=device), priors, eps)
 
 
 def _gpu_kernel(fast: _Fast):

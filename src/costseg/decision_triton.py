@@ -5,36 +5,74 @@ bound T, ``_Fast``'s nonnegative weights, global priors folded in) in registers,
 of K mixtures ``Σ_v w_kv x_v`` (``decide``: K = V = 1, w = 1) finds the argmin ``a``, the
 runner-up ``x_b`` and ``_top64``'s certificate ``x_b - x_a - g (x_a + x_b) > 2 eps T (1 + g)``
 (``g = γ / (1 - γ)``, with its margins; the test in float64, T finite). It writes one label and
-one open flag per pixel and mixture; no cost map reaches memory. Costs are summed in float64
-(``FLOAT64``, the default: the H100 / H200 run float64 at half their float32 rate, and only true
-near ties stay open) or float32. The open pairs go to the float64 stages of
-:mod:`costseg.decision`.
+one open flag per pixel and mixture, and counts the open pairs; no cost map reaches memory.
+
+The N + 1 rows are held as two tiles of power-of-2 sizes (16 + 4 for N = 19), not one of 32.
+Where every vertex's winner is the same and certified with the mixtures' margins on every pixel
+of a block, each mixture's certificate holds too (it is linear in the vertex costs, the weights
+are nonnegative), and the block writes that winner for all K without mixing. Costs are summed in
+float64 (``FLOAT64``, the default: only true near ties stay open) or float32. The open pairs go
+to the float64 stages of :mod:`costseg.decision`.
 """
 
 from __future__ import annotations
+
+import functools
 
 import torch
 import triton
 import triton.language as tl
 
 U32, U64 = 2.0**-24, 2.0**-53
-BLOCK = 128  # pixels per program: V x rows x BLOCK partial costs live in registers
+BLOCK = 128  # pixels per program
+WARPS = 4
+
+
+@triton.jit
+def _best_two(costs_a, costs_b, RA: tl.constexpr, RB: tl.constexpr, N: tl.constexpr):
+    """Argmin, best, runner-up and T (row N) of costs held as (RA, BLOCK) and (RB, BLOCK)."""
+    rows_a, rows_b = tl.arange(0, RA)[:, None], tl.arange(0, RB)[:, None]
+    total = tl.sum(tl.where(rows_a == N, costs_a, 0.0), 0)
+    total += tl.sum(tl.where(rows_b + RA == N, costs_b, 0.0), 0)
+    costs_a = tl.where(rows_a < N, costs_a, float("inf"))
+    costs_b = tl.where(rows_b + RA < N, costs_b, float("inf"))
+    best_a, arg_a = tl.min(costs_a, 0), tl.argmin(costs_a, 0)
+    best_b, arg_b = tl.min(costs_b, 0), tl.argmin(costs_b, 0)
+    second_a = tl.min(tl.where(rows_a == arg_a[None, :], float("inf"), costs_a), 0)
+    second_b = tl.min(tl.where(rows_b == arg_b[None, :], float("inf"), costs_b), 0)
+    in_b = best_b < best_a
+    best = tl.where(in_b, best_b, best_a)
+    arg = tl.where(in_b, arg_b + RA, arg_a)
+    second = tl.where(in_b, tl.minimum(best_a, second_b), tl.minimum(second_a, best_b))
+    return arg, best, second, total
+
+
+@triton.jit
+def _certified(best, second, total, g, slack, tiny):
+    """``_top64``'s certificate in float64 (1.25 and 2**-51 cover its own roundings)."""
+    lo, hi, t = best.to(tl.float64), second.to(tl.float64), total.to(tl.float64)
+    need = 1.25 * (g * (lo + hi) + slack * t) + tiny
+    return ((hi - lo) * (1 - 2.0**-51) > need) & (t < float("inf"))
 
 
 @triton.jit
 def _certified_argmin(
     probs,  # (N, P) any float
-    weight,  # (VP, R, N) compute dtype, zero rows past N + 1 and past V
+    weight,  # (N, VP, RA + RB) compute dtype: column k of every vertex's rows, zero padded
     mix,  # (K, VP) compute dtype, zero past V
     labels,  # (K, P) integer
     opened,  # (K, P) int8
+    count,  # (1,) int64: open pairs, added to
     P,
     K,
     g,
     slack,
     tiny,
+    vertex_tiny,
     N: tl.constexpr,
-    R: tl.constexpr,
+    RA: tl.constexpr,
+    RB: tl.constexpr,
+    V: tl.constexpr,
     VP: tl.constexpr,
     BLOCK: tl.constexpr,
     FLOAT64: tl.constexpr,
@@ -42,75 +80,110 @@ def _certified_argmin(
     dtype = tl.float64 if FLOAT64 else tl.float32
     offs = tl.program_id(0).to(tl.int64) * BLOCK + tl.arange(0, BLOCK)
     inside = offs < P
-    rows = tl.arange(0, R)
-    verts = tl.arange(0, VP)
-    costs = tl.zeros((VP, R, BLOCK), dtype)
+    verts = tl.arange(0, VP)[:, None]
+    rows_a, rows_b = verts * (RA + RB) + tl.arange(0, RA)[None, :], tl.arange(0, RB)[None, :]
+    rows_b += verts * (RA + RB) + RA
+    costs_a = tl.zeros((VP, RA, BLOCK), dtype)
+    costs_b = tl.zeros((VP, RB, BLOCK), dtype)
     row = probs + offs  # pointers step by P (64-bit: K x P may pass 2**31)
-    for k in range(N):
-        x = tl.load(row, mask=inside, other=0.0).to(dtype)
-        w = tl.load(weight + (verts[:, None] * R + rows[None, :]) * N + k)
-        costs += w[:, :, None] * x[None, None, :]
+    for k in tl.static_range(N):
+        x = tl.load(row, mask=inside, other=0.0).to(dtype)[None, None, :]
+        costs_a += tl.load(weight + k * VP * (RA + RB) + rows_a)[:, :, None] * x
+        costs_b += tl.load(weight + k * VP * (RA + RB) + rows_b)[:, :, None] * x
         row += P
     out, flag = labels + offs, opened + offs
-    for m in range(K):
-        w = tl.load(mix + m * VP + verts)
-        mixed = tl.sum(w[:, None, None] * costs, axis=0)  # (R, BLOCK)
-        total = tl.sum(tl.where(rows[:, None] == N, mixed, 0.0), axis=0)
-        mixed = tl.where(rows[:, None] < N, mixed, float("inf"))
-        best = tl.min(mixed, axis=0)
-        arg = tl.argmin(mixed, axis=0)
-        second = tl.min(tl.where(rows[:, None] == arg[None, :], float("inf"), mixed), axis=0)
-        lo, hi, t = best.to(tl.float64), second.to(tl.float64), total.to(tl.float64)
-        need = 1.25 * (g * (lo + hi) + slack * t) + tiny
-        ok = ((hi - lo) * (1 - 2.0**-51) > need) & (t < float("inf"))
-        tl.store(out, arg.to(labels.dtype.element_ty), mask=inside)
-        tl.store(flag, (~ok).to(tl.int8), mask=inside)
-        out += P
-        flag += P
-
-
-def certified_argmin(
-    probs: torch.Tensor,
-    weight: torch.Tensor,
-    mix: torch.Tensor,
-    eps: float,
-    labels: torch.Tensor,
-    float64: bool = True,
-) -> torch.Tensor:
-    """Labels of K mixtures of V matrices for one image's pixels, and where they are open.
-
-    Args:
-        probs: (N, P) probabilities (float16 / bfloat16 / float32), contiguous.
-        weight: (V, N + 1, N) float64 nonnegative rows and T (``_Fast.folded``: priors folded,
-            scaled), best on the CPU.
-        mix: (K, V) float64 mixture weights >= 0 (``[[1.0]]`` for one matrix), best on the CPU.
-        eps: the reference's rounding per T.
-        labels: (K, P) integer output.
-
-    Returns:
-        (K, P) bool: open pairs (their labels are meaningless).
-    """
-    (v, rows, n), k, probs = weight.shape, len(mix), probs.contiguous()
-    weight, mix = weight.cpu(), mix.cpu()  # small: prepared on the CPU, no GPU round trips
-    dtype, u = (torch.float64, U64) if float64 else (torch.float32, U32)
-    vp, r = triton.next_power_of_2(v), max(16, triton.next_power_of_2(rows))
-    padded = weight.new_zeros(vp, r, n, dtype=dtype)
-    padded[:v, :rows] = weight
-    mixing = mix.new_zeros(k, vp, dtype=dtype)
-    mixing[:, :v] = mix
-    # Nonnegative sums of N terms per vertex cost, then V per mixture, in the compute dtype; the
-    # weights' float64 construction (4 U64, as in _Fast) and rounding to it (ρ), one rounding of
-    # q (exact from float16/bfloat16/float32) and of the mixture weights.
-    rho = ((padded[:v, :rows].double() - weight).abs() / weight).nan_to_num(0).max().item()
-    dot = (n + v) * u / (1 - (n + v) * u)
-    gamma = (1 + rho + 4 * U64) * (1 + u) ** 2 * (1 + dot) - 1
-    g = gamma / (1 - gamma)
-    tiny = 2.0**-900 if float64 else 2.0**-60  # far above the sums' underflow
-    padded, mixing = padded.to(probs.device), mixing.to(probs.device)
-    opened = torch.empty(labels.shape, dtype=torch.int8, device=probs.device)
-    grid = (triton.cdiv(probs.shape[1], BLOCK),)
-    _certified_argmin[grid](
-        probs, padded, mixing, labels, opened, probs.shape[1], k, g, 2 * eps * (1 + g), tiny,
-        N=n, R=r, VP=vp, BLOCK=BLOCK, FLOAT64=float64,
+    # Every vertex's winner certified with the mixtures' margins (vertex_tiny: tiny over the
+    # smallest sum of a mixture's weights) certifies it for every mixture.
+    first, best, second, total = _best_two(
+        tl.sum(tl.where(verts[:, :, None] == 0, costs_a, 0.0), 0),
+        tl.sum(tl.where(verts[:, :, None] == 0, costs_b, 0.0), 0), RA, RB, N,
     )  # fmt: skip
-    return opened.bool()
+    agree = inside & _certified(best, second, total, g, slack, vertex_tiny)
+    for v in tl.static_range(1, V):
+        vertex_a = tl.sum(tl.where(verts[:, :, None] == v, costs_a, 0.0), 0)
+        vertex_b = tl.sum(tl.where(verts[:, :, None] == v, costs_b, 0.0), 0)
+        arg, best, second, total = _best_two(vertex_a, vertex_b, RA, RB, N)
+        agree &= _certified(best, second, total, g, slack, vertex_tiny) & (arg == first)
+    if tl.min(tl.where(inside, agree, True).to(tl.int32), 0) == 1:
+        for m in range(K):
+            tl.store(out, first.to(labels.dtype.element_ty), mask=inside)
+            tl.store(flag, tl.zeros((BLOCK,), tl.int8), mask=inside)
+            out += P
+            flag += P
+    else:
+        unsure = tl.zeros((BLOCK,), tl.int32)
+        for m in range(K):
+            w = tl.load(mix + m * VP + verts)[:, :, None]
+            mixed_a, mixed_b = tl.sum(w * costs_a, 0), tl.sum(w * costs_b, 0)
+            arg, best, second, total = _best_two(mixed_a, mixed_b, RA, RB, N)
+            ok = _certified(best, second, total, g, slack, tiny) | ~inside
+            tl.store(out, arg.to(labels.dtype.element_ty), mask=inside)
+            tl.store(flag, (~ok).to(tl.int8), mask=inside)
+            unsure += (~ok).to(tl.int32)
+            out += P
+            flag += P
+        some = tl.sum(unsure, 0)
+        if some > 0:
+            tl.atomic_add(count, some.to(tl.int64))
+
+
+class Rule:
+    """The kernel's arguments for V vertex matrices and K mixtures, prepared once (:func:`rule`).
+
+    Call with (N, P) probabilities (float16 / bfloat16 / float32, contiguous) and (K, P) integer
+    labels to fill; returns the (K, P) int8 open flags, or None where no pair is open (one
+    synchronisation: reading the count).
+    """
+
+    def __init__(self, weight: torch.Tensor, mix: torch.Tensor, eps: float, float64: bool, device):
+        (v, rows, n), k = weight.shape, len(mix)
+        dtype, u = (torch.float64, U64) if float64 else (torch.float32, U32)
+        vp = triton.next_power_of_2(v)
+        ra = triton.next_power_of_2(rows + 1) // 2  # the largest power of 2 <= rows
+        rb = triton.next_power_of_2(max(1, rows - ra))
+        padded = weight.new_zeros(vp, ra + rb, n, dtype=dtype)
+        padded[:v, :rows] = weight
+        mixing = mix.new_zeros(k, vp, dtype=dtype)
+        mixing[:, :v] = mix
+        # Nonnegative sums of N terms per vertex cost, then V per mixture, in the compute dtype;
+        # the weights' float64 construction (4 U64, as in _Fast) and rounding to it (ρ), one
+        # rounding of q (exact from float16/bfloat16/float32) and of the mixture weights.
+        rho = ((padded[:v, :rows].double() - weight).abs() / weight).nan_to_num(0).max().item()
+        dot = (n + v) * u / (1 - (n + v) * u)
+        gamma = (1 + rho + 4 * U64) * (1 + u) ** 2 * (1 + dot) - 1
+        self.g = gamma / (1 - gamma)
+        self.slack = 2 * eps * (1 + self.g)
+        self.tiny = 2.0**-900 if float64 else 2.0**-60  # far above the sums' underflow
+        self.vertex_tiny = self.tiny / mix.sum(1).min().item()
+        self.weight = padded.permute(2, 0, 1).contiguous().to(device)
+        self.mix = mixing.to(device)
+        self.count = torch.zeros(1, dtype=torch.long, device=device)
+        self.shape = dict(N=n, RA=ra, RB=rb, V=v, VP=vp, FLOAT64=float64)
+
+    def __call__(self, probs: torch.Tensor, labels: torch.Tensor, block: int | None = None):
+        block = block or BLOCK
+        opened = torch.empty(labels.shape, dtype=torch.int8, device=probs.device)
+        self.count.zero_()
+        grid = (triton.cdiv(probs.shape[1], block),)
+        _certified_argmin[grid](
+            probs, self.weight, self.mix, labels, opened, self.count, probs.shape[1], len(self.mix),
+            self.g, self.slack, self.tiny, self.vertex_tiny, **self.shape, BLOCK=block,
+            num_warps=WARPS,
+        )  # fmt: skip
+        return opened if self.count.item() else None
+
+
+@functools.lru_cache(maxsize=32)
+def _cached(weight: bytes, shape: tuple, mix: bytes, k: int, eps: float, float64: bool, device):
+    weight_t = torch.frombuffer(bytearray(weight), dtype=torch.float64).view(shape)
+    mix_t = torch.frombuffer(bytearray(mix), dtype=torch.float64).view(k, shape[0])
+    return Rule(weight_t, mix_t, eps, float64, device)
+
+
+def rule(weight: torch.Tensor, mix: torch.Tensor, eps: float, device, float64: bool = True) -> Rule:
+    """The prepared kernel for (V, N + 1, N) float64 nonnegative rows and T (``_Fast.folded``:
+    priors folded, scaled; on the CPU) and (K, V) float64 mixture weights >= 0 (``[[1.0]]`` for
+    one matrix), cached per matrix, weights and device: preparing it copies to the GPU."""
+    weight, mix = weight.double().contiguous(), mix.double().cpu().contiguous()
+    key = (weight.numpy().tobytes(), tuple(weight.shape), mix.numpy().tobytes(), len(mix))
+    return _cached(*key, eps, float64, torch.device(device))

@@ -33,7 +33,7 @@ from torch import Tensor
 from costseg.classes import IGNORE_INDEX
 from costseg.guarantee import fn_segment_rate, fp_segment_rate, precision_loss, recall_loss
 from costseg.metrics.functional import check_batch
-from costseg.metrics.segments import _rule_errors
+from costseg.metrics.segments import _rule_errors, packed_masks
 
 __all__ = ["PerImageMetric", "per_image_counts", "per_image_loss"]
 
@@ -141,8 +141,7 @@ def _segment_counts(
 ) -> Tensor:
     """(B, K, 2): (FN, GT) or (FP, predicted) segments of ``cls`` owned by RoI ``roi_id``."""
     rows = list(_SEGMENT_ROWS[metric])
-    valid = (target != ignore_index).unsqueeze(1)
-    pred_masks = ((preds == cls) & valid).cpu().numpy()
+    pred_masks = packed_masks(preds, cls, target != ignore_index)
     gt_masks = (target == cls).cpu().numpy()
     rois = None if roi is None else roi.expand_as(target).cpu().numpy()
     out = np.zeros((*preds.shape[:2], 2), dtype=np.int64)

@@ -25,17 +25,40 @@ from costseg.metrics.functional import (
 _COUNTS = ("fp", "fn", "n_pred", "n_gt")
 
 
-def _distinct(masks: np.ndarray) -> tuple[list[int], np.ndarray]:
-    """Distinct masks of a (K, H, W) bool stack: index of each one's first copy, (K,) inverse."""
+def _distinct(packed: np.ndarray) -> tuple[list[int], np.ndarray]:
+    """Distinct rows of a (K, bytes) array: index of each one's first copy, (K,) inverse."""
     # Exact bytes as dict keys: hashing K packed rows is far cheaper than sorting them.
     first: dict[bytes, int] = {}
     reps: list[int] = []
-    inverse = np.empty(len(masks), dtype=np.int64)
-    for k, row in enumerate(np.packbits(masks.reshape(len(masks), -1), axis=1)):
+    inverse = np.empty(len(packed), dtype=np.int64)
+    for k, row in enumerate(packed):
         inverse[k] = first.setdefault(row.tobytes(), len(reps))
         if inverse[k] == len(reps):
             reps.append(k)
     return reps, inverse
+
+
+_BITS = (128, 64, 32, 16, 8, 4, 2, 1)  # np.packbits' order: first pixel in the high bit
+
+
+def packed_masks(rules: Tensor, cls: int, valid: Tensor) -> np.ndarray:
+    """(B, K, ⌈H·W / 8⌉) uint8 on the CPU: ``np.packbits`` of each rule's mask ``rules == cls``
+    on valid pixels, for (B, K, H, W) ``rules`` and (B, H, W) ``valid``. Off the CPU the bits are
+    packed where the rules are, so 8 times fewer bytes are copied (K masks per class and image)."""
+    masks = (rules == cls).logical_and_(valid.unsqueeze(1)).flatten(2)
+    if masks.device.type == "cpu":
+        return np.packbits(masks.numpy(), axis=-1)
+    return _pack_bits(masks).cpu().numpy()
+
+
+def _pack_bits(masks: Tensor) -> Tensor:
+    """``np.packbits(masks, axis=-1)`` of a (B, K, P) bool tensor, in torch operations."""
+    pad = -masks.shape[-1] % 8
+    if pad:
+        masks = torch.cat([masks, masks.new_zeros(*masks.shape[:-1], pad)], -1)
+    bits = torch.tensor(_BITS, dtype=torch.uint8, device=masks.device)
+    eights = masks.view(*masks.shape[:-1], -1, 8).to(torch.uint8)
+    return eights.mul_(bits).sum(-1, dtype=torch.uint8)
 
 
 @functools.cache
@@ -47,12 +70,13 @@ os.register_at_fork(after_in_child=_threads.cache_clear)  # a forked child has n
 
 
 def _rule_errors(
-    pred_masks: np.ndarray, gt_mask: np.ndarray, roi: np.ndarray | None, num_rois: int, maps: bool
+    packed: np.ndarray, gt_mask: np.ndarray, roi: np.ndarray | None, num_rois: int, maps: bool
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
     """Segment errors of one class in one image under K rules, computed once per distinct mask.
 
     Args:
-        pred_masks: (K, H, W) bool, ``pred == cls`` on non-ignored pixels, one per rule.
+        packed: (K, ⌈H·W / 8⌉) uint8, each rule's mask ``pred == cls`` on non-ignored pixels,
+            packed (:func:`packed_masks`).
         gt_mask: (H, W) bool, ``target == cls``.
         roi: None or (H, W) RoI ids.
         num_rois: R.
@@ -62,13 +86,16 @@ def _rule_errors(
         (K,) index of each rule's distinct mask; (U, 4, R+1) int64 counts in the order of
         ``_COUNTS`` and (U, H, W) FP and FN masks (or None) of the U distinct masks.
     """
+    reps, inverse = _distinct(packed)
+    shape, size = gt_mask.shape, gt_mask.size
+    unpack = lambda rows: np.unpackbits(rows, axis=-1, count=size).view(bool)  # noqa: E731
     # No segment reaches outside the box around all foreground: cropping to it changes nothing.
-    boxes = ndimage.find_objects((pred_masks.any(0) | gt_mask).view(np.uint8))
+    union = unpack(np.bitwise_or.reduce(packed[reps], axis=0)).reshape(shape)
+    boxes = ndimage.find_objects((union | gt_mask).view(np.uint8))
     box = boxes[0] if boxes else (slice(0, 0), slice(0, 0))
-    crops = pred_masks[:, box[0], box[1]]
-    reps, inverse = _distinct(crops)
+    crops = unpack(packed[reps]).reshape(len(reps), *shape)[:, box[0], box[1]]
     counts, fp, fn = _distinct_errors(
-        crops[reps], gt_mask[box], None if roi is None else roi[box], num_rois, maps
+        crops, gt_mask[box], None if roi is None else roi[box], num_rois, maps
     )
     if fp is None or fn is None:
         return inverse, counts, None, None
@@ -184,7 +211,7 @@ class SegmentErrors(SumMetric):
         fp_map, fn_map = self._map_states(tuple(target.shape[-2:]))
         valid = target != self.ignore_index
         for ci, cls in enumerate(self.classes):
-            pred_masks = (rules == cls).logical_and_(valid.unsqueeze(1)).cpu().numpy()
+            pred_masks = packed_masks(rules, cls, valid)
             gt_masks = (target == cls).cpu().numpy()
             for b in range(len(target)):
                 r = None if rois is None else rois[b]
