@@ -105,7 +105,7 @@ def _certified_argmin(
         arg, best, second, total = _best_two(vertex_a, vertex_b, RA, RB, N)
         agree &= _certified(best, second, total, g, slack, vertex_tiny) & (arg == first)
     if tl.min(tl.where(inside, agree, True).to(tl.int32), 0) == 1:
-        for m in range(K):
+        for _ in range(K):
             tl.store(out, first.to(labels.dtype.element_ty), mask=inside)
             tl.store(flag, tl.zeros((BLOCK,), tl.int8), mask=inside)
             out += P
