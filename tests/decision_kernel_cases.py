@@ -15,6 +15,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).parent))
 from test_decision import VERTICES, near_ties, reference, smooth
 
+from costseg import decision_triton
 from costseg.costs import barycentric_grid, mix_costs
 from costseg.decision import decide, decide_mixtures
 from costseg.decision_certified import U64, _Fast
@@ -43,18 +44,13 @@ def check(device: str) -> None:
         got = decide_mixtures(probs.to(device), VERTICES, weights).long().cpu()
         loop = torch.stack([reference(probs, c) for c in matrices], 1)
         assert torch.equal(got, loop)
-    # Blocks of 16 pixels: confident blocks take the kernel's shortcut (every vertex agrees),
-    # the others mix; both must equal the reference.
-    import costseg.decision_triton as kernel
-
-    kernel.BLOCK, probs = 16, smooth((1, 19, 16, 32), 6)
+    probs = smooth((1, 19, 16, 32), 6)
     got = decide_mixtures(probs.to(device), VERTICES, weights).long().cpu()
     assert torch.equal(got, torch.stack([reference(probs, c) for c in matrices], 1))
-    kernel.BLOCK = 128
     probs = smooth((1, 19, 16, 16), 5)
     fast = _Fast(VERTICES[2:3].double(), probs.to(device), None, 23 * U64)
     labels = torch.empty(1, 256, dtype=torch.long, device=device)
-    rule = kernel.rule(fast.folded, torch.ones(1, 1), fast.eps, device)
+    rule = decision_triton.rule(fast.folded, torch.ones(1, 1), fast.eps, device)
     opened = rule(fast.probs[0], labels)
     assert opened is None or opened.float().mean() < 0.01, opened.float().mean()
     print("all cases equal the float64 reference")
@@ -63,4 +59,9 @@ def check(device: str) -> None:
 if __name__ == "__main__":
     parser = argparse.ArgumentParser()
     parser.add_argument("--device", default="cpu")
-    check(parser.parse_args().device)
+    device = parser.parse_args().device
+    check(device)
+    # Blocks of 16 pixels: more blocks take the kernel's shortcut (every vertex agrees, all
+    # pixels certified), the others mix; both must equal the reference.
+    decision_triton.CONFIG = [(16, 1), (16, 1)]
+    check(device)

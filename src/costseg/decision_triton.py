@@ -24,8 +24,8 @@ import triton
 import triton.language as tl
 
 U32, U64 = 2.0**-24, 2.0**-53
-BLOCK = 128  # pixels per program
-WARPS = 4
+# (pixels per program, warps) for one vertex and for several (more costs per pixel in registers)
+CONFIG = [(256, 2), (128, 4)]
 
 
 @triton.jit
@@ -56,6 +56,15 @@ def _certified(best, second, total, g, slack, tiny):
 
 
 @triton.jit
+def _add_column(costs_a, costs_b, row, weight, k, rows_a, rows_b, inside, dtype, stride):
+    """Add column k of the weights times the pixels' q_k (at ``row``) to both tiles."""
+    x = tl.load(row, mask=inside, other=0.0).to(dtype)[None, None, :]
+    costs_a += tl.load(weight + k * stride + rows_a)[:, :, None] * x
+    costs_b += tl.load(weight + k * stride + rows_b)[:, :, None] * x
+    return costs_a, costs_b
+
+
+@triton.jit
 def _certified_argmin(
     probs,  # (N, P) any float
     weight,  # (N, VP, RA + RB) compute dtype: column k of every vertex's rows, zero padded
@@ -63,12 +72,9 @@ def _certified_argmin(
     labels,  # (K, P) integer
     opened,  # (K, P) int8
     count,  # (1,) int64: open pairs, added to
+    params,  # (4,) float64: g, slack, tiny, vertex_tiny (see Rule)
     P,
     K,
-    g,
-    slack,
-    tiny,
-    vertex_tiny,
     N: tl.constexpr,
     RA: tl.constexpr,
     RB: tl.constexpr,
@@ -76,8 +82,11 @@ def _certified_argmin(
     VP: tl.constexpr,
     BLOCK: tl.constexpr,
     FLOAT64: tl.constexpr,
+    UNROLL: tl.constexpr,
 ):
     dtype = tl.float64 if FLOAT64 else tl.float32
+    g, slack = tl.load(params), tl.load(params + 1)
+    tiny, vertex_tiny = tl.load(params + 2), tl.load(params + 3)
     offs = tl.program_id(0).to(tl.int64) * BLOCK + tl.arange(0, BLOCK)
     inside = offs < P
     verts = tl.arange(0, VP)[:, None]
@@ -86,11 +95,14 @@ def _certified_argmin(
     costs_a = tl.zeros((VP, RA, BLOCK), dtype)
     costs_b = tl.zeros((VP, RB, BLOCK), dtype)
     row = probs + offs  # pointers step by P (64-bit: K x P may pass 2**31)
-    for k in tl.static_range(N):
-        x = tl.load(row, mask=inside, other=0.0).to(dtype)[None, None, :]
-        costs_a += tl.load(weight + k * VP * (RA + RB) + rows_a)[:, :, None] * x
-        costs_b += tl.load(weight + k * VP * (RA + RB) + rows_b)[:, :, None] * x
-        row += P
+    if UNROLL:  # one vertex: the weights' loads scheduled freely
+        for k in tl.static_range(N):
+            costs_a, costs_b = _add_column(costs_a, costs_b, row + k * P, weight, k, rows_a, rows_b,
+                                           inside, dtype, VP * (RA + RB))  # fmt: skip
+    else:  # several: a loop keeps V x (N + 1) x BLOCK costs, not the weights, in registers
+        for k in range(N):
+            costs_a, costs_b = _add_column(costs_a, costs_b, row + k * P, weight, k, rows_a, rows_b,
+                                           inside, dtype, VP * (RA + RB))  # fmt: skip
     out, flag = labels + offs, opened + offs
     # Every vertex's winner certified with the mixtures' margins (vertex_tiny: tiny over the
     # smallest sum of a mixture's weights) certifies it for every mixture.
@@ -151,24 +163,23 @@ class Rule:
         rho = ((padded[:v, :rows].double() - weight).abs() / weight).nan_to_num(0).max().item()
         dot = (n + v) * u / (1 - (n + v) * u)
         gamma = (1 + rho + 4 * U64) * (1 + u) ** 2 * (1 + dot) - 1
-        self.g = gamma / (1 - gamma)
-        self.slack = 2 * eps * (1 + self.g)
-        self.tiny = 2.0**-900 if float64 else 2.0**-60  # far above the sums' underflow
-        self.vertex_tiny = self.tiny / mix.sum(1).min().item()
+        g = gamma / (1 - gamma)
+        tiny = 2.0**-900 if float64 else 2.0**-60  # far above the sums' underflow
+        params = [g, 2 * eps * (1 + g), tiny, tiny / mix.sum(1).min().item()]
+        self.params = torch.tensor(params, dtype=torch.float64).to(device)
         self.weight = padded.permute(2, 0, 1).contiguous().to(device)
         self.mix = mixing.to(device)
         self.count = torch.zeros(1, dtype=torch.long, device=device)
-        self.shape = dict(N=n, RA=ra, RB=rb, V=v, VP=vp, FLOAT64=float64)
+        self.shape = dict(N=n, RA=ra, RB=rb, V=v, VP=vp, FLOAT64=float64, UNROLL=v == 1)
 
-    def __call__(self, probs: torch.Tensor, labels: torch.Tensor, block: int | None = None):
-        block = block or BLOCK
+    def __call__(self, probs: torch.Tensor, labels: torch.Tensor):
         opened = torch.empty(labels.shape, dtype=torch.int8, device=probs.device)
         self.count.zero_()
+        block, warps = CONFIG[self.shape["V"] > 1]
         grid = (triton.cdiv(probs.shape[1], block),)
         _certified_argmin[grid](
-            probs, self.weight, self.mix, labels, opened, self.count, probs.shape[1], len(self.mix),
-            self.g, self.slack, self.tiny, self.vertex_tiny, **self.shape, BLOCK=block,
-            num_warps=WARPS,
+            probs, self.weight, self.mix, labels, opened, self.count, self.params, probs.shape[1],
+            len(self.mix), **self.shape, BLOCK=block, num_warps=warps,
         )  # fmt: skip
         return opened if self.count.item() else None
 

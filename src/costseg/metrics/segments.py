@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import functools
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -93,9 +93,9 @@ def _rule_errors(
     union = unpack(np.bitwise_or.reduce(packed[reps], axis=0)).reshape(shape)
     boxes = ndimage.find_objects((union | gt_mask).view(np.uint8))
     box = boxes[0] if boxes else (slice(0, 0), slice(0, 0))
-    crops = unpack(packed[reps]).reshape(len(reps), *shape)[:, box[0], box[1]]
+    crop = lambda row: unpack(row).reshape(shape)[box]  # noqa: E731  (on the threads)
     counts, fp, fn = _distinct_errors(
-        crops, gt_mask[box], None if roi is None else roi[box], num_rois, maps
+        packed[reps], crop, gt_mask[box], None if roi is None else roi[box], num_rois, maps
     )
     if fp is None or fn is None:
         return inverse, counts, None, None
@@ -105,17 +105,23 @@ def _rule_errors(
 
 
 def _distinct_errors(
-    pred_masks: np.ndarray, gt_mask: np.ndarray, roi: np.ndarray | None, num_rois: int, maps: bool
+    packed: np.ndarray,
+    crop: Callable[[np.ndarray], np.ndarray],
+    gt_mask: np.ndarray,
+    roi: np.ndarray | None,
+    num_rois: int,
+    maps: bool,
 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """Counts (U, 4, R+1) and, if ``maps``, FP / FN masks (U, H, W) of U masks; see above."""
+    """Counts (U, 4, R+1) and, if ``maps``, FP / FN masks (U, h, w) of U packed masks, each
+    unpacked and cropped to (h, w) by ``crop``; see above."""
     gt = label_segments(gt_mask, roi, num_rois)  # does not depend on the rule
-    # One labelling per mask, on threads: scipy's labelling, numpy's large-array work and the
-    # compiled counting run without the GIL for the most part.
+    # One unpacking and labelling per mask, on threads: numpy's unpacking, scipy's labelling and
+    # the compiled counting run without the GIL for the most part.
     if not maps and (counting := _compiled_counts()):
-        counts = _threads().map(lambda m: counting(m, gt_mask, roi, num_rois, gt), pred_masks)
+        counts = _threads().map(lambda m: counting(crop(m), gt_mask, roi, num_rois, gt), packed)
         return np.stack(list(counts)), None, None
     errors = list(
-        _threads().map(lambda m: mask_segment_errors(m, gt_mask, roi, num_rois, gt), pred_masks)
+        _threads().map(lambda m: mask_segment_errors(crop(m), gt_mask, roi, num_rois, gt), packed)
     )
     counts = np.stack([e.counts for e in errors])
     if not maps:
