@@ -72,7 +72,7 @@ def _certified_argmin(
     labels,  # (K, P) integer
     opened,  # (K, P) int8
     count,  # (1,) int64: open pairs, added to
-    params,  # (4,) float64: g, slack, tiny, vertex_tiny (see Rule)
+    scalars,  # (4,) float64: g, slack, tiny, vertex_tiny (see Rule)
     P,
     K,
     N: tl.constexpr,
@@ -85,8 +85,8 @@ def _certified_argmin(
     UNROLL: tl.constexpr,
 ):
     dtype = tl.float64 if FLOAT64 else tl.float32
-    g, slack = tl.load(params), tl.load(params + 1)
-    tiny, vertex_tiny = tl.load(params + 2), tl.load(params + 3)
+    g, slack = tl.load(scalars), tl.load(scalars + 1)
+    tiny, vertex_tiny = tl.load(scalars + 2), tl.load(scalars + 3)
     offs = tl.program_id(0).to(tl.int64) * BLOCK + tl.arange(0, BLOCK)
     inside = offs < P
     verts = tl.arange(0, VP)[:, None]
@@ -166,7 +166,7 @@ class Rule:
         g = gamma / (1 - gamma)
         tiny = 2.0**-900 if float64 else 2.0**-60  # far above the sums' underflow
         params = [g, 2 * eps * (1 + g), tiny, tiny / mix.sum(1).min().item()]
-        self.params = torch.tensor(params, dtype=torch.float64).to(device)
+        self.scalars = torch.tensor(params, dtype=torch.float64).to(device)
         self.weight = padded.permute(2, 0, 1).contiguous().to(device)
         self.mix = mixing.to(device)
         self.count = torch.zeros(1, dtype=torch.long, device=device)
@@ -178,7 +178,7 @@ class Rule:
         block, warps = CONFIG[self.shape["V"] > 1]
         grid = (triton.cdiv(probs.shape[1], block),)
         _certified_argmin[grid](
-            probs, self.weight, self.mix, labels, opened, self.count, self.params, probs.shape[1],
+            probs, self.weight, self.mix, labels, opened, self.count, self.scalars, probs.shape[1],
             len(self.mix), **self.shape, BLOCK=block, num_warps=warps,
         )  # fmt: skip
         return opened if self.count.item() else None
