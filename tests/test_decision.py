@@ -346,3 +346,12 @@ def test_decisions_ignore_autocast():
     with torch.autocast("cpu", dtype=torch.bfloat16):
         autocast = decide(probs, vertices[2]), decide_mixtures(probs, vertices, grid)
     assert torch.equal(plain[0], autocast[0]) and torch.equal(plain[1], autocast[1])
+
+
+def test_matrices_and_weights_that_require_grad_decide_the_same():
+    # The prepared matrices are cached by their bytes: tensors in an autograd graph must work too.
+    probs, weights = smooth((1, 19, 6, 8), 8), barycentric_grid(0.5)
+    grad_v, grad_w = VERTICES.clone().requires_grad_(True), weights.clone().requires_grad_(True)
+    assert torch.equal(decide(probs, grad_v[2]), decide(probs, VERTICES[2]))
+    got = decide_mixtures(probs, grad_v, grad_w)
+    assert torch.equal(got, decide_mixtures(probs, VERTICES, weights))

@@ -153,6 +153,7 @@ def decide_mixtures(
         )
     if not bool((weights >= 0).all() and (weights > 0).any(1).all()):
         raise ValueError("mixture weights must be >= 0 with a positive entry in each row")
+    vertices, weights = vertices.detach(), weights.detach()  # decisions have no gradient
     # eps: the reference's rounding on a mixed matrix (and that of mix_costs), per T.
     priors = _priors(priors, n, *probs.shape[2:], probs)
     fast = _fast(vertices.double().cpu(), probs, priors, (n + 8) * U64)
@@ -196,10 +197,10 @@ def _fast(matrices: torch.Tensor, probs: torch.Tensor, priors, eps: float) -> _F
     global priors, device and matmul precision (small copies to a GPU cost more than the kernel)."""
     if priors is not None and priors.ndim > 1:
         return _Fast(matrices, probs, priors, eps)
-    key = None if priors is None else priors.double().cpu().numpy().tobytes()
+    key = None if priors is None else priors.detach().double().cpu().numpy().tobytes()
     precision = torch.get_float32_matmul_precision(), torch.backends.cuda.matmul.allow_tf32
     template = _fast_template(
-        matrices.numpy().tobytes(), matrices.shape, key, eps, probs.device, precision
+        matrices.detach().numpy().tobytes(), matrices.shape, key, eps, probs.device, precision
     )
     fast = copy.copy(template)
     fast.probs, fast.priors = probs.reshape(*probs.shape[:2], -1), priors

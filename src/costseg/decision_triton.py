@@ -196,6 +196,6 @@ def rule(weight: torch.Tensor, mix: torch.Tensor, eps: float, device, float64: b
     """The prepared kernel for (V, N + 1, N) float64 nonnegative rows and T (``_Fast.folded``:
     priors folded, scaled; on the CPU) and (K, V) float64 mixture weights >= 0 (``[[1.0]]`` for
     one matrix), cached per matrix, weights and device: preparing it copies to the GPU."""
-    weight, mix = weight.double().contiguous(), mix.double().cpu().contiguous()
+    weight, mix = weight.detach().double().contiguous(), mix.detach().double().cpu().contiguous()
     key = (weight.numpy().tobytes(), tuple(weight.shape), mix.numpy().tobytes(), len(mix))
     return _cached(*key, eps, float64, torch.device(device))
