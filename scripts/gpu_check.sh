@@ -2,7 +2,8 @@
 # The GPU figures of issue #13 on a machine with one CUDA GPU, from the repository root:
 #   bash scripts/gpu_check.sh CHECKPOINT [OUT_DIR]
 # 1. the decision layer's Triton kernel against the float64 reference, on the GPU;
-# 2. scripts/bench_decision.py on the GPU: decide ÷ argmax, mixtures ÷ decide at (1, 19, 1024, 2048);
+# 2. scripts/bench_decision.py on the GPU: decide ÷ argmax, mixtures ÷ decide at (1, 19, 1024, 2048),
+#    and scripts/bench_triton_configs.py: the kernel's block configurations side by side;
 # 3. scripts/bench_pipeline.py's full-resolution section: the 231-point sweep per 1024 x 2048 image
 #    (8 stand-in scenes), and where a sweep's time goes (cProfile, 4 images);
 # 4. one evaluation with every figure, written by forked processes from results on the GPU.
@@ -16,7 +17,7 @@ nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader
 echo "CPU cores: $(nproc)"
 python tests/decision_kernel_cases.py --device cuda 2>&1 | tail -n 3
 python scripts/bench_decision.py --devices cuda | tee "$out/bench_decision.txt"
-[ -f gpu/kernel_probe.py ] && python gpu/kernel_probe.py 2>&1 | grep -v "^STAGE\|^USDT" | tee "$out/kernel_probe.txt"
+python scripts/bench_triton_configs.py | tee "$out/triton_configs.txt"
 python scripts/bench_pipeline.py --ckpt_path "$ckpt" --sections full-resolution --images 8 \
   | tee "$out/bench_pipeline.txt"
 python scripts/toy_as_cityscapes.py /tmp/standin4 --train 1 --val 4 >/dev/null
