@@ -170,19 +170,18 @@ class Rule:
         self.scalars = torch.tensor(params, dtype=torch.float64).to(device)
         self.weight = padded.permute(2, 0, 1).contiguous().to(device)
         self.mix = mixing.to(device)
-        self.count = torch.zeros(1, dtype=torch.long, device=device)
         self.shape = dict(N=n, RA=ra, RB=rb, V=v, VP=vp, FLOAT64=float64, UNROLL=v == 1)
 
     def __call__(self, probs: torch.Tensor, labels: torch.Tensor):
         opened = torch.empty(labels.shape, dtype=torch.int8, device=probs.device)
-        self.count.zero_()
+        count = torch.zeros(1, dtype=torch.long, device=probs.device)  # per call: rules are shared
         block, warps = CONFIG[self.shape["V"] > 1]
         grid = (triton.cdiv(probs.shape[1], block),)
         _certified_argmin[grid](
-            probs, self.weight, self.mix, labels, opened, self.count, self.scalars, probs.shape[1],
+            probs, self.weight, self.mix, labels, opened, count, self.scalars, probs.shape[1],
             len(self.mix), **self.shape, BLOCK=block, num_warps=warps,
         )  # fmt: skip
-        return opened if self.count.item() else None
+        return opened if count.item() else None
 
 
 @functools.lru_cache(maxsize=32)
