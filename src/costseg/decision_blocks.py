@@ -4,8 +4,11 @@
 from __future__ import annotations
 
 import numba
+import numpy as np
 
 JIT = dict(nogil=True, cache=True, boundscheck=False, error_model="numpy")
+U = np.uint64  # indices: unsigned ones need no wrap-around of negative values, so 2-D indexing
+# vectorises and takes no reference to the array, as a row view does (an atomic count each)
 
 
 @numba.njit(inline="always", **JIT)
@@ -22,21 +25,25 @@ def keep(y, c, low, high, label):
 def block_products(q, s, size, weight, out):
     """``out[:, :size] = weight @ q[:, s : s + size]``: float32 (R, N) weights, R a multiple of
     four and N even (zero padding), four rows and two terms per pass (any order of summation
-    is within ``_Fast.gamma``'s dot product; multiply-adds fused, NaN and inf kept)."""
-    for r in range(0, weight.shape[0], 4):
-        out_a, out_b, out_c, out_d = out[r], out[r + 1], out[r + 2], out[r + 3]
-        for k in range(0, weight.shape[1], 2):
-            q_k, q_l = q[k, s : s + size], q[min(k + 1, q.shape[0] - 1), s : s + size]
-            a, b, c, d = weight[r, k], weight[r + 1, k], weight[r + 2, k], weight[r + 3, k]
-            e, f = weight[r, k + 1], weight[r + 1, k + 1]
-            g, h = weight[r + 2, k + 1], weight[r + 3, k + 1]
+    is within ``_Fast.gamma``'s dot product; multiply-adds fused, NaN and inf kept). Indices are
+    unsigned (see ``U``)."""
+    last, s = U(q.shape[0] - 1), U(s)
+    for r in range(U(0), U(weight.shape[0]), U(4)):
+        r1, r2, r3 = r + U(1), r + U(2), r + U(3)
+        for k in range(U(0), U(weight.shape[1]), U(2)):
+            k1 = k + U(1)
+            k2 = min(k1, last)  # past q's last row: a zero column of the weights
+            a, b, c, d = weight[r, k], weight[r1, k], weight[r2, k], weight[r3, k]
+            e, f, g, h = weight[r, k1], weight[r1, k1], weight[r2, k1], weight[r3, k1]
             if k == 0:
-                for i in range(size):
-                    out_a[i], out_b[i] = a * q_k[i] + e * q_l[i], b * q_k[i] + f * q_l[i]
-                    out_c[i], out_d[i] = c * q_k[i] + g * q_l[i], d * q_k[i] + h * q_l[i]
+                for i in range(U(size)):
+                    x, y = q[k, s + i], q[k2, s + i]
+                    out[r, i], out[r1, i] = a * x + e * y, b * x + f * y
+                    out[r2, i], out[r3, i] = c * x + g * y, d * x + h * y
             else:
-                for i in range(size):
-                    out_a[i] += a * q_k[i] + e * q_l[i]
-                    out_b[i] += b * q_k[i] + f * q_l[i]
-                    out_c[i] += c * q_k[i] + g * q_l[i]
-                    out_d[i] += d * q_k[i] + h * q_l[i]
+                for i in range(U(size)):
+                    x, y = q[k, s + i], q[k2, s + i]
+                    out[r, i] += a * x + e * y
+                    out[r1, i] += b * x + f * y
+                    out[r2, i] += c * x + g * y
+                    out[r3, i] += d * x + h * y

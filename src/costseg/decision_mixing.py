@@ -25,7 +25,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from costseg.decision_blocks import block_products, keep
+from costseg.decision_blocks import U, block_products, keep
 
 UNDERFLOW = 2.0**-60  # a runner-up below it: never certified
 BLOCK = 512  # pixels decided together: their vertex costs stay in cache
@@ -39,112 +39,120 @@ JIT = dict(nogil=True, cache=True, boundscheck=False, error_model="numpy")
 
 
 @numba.njit(**JIT)
-def _vertex_winners(costs, s, size, v_delta, v_floor, best, second, arg, agree, finite):
-    """Each vertex's argmin over classes at pixels ``s : s + size``; ``agree``: every vertex
-    picks vertex 0's class with a certified gap; ``finite``: every vertex's T is finite."""
-    v_count, n = costs.shape[0], costs.shape[1] - 1
-    for v in range(v_count):
-        low, runner, a = best[v], second[v], arg[v]
-        low[:size], runner[:size], a[:size] = np.inf, np.inf, 0
-        for c in range(0, n - n % 4, 4):  # four classes per pass; ties keep the lower c
-            row_a, row_b = costs[v, c, s : s + size], costs[v, c + 1, s : s + size]
-            row_c, row_d = costs[v, c + 2, s : s + size], costs[v, c + 3, s : s + size]
+def _vertex_winners(costs, size, v_count, v_delta, v_floor, best, second, arg, agree, finite):
+    """Each of the first ``v_count`` vertices' argmin over classes at pixels ``:size``;
+    ``agree``: every vertex picks vertex 0's class with a certified gap; ``finite``: every
+    vertex's T is finite."""
+    n, size = U(costs.shape[1] - 1), U(size)
+    for v in range(U(v_count)):
+        best[v, :size], second[v, :size], arg[v, :size] = np.inf, np.inf, 0
+        for c in range(U(0), n - n % U(4), U(4)):  # four classes per pass; ties keep the lower c
+            c1, c2, c3 = c + U(1), c + U(2), c + U(3)
             for i in range(size):
-                x, y, z = low[i], runner[i], a[i]
-                x, y, z = keep(row_a[i], np.int32(c), x, y, z)
-                x, y, z = keep(row_b[i], np.int32(c + 1), x, y, z)
-                x, y, z = keep(row_c[i], np.int32(c + 2), x, y, z)
-                low[i], runner[i], a[i] = keep(row_d[i], np.int32(c + 3), x, y, z)
-        for c in range(n - n % 4, n):
-            row = costs[v, c, s : s + size]
+                x, y, z = best[v, i], second[v, i], arg[v, i]
+                x, y, z = keep(costs[v, c, i], np.int32(c), x, y, z)
+                x, y, z = keep(costs[v, c1, i], np.int32(c1), x, y, z)
+                x, y, z = keep(costs[v, c2, i], np.int32(c2), x, y, z)
+                best[v, i], second[v, i], arg[v, i] = keep(costs[v, c3, i], np.int32(c3), x, y, z)
+        for c in range(n - n % U(4), n):
             for i in range(size):
-                low[i], runner[i], a[i] = keep(row[i], np.int32(c), low[i], runner[i], a[i])
-        t = costs[v, n, s : s + size]
+                x, y, z = best[v, i], second[v, i], arg[v, i]
+                best[v, i], second[v, i], arg[v, i] = keep(costs[v, c, i], np.int32(c), x, y, z)
         for i in range(size):
-            gap = (runner[i] - low[i] > v_delta * runner[i]) & (a[i] == arg[0, i])
-            sure = gap & (runner[i] >= v_floor * t[i] + np.float32(UNDERFLOW))
+            low, runner, t = best[v, i], second[v, i], costs[v, n, i]
+            gap = (runner - low > v_delta * runner) & (arg[v, i] == arg[0, i])
+            sure = gap & (runner >= v_floor * t + np.float32(UNDERFLOW))
             agree[i] = sure if v == 0 else agree[i] & sure
-            finite[i] = (t[i] < np.inf) if v == 0 else finite[i] & (t[i] < np.inf)
+            finite[i] = (t < np.inf) if v == 0 else finite[i] & (t < np.inf)
 
 
 @numba.njit(**JIT)
-def _candidates(costs, s, size, coef, arg, threshold, beaten, free):
-    """``free[c, i]``: no vertex winner beats class c at pixel ``s + i`` in every vertex by a
-    certain margin: ``x_c > (x_a (1 + slack) + t T + TINY) / (1 - slack)``, computed as
+def _candidates(costs, size, v_count, coef, arg, threshold, free):
+    """``free[c, i]``: no vertex winner beats class c at pixel i in every vertex by a certain
+    margin: ``x_c > (x_a (1 + slack) + t T + TINY) / (1 - slack)``, computed as
     ``coef · (x_a, T, 1)`` in float32 (coefficients rounded up past its roundings; all terms
-    >= 0, so the result lies above the bound)."""
-    v_count, n = costs.shape[0], costs.shape[1] - 1
+    >= 0, so the result lies above the bound). ``costs``: (VERTICES, N + 1, BLOCK), past
+    ``v_count`` zeros; ``threshold``: (VERTICES, VERTICES, BLOCK) scratch."""
+    n = U(costs.shape[1] - 1)
     on_x, on_t, alone = np.float32(coef[0]), np.float32(coef[1]), np.float32(coef[2])
-    free[:, :size] = True
-    for u in range(v_count):
-        for v in range(v_count):
-            for i in range(size):
-                x_a, t = costs[v, arg[u, i], s + i], costs[v, n, s + i]
-                threshold[v, i] = (on_x * x_a + on_t * t) + alone
-        for c in range(n):
-            beaten[:size] = True
-            for v in range(v_count):
-                row, limit = costs[v, c, s : s + size], threshold[v]
+    size = U(size)
+    for u in range(U(VERTICES)):
+        for v in range(U(VERTICES)):
+            if u >= v_count:  # no such winner: beats nothing
+                threshold[u, v, :size] = np.inf
+            elif v >= v_count:  # no such vertex: every winner beats c in it
+                threshold[u, v, :size] = -np.inf
+            else:
                 for i in range(size):
-                    beaten[i] = beaten[i] & (row[i] > limit[i])
-            out = free[c]
-            for i in range(size):
-                out[i] = out[i] & (not beaten[i])
+                    x_a, t = costs[v, U(arg[u, i]), i], costs[v, n, i]
+                    threshold[u, v, i] = (on_x * x_a + on_t * t) + alone
+    for c in range(n):  # VERTICES = 3 written out: one vectorised pass per class
+        for i in range(size):
+            x, y, z = costs[0, c, i], costs[1, c, i], costs[2, c, i]
+            by_0 = (x > threshold[0, 0, i]) & (y > threshold[0, 1, i]) & (z > threshold[0, 2, i])
+            by_1 = (x > threshold[1, 0, i]) & (y > threshold[1, 1, i]) & (z > threshold[1, 2, i])
+            by_2 = (x > threshold[2, 0, i]) & (y > threshold[2, 1, i]) & (z > threshold[2, 2, i])
+            free[c, i] = not (by_0 | by_1 | by_2)
 
 
 @numba.njit(**JIT)
-def _mix_slots(xs, ts, cls, size, weights, params, mixed, kept, labels, s, opened):
+def _mix_slots(xs, ts, cls, size, weights, params, mixed, kept, labels, s, opened, touched):
     """Every mixture of pixels ``:size`` of the slot arrays (costs ``xs`` (VERTICES, SLOTS, ·),
     classes ``cls`` (SLOTS, ·), T ``ts`` (VERTICES, ·)) into columns ``s : s + size`` of labels
-    and ``:size`` of opened; where ``mixed`` is 0 the flags are ``kept``. One pass per mixture:
-    with the slots and the vertices fixed, the loop over pixels vectorises."""
+    and ``:size`` of opened (``touched``: any mixture's); where ``mixed`` is 0 the flags are
+    ``kept``. One pass per mixture: with the slots and the vertices fixed, the loop over pixels
+    vectorises."""
     m_delta, m_floor = np.float32(params[5]), np.float32(params[6])
-    for k in range(labels.shape[0]):
+    s, size = U(s), U(size)
+    touched[:size] = 0
+    for k in range(U(labels.shape[0])):
         w0, w1, w2 = weights[0, k], weights[1, k], weights[2, k]
-        out, flags = labels[k, s : s + size], opened[k, :size]
         for i in range(size):
             total = (w0 * ts[0, i] + w1 * ts[1, i]) + w2 * ts[2, i]
             best = (w0 * xs[0, 0, i] + w1 * xs[1, 0, i]) + w2 * xs[2, 0, i]
             second, label = np.float32(np.inf), cls[0, i]
-            for j in range(1, SLOTS):  # slots in class order: ties keep the lower class
+            for j in range(U(1), U(SLOTS)):  # slots in class order: ties keep the lower class
                 y = (w0 * xs[0, j, i] + w1 * xs[1, j, i]) + w2 * xs[2, j, i]
                 c = cls[j, i]  # loaded either way: a conditional load does not vectorise
                 best, second, label = keep(y, c, best, second, label)
             gap_ok = second - best > m_delta * second
             sure = np.uint8(gap_ok & (second >= m_floor * total + np.float32(UNDERFLOW)))
-            out[i] = label
-            flags[i] = (np.uint8(1) - sure) * mixed[i] + kept[i] * (np.uint8(1) - mixed[i])
+            flag = (np.uint8(1) - sure) * mixed[i] + kept[i] * (np.uint8(1) - mixed[i])
+            labels[k, s + i], opened[k, i] = label, flag
+            touched[i] |= flag
 
 
 @numba.njit(**JIT)
-def _mix_passes(xs, ts, cls, slots, size, weights, params, labels, opened):
+def _mix_passes(xs, ts, cls, slots, size, weights, params, labels, at, opened, touched):
     """``_mix_slots`` for many slots (a runtime number; past an odd one, the arrays hold an empty
-    slot): one pass over the pixels per two slots, every pair open where the certificate
-    fails."""
+    slot) of gathered pixels, whose labels go to columns ``at[:size]``: one pass over the
+    pixels per two slots, every pair open where the certificate fails."""
     m_delta, m_floor = np.float32(params[5]), np.float32(params[6])
+    size = U(size)
     best, second = np.empty(size, np.float32), np.empty(size, np.float32)
     total, label = np.empty(size, np.float32), np.empty(size, np.int32)
-    for k in range(labels.shape[0]):
+    touched[:size] = 0
+    for k in range(U(labels.shape[0])):
         w0, w1, w2 = weights[0, k], weights[1, k], weights[2, k]
         for i in range(size):
             total[i] = (w0 * ts[0, i] + w1 * ts[1, i]) + w2 * ts[2, i]
         best[:size], second[:size], label[:size] = np.inf, np.inf, cls[0, :size]
-        for j in range(0, slots, 2):  # two per pass, in class order: ties keep the lower
-            h = j + 1  # past an odd last slot: an empty one (BIG), which changes nothing
+        for j in range(U(0), U(slots), U(2)):  # two per pass, in class order: ties keep the lower
+            h = j + U(1)  # past an odd last slot: an empty one (BIG), which changes nothing
             for i in range(size):
                 y = (w0 * xs[0, j, i] + w1 * xs[1, j, i]) + w2 * xs[2, j, i]
                 z = (w0 * xs[0, h, i] + w1 * xs[1, h, i]) + w2 * xs[2, h, i]
                 c, d = cls[j, i], cls[h, i]  # loaded either way: conditional loads do not vectorise
                 low, high, arg = keep(y, c, best[i], second[i], label[i])
                 best[i], second[i], label[i] = keep(z, d, low, high, arg)
-        out, flags = labels[k, :size], opened[k, :size]
         for i in range(size):
             sec = second[i]
             gap_ok = sec - best[i] > m_delta * sec
-            out[i] = label[i]
-            flags[i] = np.uint8(1) - np.uint8(
+            flag = np.uint8(1) - np.uint8(
                 gap_ok & (sec >= m_floor * total[i] + np.float32(UNDERFLOW))
             )
+            labels[k, U(at[i])], opened[k, i] = label[i], flag
+            touched[i] |= flag
 
 
 @numba.njit(inline="always", **JIT)
@@ -182,16 +190,18 @@ def decide_chunk(q, weight, v_count, weights, params, labels, column, start, sto
         (2, R) int64: the mixture and the chunk's pixel of each pair left open.
     """
     n, k_count = q.shape[0], labels.shape[0]
-    block_costs = np.empty((weight.shape[0], BLOCK), np.float32)
-    costs = block_costs[: v_count * (n + 1)].reshape(v_count, n + 1, BLOCK)
+    # every vertex's rows, zeros past v_count (weight has v_count's, a multiple of four)
+    block_costs = np.zeros((max(weight.shape[0], VERTICES * (n + 1)), BLOCK), np.float32)
+    costs = block_costs[: VERTICES * (n + 1)].reshape(VERTICES, n + 1, BLOCK)
     v_delta, v_floor = np.float32(params[0]), np.float32(params[1])
     best, second = np.empty((v_count, BLOCK), np.float32), np.empty((v_count, BLOCK), np.float32)
     arg = np.empty((v_count, BLOCK), np.int32)
     agree, finite = np.empty(BLOCK, np.bool_), np.empty(BLOCK, np.bool_)
-    threshold, beaten = np.empty((v_count, BLOCK), np.float32), np.empty(BLOCK, np.bool_)
+    threshold = np.empty((VERTICES, VERTICES, BLOCK), np.float32)
     free, count = np.empty((n, BLOCK), np.bool_), np.empty(BLOCK, np.int32)
     base, mixed = np.empty(BLOCK, np.int32), np.empty(BLOCK, np.uint8)
     kept, block_open = np.empty(BLOCK, np.uint8), np.empty((k_count, BLOCK), np.uint8)
+    touched = np.empty(MANY, np.uint8)  # pixels with an open pair
     xs = np.zeros((VERTICES, SLOTS, BLOCK), np.float32)
     ts, cls = np.zeros((VERTICES, BLOCK), np.float32), np.empty((SLOTS, BLOCK), np.int32)
     # Pixels with more candidates than SLOTS, gathered in two groups (up to FEW, up to WIDEST)
@@ -201,20 +211,20 @@ def decide_chunk(q, weight, v_count, weights, params, labels, column, start, sto
     group_xs[:, v_count:], group_ts[:, v_count:] = 0, 0  # padding: zero costs, zero weights
     group_cls, group_pixel = np.empty((2, WIDEST, MANY), np.int32), np.empty((2, MANY), np.int64)
     group_size, widest = np.zeros(2, np.int64), 0  # widest: the most candidates in group 1
-    out, flags = np.empty((k_count, MANY), labels.dtype), np.empty((k_count, MANY), np.uint8)
+    flags = np.empty((k_count, MANY), np.uint8)
     pairs, found = np.empty((2, 1024), np.int64), 0
     for s in range(start, stop, BLOCK):
         size = min(BLOCK, stop - s)
         block_products(q, s, size, weight, block_costs)
-        _vertex_winners(costs, 0, size, v_delta, v_floor, best, second, arg, agree, finite)
-        _candidates(costs, 0, size, params[2:5], arg, threshold, beaten, free)
+        _vertex_winners(costs, size, v_count, v_delta, v_floor, best, second, arg, agree, finite)
+        _candidates(costs, size, v_count, params[2:5], arg, threshold, free)
         count[:size] = 0
-        for c in range(n - 1, -1, -1):
-            row = free[c]
-            for i in range(size):
+        for c in range(n - 1, -1, -1):  # the lowest candidate, and the count
+            cu = U(c)
+            for i in range(U(size)):
                 old = base[i]
-                count[i] += row[i]
-                base[i] = c if row[i] else old
+                count[i] += free[cu, i]
+                base[i] = c if free[cu, i] else old
         for i in range(size):  # agreeing vertices, or a single candidate, decide every mixture
             first, lowest = arg[0, i], base[i]
             base[i] = first if agree[i] else lowest
@@ -238,33 +248,30 @@ def decide_chunk(q, weight, v_count, weights, params, labels, column, start, sto
                     group_ts[group, v, e] = costs[v, n, i]
                 group_pixel[group, e], group_size[group] = s + i, e + 1
                 widest = max(widest, count[i]) if group else widest
-        _mix_slots(xs, ts, cls, size, weights, params, mixed, kept, labels, column + s, block_open)
-        pairs, found = _collect(block_open, size, np.arange(size) + s, pairs, found)
+        mixing = mixed, kept, labels, column + s, block_open, touched
+        _mix_slots(xs, ts, cls, size, weights, params, *mixing)
+        pairs, found = _collect(block_open, touched, size, np.arange(size) + s, pairs, found)
         for group in range(2):  # after the block's own labels; room for the next block
             if group_size[group] > MANY - BLOCK or (s + BLOCK >= stop and group_size[group]):
                 gathered = group_xs[group], group_ts[group], group_cls[group]
                 size, slots = group_size[group], FEW if group == 0 else widest
-                _mix_passes(*gathered, slots, size, weights, params, out, flags)
                 pixel = group_pixel[group]
-                for k in range(k_count):
-                    for e in range(size):
-                        labels[k, column + pixel[e]] = out[k, e]
-                pairs, found = _collect(flags, size, pixel, pairs, found)
+                at = pixel[:size] + column
+                _mix_passes(*gathered, slots, size, weights, params, labels, at, flags, touched)
+                pairs, found = _collect(flags, touched, size, pixel, pairs, found)
                 group_size[group], widest = 0, widest if group == 0 else 0
     return pairs[:, :found].copy()
 
 
 @numba.njit(**JIT)
-def _collect(flags, size, pixel, pairs, found):
-    """Appends (mixture, ``pixel[i]``) for every flag set in ``flags[:, :size]``."""
-    for k in range(flags.shape[0]):
-        row, any_set = flags[k], 0
-        for i in range(size):
-            any_set |= row[i]
-        if not any_set:
+def _collect(flags, touched, size, pixel, pairs, found):
+    """Appends (mixture, ``pixel[i]``) for every flag set in ``flags[:, :size]``; ``touched``:
+    the pixels with one."""
+    for i in range(size):
+        if not touched[i]:
             continue
-        for i in range(size):
-            if row[i]:
+        for k in range(flags.shape[0]):
+            if flags[k, i]:
                 if found == pairs.shape[1]:  # full: twice as large
                     larger = np.empty((2, 2 * found), np.int64)
                     larger[:, :found] = pairs
