@@ -29,7 +29,7 @@ from costseg.decision_blocks import U, block_products, keep
 
 UNDERFLOW = 2.0**-60  # a runner-up below it: never certified
 BLOCK = 512  # pixels decided together: their vertex costs stay in cache
-SLOTS = 3  # candidates mixed side by side for every pixel of a block
+SLOTS = 4  # candidates mixed side by side for every pixel of a block
 MANY = 2048  # pixels with more candidates, gathered to be mixed together: up to FEW slots,
 FEW = 2 * SLOTS  # or up to WIDEST (more than WIDEST candidates: left open)
 VERTICES = 3  # at most (a sweep's triangle); fewer are padded with zero weights and costs
@@ -151,8 +151,10 @@ def _mix_passes(xs, ts, cls, slots, size, weights, params, labels, at, opened, t
             flag = np.uint8(1) - np.uint8(
                 gap_ok & (sec >= m_floor * total[i] + np.float32(UNDERFLOW))
             )
-            labels[k, U(at[i])], opened[k, i] = label[i], flag
+            opened[k, i] = flag
             touched[i] |= flag
+        for i in range(size):  # apart: a scattered store would keep the pass above scalar
+            labels[k, U(at[i])] = label[i]
 
 
 @numba.njit(inline="always", **JIT)
