@@ -4,7 +4,7 @@ kernel holds (left open, re-checked), several chunks, other numbers of vertices 
 
 import pytest
 import torch
-from test_decision import VERTICES, smooth
+from test_decision import VERTICES, near_ties, smooth
 
 from costseg.costs import barycentric_grid, mix_costs
 from costseg.decision import decide, decide_mixtures
@@ -89,6 +89,17 @@ def test_several_chunks_and_priors(monkeypatch):
         for pri in (None, priors, torch.rand(19, 40, 83) + 0.01):
             expected = loop(probs, VERTICES, weights, pri)
             assert torch.equal(decide_mixtures(probs, VERTICES, weights, pri).long(), expected)
+
+
+def test_near_ties_under_global_priors():
+    """The kernel's float64 re-check folds global priors into its weights: pixels near a tie of
+    one mixed matrix under priors are decided as decide decides them."""
+    weights = barycentric_grid(0.1)
+    priors = torch.rand(19, generator=torch.Generator().manual_seed(4), dtype=torch.float64)
+    priors += 0.05
+    probs = near_ties(mix_costs(VERTICES, weights)[25] / priors, 400, seed=25)
+    expected = loop(probs, VERTICES, weights, priors)
+    assert torch.equal(decide_mixtures(probs, VERTICES, weights, priors).long(), expected)
 
 
 def test_kernel_certifies_most_pairs():

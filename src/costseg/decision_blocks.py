@@ -21,6 +21,28 @@ def keep(y, c, low, high, label):
     return (y if y < low else low), (above if above < high else high), (c if y < low else label)
 
 
+@numba.njit(inline="always", **JIT)
+def certify64(costs, weights, k, g, eps):
+    """Mixture k's decision at one pixel from its float64 vertex costs (V, N + 1), T last, and
+    whether it is unsure: ``_top64``'s certificate on the mixed costs, ``g = γ / (1 - γ)`` of
+    their rounding, the reference within ``eps T`` (NaN or infinite T: unsure)."""
+    v_count, n = costs.shape[0], costs.shape[1] - 1
+    total = 0.0
+    for v in range(v_count):
+        total += weights[k, v] * costs[v, n]
+    lo, hi, arg = np.inf, np.inf, 0
+    for c in range(n):
+        y = 0.0
+        for v in range(v_count):
+            y += weights[k, v] * costs[v, c]
+        if y < lo:  # the first minimum, as torch's min
+            lo, hi, arg = y, lo, c
+        elif y < hi:
+            hi = y
+    need = 1.25 * (g * (lo + hi) + 2 * eps * (1 + g) * total) + 2.0**-900
+    return arg, not (total < np.inf and (hi - lo) * (1 - 4 * 2.0**-53) > need)
+
+
 @numba.njit(**JIT, fastmath={"contract"})
 def block_products(q, s, size, weight, out):
     """``out[:, :size] = weight @ q[:, s : s + size]``: float32 (R, N) weights, R a multiple of

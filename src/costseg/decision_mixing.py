@@ -16,8 +16,10 @@ cache (:func:`costseg.decision_blocks.block_products`) instead of over the whole
    the block's pixels are mixed in one pass per mixture; pixels with more candidates are
    gathered (two groups: up to FEW, up to WIDEST) and mixed in passes over two slots each.
 
-Pairs left open (and every pair of a pixel whose ``T`` is not finite) are flagged for the float64
-re-check. Compiled on first use and cached beside this file.
+Pairs left open (and every pair of a pixel whose ``T`` is not finite) get the float64 re-check
+(``certify64``) here, on the pixel's float64 costs, where q is exact; those it leaves open, and
+all of them where q is not exact, are returned. Compiled on first use and cached beside this
+file.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from costseg.decision_blocks import U, block_products, keep
+from costseg.decision_blocks import U, block_products, certify64, keep
 
 UNDERFLOW = 2.0**-60  # a runner-up below it: never certified
 BLOCK = 512  # pixels decided together: their vertex costs stay in cache
@@ -176,16 +178,22 @@ def _fill_slots(costs, s, i, free, slots, xs, cls, column):
 
 
 @numba.njit(**JIT)
-def decide_chunk(q, weight, v_count, weights, params, labels, column, start, stop):
+def decide_chunk(
+    q, weight, weight64, v_count, weights, weights64, params, labels, column, start, stop
+):
     """Pixels ``start:stop`` of a chunk whose first pixel is the image's ``column``.
 
     Args:
         q: (N, P) float32 ``p / π`` of the chunk's pixels.
         weight: (R, N') float32 ``_Fast.weight``, zero-padded (see ``block_products``):
             the v_count vertices' costs, class-major, T last, computed block by block in cache.
-        weights: (VERTICES, K) float32 mixture weights (zeros below the V vertices).
+        weight64: (V (N + 1), N) float64 the same, for the float64 re-check where q is exact;
+            no rows where it is not (pairs left open are then all returned).
+        weights: (VERTICES, K) float32 mixture weights (zeros below the V vertices);
+            weights64: (K, V) float64.
         params: float64 [vertex Δ, vertex floor, the candidates' three coefficients
-            (``_candidates``), mixture Δ, mixture floor] (rounded up for the float32 tests).
+            (``_candidates``), mixture Δ, mixture floor] (rounded up for the float32 tests),
+            the re-check's g and eps (``certify64``).
         labels: (K, H·W) the image's labels, any integer type, written.
 
     Returns:
@@ -252,7 +260,10 @@ def decide_chunk(q, weight, v_count, weights, params, labels, column, start, sto
                 widest = max(widest, count[i]) if group else widest
         mixing = mixed, kept, labels, column + s, block_open, touched
         _mix_slots(xs, ts, cls, size, weights, params, *mixing)
-        pairs, found = _collect(block_open, touched, size, np.arange(size) + s, pairs, found)
+        opened = block_open, touched, size, np.arange(size) + s
+        pairs, found = _recheck(
+            *opened, q, weight64, weights64, params, labels, column, pairs, found
+        )
         for group in range(2):  # after the block's own labels; room for the next block
             if group_size[group] > MANY - BLOCK or (s + BLOCK >= stop and group_size[group]):
                 gathered = group_xs[group], group_ts[group], group_cls[group]
@@ -260,24 +271,46 @@ def decide_chunk(q, weight, v_count, weights, params, labels, column, start, sto
                 pixel = group_pixel[group]
                 at = pixel[:size] + column
                 _mix_passes(*gathered, slots, size, weights, params, labels, at, flags, touched)
-                pairs, found = _collect(flags, touched, size, pixel, pairs, found)
+                opened = flags, touched, size, pixel
+                recheck = q, weight64, weights64, params, labels, column
+                pairs, found = _recheck(*opened, *recheck, pairs, found)
                 group_size[group], widest = 0, widest if group == 0 else 0
     return pairs[:, :found].copy()
 
 
 @numba.njit(**JIT)
-def _collect(flags, touched, size, pixel, pairs, found):
-    """Appends (mixture, ``pixel[i]``) for every flag set in ``flags[:, :size]``; ``touched``:
-    the pixels with one."""
+def _recheck(
+    flags, touched, size, pixel, q, weight64, weights64, params, labels, column, pairs, found
+):
+    """The pairs flagged in ``flags[:, :size]`` (pixel ``pixel[i]`` of the chunk; ``touched``:
+    the pixels with one): where ``weight64`` has rows, the float64 re-check (``certify64`` on
+    the pixel's costs ``weight64 @ q``), its label written where it is sure; the others
+    appended to ``pairs`` (mixture, pixel)."""
+    n, v_count = q.shape[0], weights64.shape[1]
+    exact, g, eps = weight64.shape[0] > 0, params[7], params[8]
+    costs = np.zeros(v_count * (n + 1))
+    vertex_costs = costs.reshape(v_count, n + 1)
     for i in range(size):
         if not touched[i]:
             continue
+        p = pixel[i]
+        for r in range(weight64.shape[0]):
+            total = 0.0
+            for c in range(n):
+                total += weight64[r, c] * np.float64(q[c, p])
+            costs[r] = total
         for k in range(flags.shape[0]):
-            if flags[k, i]:
-                if found == pairs.shape[1]:  # full: twice as large
-                    larger = np.empty((2, 2 * found), np.int64)
-                    larger[:, :found] = pairs
-                    pairs = larger
-                pairs[0, found], pairs[1, found] = k, pixel[i]
-                found += 1
+            if not flags[k, i]:
+                continue
+            if exact:
+                label, unsure = certify64(vertex_costs, weights64, k, g, eps)
+                if not unsure:
+                    labels[k, column + p] = label
+                    continue
+            if found == pairs.shape[1]:  # full: twice as large
+                larger = np.empty((2, 2 * found), np.int64)
+                larger[:, :found] = pairs
+                pairs = larger
+            pairs[0, found], pairs[1, found] = k, p
+            found += 1
     return pairs, found

@@ -5,8 +5,9 @@ tensor operations over a chunk, each a pass over memory. Here :func:`costseg.dec
 decide_chunk` decides a chunk's K mixtures block by block of pixels, computing the vertex
 costs in cache (a float32 image without pixel-wise priors is one chunk, read where it lies);
 the pairs left open (and every pair of a pixel whose ``T`` is not finite) go to the float64
-re-check, also compiled (``_settle_pairs``, stage 2), then to the reference. Compiled on first
-use and cached beside the modules.
+re-check (stage 2): in the kernel, while the pixel is in cache, where its q is exactly p; else
+compiled here (``_settle_pairs``). What stays open goes to the reference. Compiled on first use
+and cached beside the modules.
 """
 
 from __future__ import annotations
@@ -19,39 +20,23 @@ import numba
 import numpy as np
 import torch
 
+from costseg.decision_blocks import certify64
 from costseg.decision_certified import TINY, U64, _Fast, _reference
 from costseg.decision_mixing import VERTICES, decide_chunk
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False, error_model="numpy")
-def _settle_pairs(costs, weights, grid, pixel, gamma, eps, labels, unsure, start, stop):
-    """Stage 2 for (mixture, pixel) pairs ``start:stop``: ``_top64`` on the mixed float64 costs.
+def _settle_pairs(costs, weights, grid, pixel, g, eps, labels, unsure, start, stop):
+    """Stage 2 for (mixture, pixel) pairs ``start:stop`` (``certify64``).
 
     Args:
         costs: (U, V, N + 1) float64 vertex costs of the U pixels (T last); weights: (K, V).
         grid, pixel: (R,) each pair's mixture and row of ``costs``.
-        gamma: the rounding of the mixed costs; eps: the reference's, per T.
+        g: ``γ / (1 - γ)``, γ the rounding of the mixed costs; eps: the reference's, per T.
         labels, unsure: (R,) outputs.
     """
-    v_count, n = costs.shape[1], costs.shape[2] - 1
-    g = gamma / (1 - gamma)
     for r in range(start, stop):
-        k, u = grid[r], pixel[r]
-        total = 0.0
-        for v in range(v_count):
-            total += weights[k, v] * costs[u, v, n]
-        lo, hi, arg = np.inf, np.inf, 0
-        for c in range(n):
-            y = 0.0
-            for v in range(v_count):
-                y += weights[k, v] * costs[u, v, c]
-            if y < lo:  # the first minimum, as torch's min
-                lo, hi, arg = y, lo, c
-            elif y < hi:
-                hi = y
-        need = 1.25 * (g * (lo + hi) + 2 * eps * (1 + g) * total) + 2.0**-900
-        labels[r] = arg
-        unsure[r] = not (total < np.inf and (hi - lo) * (1 - 4 * 2.0**-53) > need)
+        labels[r], unsure[r] = certify64(costs[pixel[r]], weights, grid[r], g, eps)
 
 
 CHUNK = 1 << 17  # pixels per chunk: fewer, longer kernel calls than _Fast's default
@@ -77,8 +62,17 @@ class NumbaMixer:
         self.weight = np.zeros((-(-rows // 4) * 4, n + n % 2), np.float32)
         self.weight[:rows, :n] = fast.weight.cpu().numpy()
         self.step = chunk_step(fast, CHUNK)
-        # the float64 re-check: V more nonnegative terms
-        self.gamma64 = (1 + fast.gamma64) * (1 + v * U64 / (1 - v * U64)) - 1
+        # The float64 re-check, in the kernel where its q is p exactly (float32 probabilities
+        # read as they are; global priors folded into the weights as for float32: one rounding
+        # of the matrix, one of the division, as q's in _Fast.gamma64): no rows, otherwise.
+        self.exact64 = np.zeros((0, n))
+        if self.step != CHUNK:
+            weight64 = fast.weight64.cpu()
+            priors = fast.priors
+            self.exact64 = (
+                weight64 if priors is None else weight64 / priors.double().cpu()
+            ).numpy()
+        gamma64 = (1 + fast.gamma64) * (1 + v * U64 / (1 - v * U64)) - 1  # V more terms >= 0
         gamma, eps, rounding = fast.gamma, fast.eps, 1 + 2.0**-20  # the float tests' rounding
         slack = 2 * gamma / (1 - gamma) * 1.01  # as _Mixer._candidates
         candidates = np.array([1 + slack, 4 * eps, TINY]) / (1 - slack) * rounding
@@ -89,6 +83,8 @@ class NumbaMixer:
                 *_up32(candidates),  # float32, rounded up: x_a's, T's and the constant's
                 2.5 * mix_gamma / (1 - mix_gamma) * rounding,
                 10 * eps / mix_gamma * rounding,
+                gamma64 / (1 - gamma64),  # the float64 re-check's g and eps (certify64)
+                eps,
             ]
         )
 
@@ -98,7 +94,8 @@ class NumbaMixer:
         open."""
         q = q.detach().contiguous().numpy()
         vertices = self.weights64.shape[1]
-        args = (q, self.weight, vertices, self.weights, self.params, labels.numpy(), column)
+        weights = self.weights, self.weights64, self.params
+        args = (q, self.weight, self.exact64, vertices, *weights, labels.numpy(), column)
         pairs = _in_pieces(decide_chunk, args, q.shape[1])
         return torch.from_numpy(np.concatenate(pairs, 1))
 
@@ -112,7 +109,7 @@ class NumbaMixer:
         fast = self.fast
         costs = (q @ fast.weight64.t()).view(len(q), *fast.rows).numpy()
         labels, unsure = np.empty(len(grid), np.int64), np.empty(len(grid), np.bool_)
-        args = (costs, self.weights64, grid.numpy(), pixel.numpy(), self.gamma64, fast.eps)
+        args = (costs, self.weights64, grid.numpy(), pixel.numpy(), *self.params[7:])
         _in_pieces(_settle_pairs, (*args, labels, unsure), len(grid))
         labels, unsure = torch.from_numpy(labels), torch.from_numpy(unsure).nonzero()[:, 0]
         if len(unsure):
