@@ -1,5 +1,6 @@
-"""Compiled steps over a block of pixels that the CPU's decision kernels share
-(:mod:`costseg.decision_sparse`, :mod:`costseg.decision_mixing`)."""
+"""Compiled steps over a block of pixels for the CPU's decision kernels
+(:mod:`costseg.decision_sparse`, :mod:`costseg.decision_mixing`): the best two of a run of
+costs, the vertex costs of a block, the float64 re-check of the pairs a block left open."""
 
 from __future__ import annotations
 
@@ -41,6 +42,44 @@ def certify64(costs, weights, k, g, eps):
             hi = y
     need = 1.25 * (g * (lo + hi) + 2 * eps * (1 + g) * total) + 2.0**-900
     return arg, not (total < np.inf and (hi - lo) * (1 - 4 * 2.0**-53) > need)
+
+
+@numba.njit(**JIT)
+def recheck(
+    flags, touched, size, pixel, q, weight64, weights64, params, labels, column, pairs, found
+):
+    """The pairs flagged in ``flags[:, :size]`` (pixel ``pixel[i]`` of the chunk; ``touched``:
+    the pixels with one): where ``weight64`` has rows, the float64 re-check (``certify64`` on
+    the pixel's costs ``weight64 @ q``), its label written where it is sure; the others
+    appended to ``pairs`` (mixture, pixel)."""
+    n, v_count = q.shape[0], weights64.shape[1]
+    exact, g, eps = weight64.shape[0] > 0, params[7], params[8]
+    costs = np.zeros(v_count * (n + 1))
+    vertex_costs = costs.reshape(v_count, n + 1)
+    for i in range(size):
+        if not touched[i]:
+            continue
+        p = pixel[i]
+        for r in range(weight64.shape[0]):
+            total = 0.0
+            for c in range(n):
+                total += weight64[r, c] * np.float64(q[c, p])
+            costs[r] = total
+        for k in range(flags.shape[0]):
+            if not flags[k, i]:
+                continue
+            if exact:
+                label, unsure = certify64(vertex_costs, weights64, k, g, eps)
+                if not unsure:
+                    labels[k, column + p] = label
+                    continue
+            if found == pairs.shape[1]:  # full: twice as large
+                larger = np.empty((2, 2 * found), np.int64)
+                larger[:, :found] = pairs
+                pairs = larger
+            pairs[0, found], pairs[1, found] = k, p
+            found += 1
+    return pairs, found
 
 
 @numba.njit(**JIT, fastmath={"contract"})

@@ -17,9 +17,9 @@ cache (:func:`costseg.decision_blocks.block_products`) instead of over the whole
    gathered (two groups: up to FEW, up to WIDEST) and mixed in passes over two slots each.
 
 Pairs left open (and every pair of a pixel whose ``T`` is not finite) get the float64 re-check
-(``certify64``) here, on the pixel's float64 costs, where q is exact; those it leaves open, and
-all of them where q is not exact, are returned. Compiled on first use and cached beside this
-file.
+(:func:`costseg.decision_blocks.recheck`) on the pixel's float64 costs where q is exact; those
+it leaves open, and all of them where q is not exact, are returned. Compiled on first use and
+cached beside this file.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from costseg.decision_blocks import U, block_products, certify64, keep
+from costseg.decision_blocks import U, block_products, keep, recheck
 
 UNDERFLOW = 2.0**-60  # a runner-up below it: never certified
 BLOCK = 512  # pixels decided together: their vertex costs stay in cache
@@ -260,10 +260,9 @@ def decide_chunk(
                 widest = max(widest, count[i]) if group else widest
         mixing = mixed, kept, labels, column + s, block_open, touched
         _mix_slots(xs, ts, cls, size, weights, params, *mixing)
+        exact = q, weight64, weights64, params, labels, column  # for the float64 re-check
         opened = block_open, touched, size, np.arange(size) + s
-        pairs, found = _recheck(
-            *opened, q, weight64, weights64, params, labels, column, pairs, found
-        )
+        pairs, found = recheck(*opened, *exact, pairs, found)
         for group in range(2):  # after the block's own labels; room for the next block
             if group_size[group] > MANY - BLOCK or (s + BLOCK >= stop and group_size[group]):
                 gathered = group_xs[group], group_ts[group], group_cls[group]
@@ -272,45 +271,6 @@ def decide_chunk(
                 at = pixel[:size] + column
                 _mix_passes(*gathered, slots, size, weights, params, labels, at, flags, touched)
                 opened = flags, touched, size, pixel
-                recheck = q, weight64, weights64, params, labels, column
-                pairs, found = _recheck(*opened, *recheck, pairs, found)
+                pairs, found = recheck(*opened, *exact, pairs, found)
                 group_size[group], widest = 0, widest if group == 0 else 0
     return pairs[:, :found].copy()
-
-
-@numba.njit(**JIT)
-def _recheck(
-    flags, touched, size, pixel, q, weight64, weights64, params, labels, column, pairs, found
-):
-    """The pairs flagged in ``flags[:, :size]`` (pixel ``pixel[i]`` of the chunk; ``touched``:
-    the pixels with one): where ``weight64`` has rows, the float64 re-check (``certify64`` on
-    the pixel's costs ``weight64 @ q``), its label written where it is sure; the others
-    appended to ``pairs`` (mixture, pixel)."""
-    n, v_count = q.shape[0], weights64.shape[1]
-    exact, g, eps = weight64.shape[0] > 0, params[7], params[8]
-    costs = np.zeros(v_count * (n + 1))
-    vertex_costs = costs.reshape(v_count, n + 1)
-    for i in range(size):
-        if not touched[i]:
-            continue
-        p = pixel[i]
-        for r in range(weight64.shape[0]):
-            total = 0.0
-            for c in range(n):
-                total += weight64[r, c] * np.float64(q[c, p])
-            costs[r] = total
-        for k in range(flags.shape[0]):
-            if not flags[k, i]:
-                continue
-            if exact:
-                label, unsure = certify64(vertex_costs, weights64, k, g, eps)
-                if not unsure:
-                    labels[k, column + p] = label
-                    continue
-            if found == pairs.shape[1]:  # full: twice as large
-                larger = np.empty((2, 2 * found), np.int64)
-                larger[:, :found] = pairs
-                pairs = larger
-            pairs[0, found], pairs[1, found] = k, p
-            found += 1
-    return pairs, found
