@@ -23,19 +23,20 @@ def keep(y, c, low, high, label):
 
 
 @numba.njit(inline="always", **JIT)
-def certify64(costs, weights, k, g, eps):
+def certify64(costs, weights, k, g, eps, mixed):
     """Mixture k's decision at one pixel from its float64 vertex costs (V, N + 1), T last, and
-    whether it is unsure: ``_top64``'s certificate on the mixed costs, ``g = γ / (1 - γ)`` of
-    their rounding, the reference within ``eps T`` (NaN or infinite T: unsure)."""
+    whether it is unsure: ``_top64``'s certificate on the mixed costs (``mixed``: (N + 1,)
+    scratch), ``g = γ / (1 - γ)`` of their rounding, the reference within ``eps T`` (NaN or
+    infinite T: unsure)."""
     v_count, n = costs.shape[0], costs.shape[1] - 1
-    total = 0.0
-    for v in range(v_count):
-        total += weights[k, v] * costs[v, n]
-    lo, hi, arg = np.inf, np.inf, 0
+    mixed[:] = 0
+    for v in range(v_count):  # vertex by vertex: every class's sum in one vectorised pass
+        w = weights[k, v]
+        for c in range(n + 1):
+            mixed[c] += w * costs[v, c]
+    lo, hi, arg, total = np.inf, np.inf, 0, mixed[n]
     for c in range(n):
-        y = 0.0
-        for v in range(v_count):
-            y += weights[k, v] * costs[v, c]
+        y = mixed[c]
         if y < lo:  # the first minimum, as torch's min
             lo, hi, arg = y, lo, c
         elif y < hi:
@@ -49,27 +50,27 @@ def recheck(
     flags, touched, size, pixel, q, weight64, weights64, params, labels, column, pairs, found
 ):
     """The pairs flagged in ``flags[:, :size]`` (pixel ``pixel[i]`` of the chunk; ``touched``:
-    the pixels with one): where ``weight64`` has rows, the float64 re-check (``certify64`` on
-    the pixel's costs ``weight64 @ q``), its label written where it is sure; the others
-    appended to ``pairs`` (mixture, pixel)."""
-    n, v_count = q.shape[0], weights64.shape[1]
-    exact, g, eps = weight64.shape[0] > 0, params[7], params[8]
-    costs = np.zeros(v_count * (n + 1))
+    the pixels with one): where the (N, R) float64 ``weight64`` has columns, the float64
+    re-check (``certify64`` on the pixel's costs ``q @ weight64``), its label written where it
+    is sure; the others appended to ``pairs`` (mixture, pixel)."""
+    n, rows, v_count = q.shape[0], weight64.shape[1], weights64.shape[1]
+    exact, g, eps = rows > 0, params[7], params[8]
+    costs, mixed = np.zeros(v_count * (n + 1)), np.empty(n + 1)
     vertex_costs = costs.reshape(v_count, n + 1)
     for i in range(size):
         if not touched[i]:
             continue
         p = pixel[i]
-        for r in range(weight64.shape[0]):
-            total = 0.0
-            for c in range(n):
-                total += weight64[r, c] * np.float64(q[c, p])
-            costs[r] = total
+        costs[:rows] = 0
+        for c in range(n):  # term by term: every row's sum in one vectorised pass
+            x = np.float64(q[c, p])
+            for r in range(rows):
+                costs[r] += weight64[c, r] * x
         for k in range(flags.shape[0]):
             if not flags[k, i]:
                 continue
             if exact:
-                label, unsure = certify64(vertex_costs, weights64, k, g, eps)
+                label, unsure = certify64(vertex_costs, weights64, k, g, eps, mixed)
                 if not unsure:
                     labels[k, column + p] = label
                     continue

@@ -187,8 +187,8 @@ def decide_chunk(
         q: (N, P) float32 ``p / π`` of the chunk's pixels.
         weight: (R, N') float32 ``_Fast.weight``, zero-padded (see ``block_products``):
             the v_count vertices' costs, class-major, T last, computed block by block in cache.
-        weight64: (V (N + 1), N) float64 the same, for the float64 re-check where q is exact;
-            no rows where it is not (pairs left open are then all returned).
+        weight64: (N, V (N + 1)) float64 the same, transposed, for the float64 re-check where
+            q is exact; no columns where it is not (pairs left open are then all returned).
         weights: (VERTICES, K) float32 mixture weights (zeros below the V vertices);
             weights64: (K, V) float64.
         params: float64 [vertex Δ, vertex floor, the candidates' three coefficients

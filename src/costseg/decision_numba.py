@@ -35,8 +35,9 @@ def _settle_pairs(costs, weights, grid, pixel, g, eps, labels, unsure, start, st
         g: ``γ / (1 - γ)``, γ the rounding of the mixed costs; eps: the reference's, per T.
         labels, unsure: (R,) outputs.
     """
+    mixed = np.empty(costs.shape[2])
     for r in range(start, stop):
-        labels[r], unsure[r] = certify64(costs[pixel[r]], weights, grid[r], g, eps)
+        labels[r], unsure[r] = certify64(costs[pixel[r]], weights, grid[r], g, eps, mixed)
 
 
 CHUNK = 1 << 17  # pixels per chunk: fewer, longer kernel calls than _Fast's default
@@ -65,13 +66,11 @@ class NumbaMixer:
         # The float64 re-check, in the kernel where its q is p exactly (float32 probabilities
         # read as they are; global priors folded into the weights as for float32: one rounding
         # of the matrix, one of the division, as q's in _Fast.gamma64): no rows, otherwise.
-        self.exact64 = np.zeros((0, n))
+        self.exact64 = np.zeros((n, 0))  # transposed: (N, V (N + 1))
         if self.step != CHUNK:
-            weight64 = fast.weight64.cpu()
-            priors = fast.priors
-            self.exact64 = (
-                weight64 if priors is None else weight64 / priors.double().cpu()
-            ).numpy()
+            weight64, priors = fast.weight64.cpu(), fast.priors
+            weight64 = weight64 if priors is None else weight64 / priors.double().cpu()
+            self.exact64 = weight64.t().contiguous().numpy()
         gamma64 = (1 + fast.gamma64) * (1 + v * U64 / (1 - v * U64)) - 1  # V more terms >= 0
         gamma, eps, rounding = fast.gamma, fast.eps, 1 + 2.0**-20  # the float tests' rounding
         slack = 2 * gamma / (1 - gamma) * 1.01  # as _Mixer._candidates
