@@ -27,7 +27,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from costseg.decision_blocks import U, block_products, keep, recheck
+from costseg.decision_blocks import U, block_products, keep, recheck, trailing_zeros
 
 UNDERFLOW = 2.0**-60  # a runner-up below it: never certified
 BLOCK = 512  # pixels decided together: their vertex costs stay in cache
@@ -69,11 +69,12 @@ def _vertex_winners(costs, size, v_count, v_delta, v_floor, best, second, arg, a
 
 
 @numba.njit(**JIT)
-def _candidates(costs, size, v_count, coef, arg, threshold, free):
-    """``free[c, i]``: no vertex winner beats class c at pixel i in every vertex by a certain
-    margin: ``x_c > (x_a (1 + slack) + t T + TINY) / (1 - slack)``, computed as
-    ``coef · (x_a, T, 1)`` in float32 (coefficients rounded up past its roundings; all terms
-    >= 0, so the result lies above the bound). ``costs``: (VERTICES, N + 1, BLOCK), past
+def _candidates(costs, size, v_count, coef, arg, threshold, free, count, first):
+    """Bit ``c % 32`` of ``free[c // 32, i]``: no vertex winner beats class c at pixel i in
+    every vertex by a certain margin: ``x_c > (x_a (1 + slack) + t T + TINY) / (1 - slack)``,
+    computed as ``coef · (x_a, T, 1)`` in float32 (coefficients rounded up past its roundings;
+    all terms >= 0, so the result lies above the bound); ``count[i]``: how many classes are free,
+    ``first[i]``: the lowest. ``costs``: (VERTICES, N + 1, BLOCK), past
     ``v_count`` zeros; ``threshold``: (VERTICES, VERTICES, BLOCK) scratch."""
     n = U(costs.shape[1] - 1)
     on_x, on_t, alone = np.float32(coef[0]), np.float32(coef[1]), np.float32(coef[2])
@@ -88,13 +89,18 @@ def _candidates(costs, size, v_count, coef, arg, threshold, free):
                 for i in range(size):
                     x_a, t = costs[v, U(arg[u, i]), i], costs[v, n, i]
                     threshold[u, v, i] = (on_x * x_a + on_t * t) + alone
+    count[:size], free[:, :size] = 0, 0
     for c in range(n):  # VERTICES = 3 written out: one vectorised pass per class
+        word, bit = c // U(32), np.uint32(c % U(32))
         for i in range(size):
             x, y, z = costs[0, c, i], costs[1, c, i], costs[2, c, i]
             by_0 = (x > threshold[0, 0, i]) & (y > threshold[0, 1, i]) & (z > threshold[0, 2, i])
             by_1 = (x > threshold[1, 0, i]) & (y > threshold[1, 1, i]) & (z > threshold[1, 2, i])
             by_2 = (x > threshold[2, 0, i]) & (y > threshold[2, 1, i]) & (z > threshold[2, 2, i])
-            free[c, i] = not (by_0 | by_1 | by_2)
+            ok = not (by_0 | by_1 | by_2)
+            first[i] = np.int32(c) if ok & (count[i] == 0) else first[i]
+            count[i] += np.int32(ok)
+            free[word, i] |= np.uint32(ok) << bit
 
 
 @numba.njit(**JIT)
@@ -159,22 +165,49 @@ def _mix_passes(xs, ts, cls, slots, size, weights, params, labels, at, opened, t
             labels[k, U(at[i])] = label[i]
 
 
+@numba.njit(**JIT)
+def _fill_slots(costs, size, free, mixed, count, base, xs, cls):
+    """The slots of every pixel of the block: a mixed pixel's candidates (the bits of ``free``),
+    then empty slots (cost BIG, class ``base``); other pixels their ``base`` label at cost 0,
+    then empty slots."""
+    cls[:, :size] = 0
+    for i in range(U(size)):  # a mixed pixel's classes, from its bits
+        if mixed[i]:
+            _classes(free, i, SLOTS, cls, i)
+    for j in range(U(SLOTS)):  # vectorised: the costs gathered
+        empty = np.float32(0) if j == 0 else BIG
+        for i in range(U(size)):
+            use = mixed[i] & (j < count[i])
+            c = U(cls[j, i])
+            cls[j, i] = cls[j, i] if use else base[i]
+            xs[0, j, i] = costs[0, c, i] if use else empty
+            xs[1, j, i] = costs[1, c, i] if use else empty
+            xs[2, j, i] = costs[2, c, i] if use else empty
+
+
 @numba.njit(inline="always", **JIT)
-def _fill_slots(costs, s, i, free, slots, xs, cls, column):
-    """Slots ``column`` of xs and cls from pixel ``s + i``'s candidates (``free[:, i]``); empty
-    slots cost BIG."""
-    v_count, n = costs.shape[0], costs.shape[1] - 1
+def _classes(free, i, slots, cls, column):
+    """``cls[:, column]``: pixel i's first ``slots`` candidates, from its bits; returns how many."""
     j = 0
-    for c in range(n):
-        if j < slots and free[c, i]:
-            cls[j, column] = c
-            for v in range(v_count):
-                xs[v, j, column] = costs[v, c, s + i]
+    for word in range(free.shape[0]):
+        bits = free[word, i]
+        while bits and j < slots:
+            cls[j, column] = np.int32(32 * word + trailing_zeros(bits))
+            bits &= bits - np.uint32(1)
             j += 1
-    for e in range(j, slots):
-        cls[e, column] = cls[0, column]
-        for v in range(v_count):
-            xs[v, e, column] = BIG
+    return j
+
+
+@numba.njit(inline="always", **JIT)
+def _gather_slots(costs, i, free, slots, xs, cls, column):
+    """Slots ``column`` of xs and cls from pixel i's candidates (bits of ``free``), gathered
+    with many; empty slots cost BIG."""
+    filled = _classes(free, i, slots, cls, column)
+    for j in range(slots):
+        c = cls[j, column]
+        for v in range(VERTICES):  # padded vertices: zero costs
+            xs[v, j, column] = costs[v, c, i] if j < filled else BIG
+        cls[j, column] = c if j < filled else cls[0, column]
 
 
 @numba.njit(**JIT)
@@ -208,7 +241,7 @@ def decide_chunk(
     arg = np.empty((v_count, BLOCK), np.int32)
     agree, finite = np.empty(BLOCK, np.bool_), np.empty(BLOCK, np.bool_)
     threshold = np.empty((VERTICES, VERTICES, BLOCK), np.float32)
-    free, count = np.empty((n, BLOCK), np.bool_), np.empty(BLOCK, np.int32)
+    free, count = np.empty((-(-n // 32), BLOCK), np.uint32), np.empty(BLOCK, np.int32)
     base, mixed = np.empty(BLOCK, np.int32), np.empty(BLOCK, np.uint8)
     kept, block_open = np.empty(BLOCK, np.uint8), np.empty((k_count, BLOCK), np.uint8)
     touched = np.empty(MANY, np.uint8)  # pixels with an open pair
@@ -227,33 +260,21 @@ def decide_chunk(
         size = min(BLOCK, stop - s)
         block_products(q, s, size, weight, block_costs)
         _vertex_winners(costs, size, v_count, v_delta, v_floor, best, second, arg, agree, finite)
-        _candidates(costs, size, v_count, params[2:5], arg, threshold, free)
-        count[:size] = 0
-        for c in range(n - 1, -1, -1):  # the lowest candidate, and the count
-            cu = U(c)
-            for i in range(U(size)):
-                old = base[i]
-                count[i] += free[cu, i]
-                base[i] = c if free[cu, i] else old
+        _candidates(costs, size, v_count, params[2:5], arg, threshold, free, count, base)
         for i in range(size):  # agreeing vertices, or a single candidate, decide every mixture
             first, lowest = arg[0, i], base[i]
             base[i] = first if agree[i] else lowest
             contested = finite[i] & (not agree[i]) & (count[i] > 1)
             mixed[i] = contested & (count[i] <= SLOTS)
             kept[i] = (not finite[i]) | (contested & (count[i] > WIDEST))  # open: re-checked
-        for j in range(SLOTS):  # every pixel: its base label at cost 0, then empty slots
-            cls[j, :size] = base[:size]
-            for v in range(v_count):
-                xs[v, j, :size] = 0 if j == 0 else BIG
+        _fill_slots(costs, size, free, mixed, count, base, xs, cls)
         for v in range(v_count):
             ts[v, :size] = costs[v, n, :size]
         for i in range(size):
-            if mixed[i]:
-                _fill_slots(costs, 0, i, free, SLOTS, xs, cls, i)
-            elif finite[i] and not agree[i] and SLOTS < count[i] <= WIDEST:
+            if finite[i] and not agree[i] and SLOTS < count[i] <= WIDEST:
                 group = 0 if count[i] <= FEW else 1
                 e, slots = group_size[group], FEW if group == 0 else WIDEST
-                _fill_slots(costs, 0, i, free, slots, group_xs[group], group_cls[group], e)
+                _gather_slots(costs, i, free, slots, group_xs[group], group_cls[group], e)
                 for v in range(v_count):
                     group_ts[group, v, e] = costs[v, n, i]
                 group_pixel[group, e], group_size[group] = s + i, e + 1
