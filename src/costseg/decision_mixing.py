@@ -103,7 +103,7 @@ def _candidates(costs, size, v_count, coef, arg, threshold, free, count, first):
             free[word, i] |= np.uint32(ok) << bit
 
 
-@numba.njit(**JIT)
+@numba.njit(**JIT, fastmath={"contract"})  # fused multiply-adds: within the mixing's γ
 def _mix_slots(xs, ts, cls, size, weights, params, mixed, kept, labels, s, opened, touched):
     """Every mixture of pixels ``:size`` of the slot arrays (costs ``xs`` (VERTICES, SLOTS, ·),
     classes ``cls`` (SLOTS, ·), T ``ts`` (VERTICES, ·)) into columns ``s : s + size`` of labels
@@ -125,12 +125,12 @@ def _mix_slots(xs, ts, cls, size, weights, params, mixed, kept, labels, s, opene
                 best, second, label = keep(y, c, best, second, label)
             gap_ok = second - best > m_delta * second
             sure = np.uint8(gap_ok & (second >= m_floor * total + np.float32(UNDERFLOW)))
-            flag = (np.uint8(1) - sure) * mixed[i] + kept[i] * (np.uint8(1) - mixed[i])
+            flag = (np.uint8(1) - sure) & mixed[i] | kept[i]  # never both mixed and kept
             labels[k, s + i], opened[k, i] = label, flag
             touched[i] |= flag
 
 
-@numba.njit(**JIT)
+@numba.njit(**JIT, fastmath={"contract"})
 def _mix_passes(xs, ts, cls, slots, size, weights, params, labels, at, opened, touched):
     """``_mix_slots`` for many slots (a runtime number; past an odd one, the arrays hold an empty
     slot) of gathered pixels, whose labels go to columns ``at[:size]``: one pass over the
