@@ -127,7 +127,9 @@ def _mix_slots(xs, ts, cls, size, weights, params, mixed, kept, labels, s, opene
             sure = np.uint8(gap_ok & (second >= m_floor * total + np.float32(UNDERFLOW)))
             flag = (np.uint8(1) - sure) & mixed[i] | kept[i]  # never both mixed and kept
             labels[k, s + i], opened[k, i] = label, flag
-            touched[i] |= flag
+    for k in range(U(labels.shape[0])):  # apart: fewer stores in the pass above
+        for i in range(size):
+            touched[i] |= opened[k, i]
 
 
 @numba.njit(**JIT, fastmath={"contract"})
