@@ -106,17 +106,18 @@ def _candidates(costs, size, v_count, coef, arg, threshold, free, count, first):
 @numba.njit(**JIT, fastmath={"contract"})  # fused multiply-adds: within the mixing's γ
 def _mix_slots(xs, ts, cls, size, weights, params, mixed, kept, labels, s, opened, touched):
     """Every mixture of pixels ``:size`` of the slot arrays (costs ``xs`` (VERTICES, SLOTS, ·),
-    classes ``cls`` (SLOTS, ·), T ``ts`` (VERTICES, ·)) into columns ``s : s + size`` of labels
-    and ``:size`` of opened (``touched``: any mixture's); where ``mixed`` is 0 the flags are
-    ``kept``. One pass per mixture: with the slots and the vertices fixed, the loop over pixels
-    vectorises."""
+    classes ``cls`` (SLOTS, ·), the vertices' largest T ``ts``) into columns ``s : s + size`` of
+    labels and ``:size`` of opened (``touched``: any mixture's); where ``mixed`` is 0 the flags
+    are ``kept``. One pass per mixture: with the slots and the vertices fixed, the loop over
+    pixels vectorises. The floor test takes the mixed T at its bound ``Σ_v w_v · max_v T_v``
+    (stricter: a few more pairs left open; its coefficient's margin covers the roundings)."""
     m_delta, m_floor = np.float32(params[5]), np.float32(params[6])
     s, size = U(s), U(size)
     touched[:size] = 0
     for k in range(U(labels.shape[0])):
         w0, w1, w2 = weights[0, k], weights[1, k], weights[2, k]
+        floor = m_floor * ((w0 + w1) + w2)  # T <= Σ_v w_v · max_v T_v
         for i in range(size):
-            total = (w0 * ts[0, i] + w1 * ts[1, i]) + w2 * ts[2, i]
             best = (w0 * xs[0, 0, i] + w1 * xs[1, 0, i]) + w2 * xs[2, 0, i]
             second, label = np.float32(np.inf), cls[0, i]
             for j in range(U(1), U(SLOTS)):  # slots in class order: ties keep the lower class
@@ -124,7 +125,7 @@ def _mix_slots(xs, ts, cls, size, weights, params, mixed, kept, labels, s, opene
                 c = cls[j, i]  # loaded either way: a conditional load does not vectorise
                 best, second, label = keep(y, c, best, second, label)
             gap_ok = second - best > m_delta * second
-            sure = np.uint8(gap_ok & (second >= m_floor * total + np.float32(UNDERFLOW)))
+            sure = np.uint8(gap_ok & (second >= floor * ts[i] + np.float32(UNDERFLOW)))
             flag = (np.uint8(1) - sure) & mixed[i] | kept[i]  # never both mixed and kept
             labels[k, s + i], opened[k, i] = label, flag
     for k in range(U(labels.shape[0])):  # apart: fewer stores in the pass above
@@ -248,7 +249,7 @@ def decide_chunk(
     kept, block_open = np.empty(BLOCK, np.uint8), np.empty((k_count, BLOCK), np.uint8)
     touched = np.empty(MANY, np.uint8)  # pixels with an open pair
     xs = np.zeros((VERTICES, SLOTS, BLOCK), np.float32)
-    ts, cls = np.zeros((VERTICES, BLOCK), np.float32), np.empty((SLOTS, BLOCK), np.int32)
+    ts, cls = np.zeros(BLOCK, np.float32), np.empty((SLOTS, BLOCK), np.int32)
     # Pixels with more candidates than SLOTS, gathered in two groups (up to FEW, up to WIDEST)
     # of MANY pixels, each mixed together when full.
     group_xs = np.empty((2, VERTICES, WIDEST, MANY), np.float32)
@@ -270,8 +271,8 @@ def decide_chunk(
             mixed[i] = contested & (count[i] <= SLOTS)
             kept[i] = (not finite[i]) | (contested & (count[i] > WIDEST))  # open: re-checked
         _fill_slots(costs, size, free, mixed, count, base, xs, cls)
-        for v in range(v_count):
-            ts[v, :size] = costs[v, n, :size]
+        for i in range(U(size)):  # the vertices' largest T (zeros past v_count)
+            ts[i] = max(max(costs[0, n, i], costs[1, n, i]), costs[2, n, i])
         for i in range(size):
             if finite[i] and not agree[i] and SLOTS < count[i] <= WIDEST:
                 group = 0 if count[i] <= FEW else 1
