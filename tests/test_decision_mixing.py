@@ -9,7 +9,7 @@ from test_decision import VERTICES, near_ties, smooth
 from costseg.costs import barycentric_grid, mix_costs
 from costseg.decision import decide, decide_mixtures
 from costseg.decision_certified import U64, _Fast, _Mixer
-from costseg.decision_mixing import FEW, SLOTS, WIDEST
+from costseg.decision_mixing import GROUPS, SLOTS, WIDEST
 from costseg.decision_mixing import VERTICES as MOST_VERTICES
 from costseg.decision_numba import CHUNK, NumbaMixer
 
@@ -45,8 +45,8 @@ def test_pixels_with_few_many_and_most_candidates():
     weights = barycentric_grid(0.1)
     probs = torch.cat([smooth((1, 19, 30, 40), 1, scale=4), smooth((1, 19, 30, 40), 2, scale=2)])
     counts = candidate_counts(probs[:1], vertices, weights)
-    assert (counts <= SLOTS).any() and ((counts > SLOTS) & (counts <= FEW)).any()
-    assert (counts > FEW).any()  # all three ways of mixing are used
+    assert (counts <= SLOTS).any() and ((counts > SLOTS) & (counts <= GROUPS[0])).any()
+    assert (counts > GROUPS[-1]).any()  # all three ways of mixing are used
     assert torch.equal(
         decide_mixtures(probs, vertices, weights).long(), loop(probs, vertices, weights)
     )

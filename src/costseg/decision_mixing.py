@@ -10,11 +10,13 @@ cache (:func:`costseg.decision_blocks.block_products`) instead of over the whole
 3. elsewhere the candidates: classes that no vertex winner beats in every vertex by a certain
    margin (``_Mixer._candidates``; the threshold in float32 with coefficients rounded up past
    its roundings); a single candidate decides every mixture;
-4. else, per mixture, the candidates' mixed costs ``Σ_v w_kv x_v`` and ``T``, their argmin (the
-   lowest class on ties) and the same certificate with the mixing's rounding in ``γ``. Up to
+4. else, per mixture, the candidates' mixed costs ``Σ_v w_kv x_v``, their argmin (the lowest
+   class on ties) and the same certificate with the mixing's rounding in ``γ`` (the mixed T
+   taken at its bound ``Σ_v w_kv · max_v T_v``: a stricter floor, one load fewer). Up to
    SLOTS candidates per pixel sit side by side in slots (an empty slot costs BIG), so that all
    the block's pixels are mixed in one pass per mixture; pixels with more candidates are
-   gathered (two groups: up to FEW, up to WIDEST) and mixed in passes over two slots each.
+   gathered (in groups by their count: GROUPS, then up to WIDEST) and mixed in passes over
+   two slots each.
 
 Pairs left open (and every pair of a pixel whose ``T`` is not finite) get the float64 re-check
 (:func:`costseg.decision_blocks.recheck`) on the pixel's float64 costs where q is exact; those
@@ -32,8 +34,8 @@ from costseg.decision_blocks import U, block_products, keep, recheck, trailing_z
 UNDERFLOW = 2.0**-60  # a runner-up below it: never certified
 BLOCK = 512  # pixels decided together: their vertex costs stay in cache
 SLOTS = 4  # candidates mixed side by side for every pixel of a block
-MANY = 2048  # pixels with more candidates, gathered to be mixed together: up to FEW slots,
-FEW = 2 * SLOTS  # or up to WIDEST (more than WIDEST candidates: left open)
+MANY = 2048  # pixels with more candidates, gathered to be mixed together, in groups by their
+GROUPS = np.array([6, 8, 10, 12])  # count: up to 6 slots, 8, ..., WIDEST (more: left open)
 VERTICES = 3  # at most (a sweep's triangle); fewer are padded with zero weights and costs
 WIDEST = 32  # classes at most (the slots of the second group of pixels with many candidates)
 BIG = np.float32(3.4e38)  # an empty slot's cost: above every real one (w >= 0, some w > 0)
@@ -141,12 +143,11 @@ def _mix_passes(xs, ts, cls, slots, size, weights, params, labels, at, opened, t
     m_delta, m_floor = np.float32(params[5]), np.float32(params[6])
     size = U(size)
     best, second = np.empty(size, np.float32), np.empty(size, np.float32)
-    total, label = np.empty(size, np.float32), np.empty(size, np.int32)
+    label = np.empty(size, np.int32)
     touched[:size] = 0
     for k in range(U(labels.shape[0])):
         w0, w1, w2 = weights[0, k], weights[1, k], weights[2, k]
-        for i in range(size):
-            total[i] = (w0 * ts[0, i] + w1 * ts[1, i]) + w2 * ts[2, i]
+        floor = m_floor * ((w0 + w1) + w2)  # as _mix_slots
         best[:size], second[:size], label[:size] = np.inf, np.inf, cls[0, :size]
         for j in range(U(0), U(slots), U(2)):  # two per pass, in class order: ties keep the lower
             h = j + U(1)  # past an odd last slot: an empty one (BIG), which changes nothing
@@ -159,9 +160,7 @@ def _mix_passes(xs, ts, cls, slots, size, weights, params, labels, at, opened, t
         for i in range(size):
             sec = second[i]
             gap_ok = sec - best[i] > m_delta * sec
-            flag = np.uint8(1) - np.uint8(
-                gap_ok & (sec >= m_floor * total[i] + np.float32(UNDERFLOW))
-            )
+            flag = np.uint8(1) - np.uint8(gap_ok & (sec >= floor * ts[i] + np.float32(UNDERFLOW)))
             opened[k, i] = flag
             touched[i] |= flag
         for i in range(size):  # apart: a scattered store would keep the pass above scalar
@@ -250,13 +249,14 @@ def decide_chunk(
     touched = np.empty(MANY, np.uint8)  # pixels with an open pair
     xs = np.zeros((VERTICES, SLOTS, BLOCK), np.float32)
     ts, cls = np.zeros(BLOCK, np.float32), np.empty((SLOTS, BLOCK), np.int32)
-    # Pixels with more candidates than SLOTS, gathered in two groups (up to FEW, up to WIDEST)
-    # of MANY pixels, each mixed together when full.
-    group_xs = np.empty((2, VERTICES, WIDEST, MANY), np.float32)
-    group_ts = np.empty((2, VERTICES, MANY), np.float32)
-    group_xs[:, v_count:], group_ts[:, v_count:] = 0, 0  # padding: zero costs, zero weights
-    group_cls, group_pixel = np.empty((2, WIDEST, MANY), np.int32), np.empty((2, MANY), np.int64)
-    group_size, widest = np.zeros(2, np.int64), 0  # widest: the most candidates in group 1
+    # Pixels with more candidates than SLOTS, gathered in groups of MANY pixels by their count
+    # (up to GROUPS[0], ..., the last one up to WIDEST), each mixed together when full.
+    last = len(GROUPS)
+    group_xs = np.empty((last + 1, VERTICES, WIDEST, MANY), np.float32)
+    group_xs[:, v_count:] = 0  # padding: zero costs, zero weights
+    group_ts, group_size = np.empty((last + 1, MANY), np.float32), np.zeros(last + 1, np.int64)
+    group_cls = np.empty((last + 1, WIDEST, MANY), np.int32)
+    group_pixel, widest = np.empty((last + 1, MANY), np.int64), 0  # the last group's most
     flags = np.empty((k_count, MANY), np.uint8)
     pairs, found = np.empty((2, 1024), np.int64), 0
     for s in range(start, stop, BLOCK):
@@ -275,26 +275,26 @@ def decide_chunk(
             ts[i] = max(max(costs[0, n, i], costs[1, n, i]), costs[2, n, i])
         for i in range(size):
             if finite[i] and not agree[i] and SLOTS < count[i] <= WIDEST:
-                group = 0 if count[i] <= FEW else 1
-                e, slots = group_size[group], FEW if group == 0 else WIDEST
+                group = 0
+                while group < last and count[i] > GROUPS[group]:
+                    group += 1
+                e, slots = group_size[group], GROUPS[group] if group < last else WIDEST
                 _gather_slots(costs, i, free, slots, group_xs[group], group_cls[group], e)
-                for v in range(v_count):
-                    group_ts[group, v, e] = costs[v, n, i]
-                group_pixel[group, e], group_size[group] = s + i, e + 1
-                widest = max(widest, count[i]) if group else widest
+                group_ts[group, e], group_pixel[group, e], group_size[group] = ts[i], s + i, e + 1
+                widest = max(widest, count[i]) if group == last else widest
         mixing = mixed, kept, labels, column + s, block_open, touched
         _mix_slots(xs, ts, cls, size, weights, params, *mixing)
         exact = q, weight64, weights64, params, labels, column  # for the float64 re-check
         opened = block_open, touched, size, np.arange(size) + s
         pairs, found = recheck(*opened, *exact, pairs, found)
-        for group in range(2):  # after the block's own labels; room for the next block
+        for group in range(last + 1):  # after the block's own labels; room for the next block
             if group_size[group] > MANY - BLOCK or (s + BLOCK >= stop and group_size[group]):
                 gathered = group_xs[group], group_ts[group], group_cls[group]
-                size, slots = group_size[group], FEW if group == 0 else widest
+                size, slots = group_size[group], GROUPS[group] if group < last else widest
                 pixel = group_pixel[group]
                 at = pixel[:size] + column
                 _mix_passes(*gathered, slots, size, weights, params, labels, at, flags, touched)
                 opened = flags, touched, size, pixel
                 pairs, found = recheck(*opened, *exact, pairs, found)
-                group_size[group], widest = 0, widest if group == 0 else 0
+                group_size[group], widest = 0, widest if group < last else 0
     return pairs[:, :found].copy()
