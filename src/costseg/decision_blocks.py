@@ -98,27 +98,31 @@ def recheck(
 
 @numba.njit(**JIT, fastmath={"contract"})
 def block_products(q, s, size, weight, out):
-    """``out[:, :size] = weight @ q[:, s : s + size]``: float32 (R, N) weights, R a multiple of
-    four and N even (zero padding), four rows and two terms per pass (any order of summation
-    is within ``_Fast.gamma``'s dot product; multiply-adds fused, NaN and inf kept). Indices are
-    unsigned (see ``U``)."""
+    """``out[:, :size] = weight @ q[:, s : s + size]``: float32 (R, N) weights, R and N multiples
+    of four (zero padding), four rows and four terms per pass (any order of summation is within
+    ``_Fast.gamma``'s dot product; multiply-adds fused, NaN and inf kept). Indices are unsigned
+    (see ``U``)."""
     last, s = U(q.shape[0] - 1), U(s)
     for r in range(U(0), U(weight.shape[0]), U(4)):
         r1, r2, r3 = r + U(1), r + U(2), r + U(3)
-        for k in range(U(0), U(weight.shape[1]), U(2)):
-            k1 = k + U(1)
-            k2 = min(k1, last)  # past q's last row: a zero column of the weights
-            a, b, c, d = weight[r, k], weight[r1, k], weight[r2, k], weight[r3, k]
-            e, f, g, h = weight[r, k1], weight[r1, k1], weight[r2, k1], weight[r3, k1]
+        for k in range(U(0), U(weight.shape[1]), U(4)):
+            k1, k2, k3 = k + U(1), k + U(2), k + U(3)
+            l1, l2, l3 = min(k1, last), min(k2, last), min(k3, last)  # past q: zero weights
+            a0, a1, a2, a3 = weight[r, k], weight[r, k1], weight[r, k2], weight[r, k3]
+            b0, b1, b2, b3 = weight[r1, k], weight[r1, k1], weight[r1, k2], weight[r1, k3]
+            c0, c1, c2, c3 = weight[r2, k], weight[r2, k1], weight[r2, k2], weight[r2, k3]
+            d0, d1, d2, d3 = weight[r3, k], weight[r3, k1], weight[r3, k2], weight[r3, k3]
             if k == 0:
                 for i in range(U(size)):
-                    x, y = q[k, s + i], q[k2, s + i]
-                    out[r, i], out[r1, i] = a * x + e * y, b * x + f * y
-                    out[r2, i], out[r3, i] = c * x + g * y, d * x + h * y
+                    x, y, z, t = q[k, s + i], q[l1, s + i], q[l2, s + i], q[l3, s + i]
+                    out[r, i] = (a0 * x + a1 * y) + (a2 * z + a3 * t)
+                    out[r1, i] = (b0 * x + b1 * y) + (b2 * z + b3 * t)
+                    out[r2, i] = (c0 * x + c1 * y) + (c2 * z + c3 * t)
+                    out[r3, i] = (d0 * x + d1 * y) + (d2 * z + d3 * t)
             else:
                 for i in range(U(size)):
-                    x, y = q[k, s + i], q[k2, s + i]
-                    out[r, i] += a * x + e * y
-                    out[r1, i] += b * x + f * y
-                    out[r2, i] += c * x + g * y
-                    out[r3, i] += d * x + h * y
+                    x, y, z, t = q[k, s + i], q[l1, s + i], q[l2, s + i], q[l3, s + i]
+                    out[r, i] += (a0 * x + a1 * y) + (a2 * z + a3 * t)
+                    out[r1, i] += (b0 * x + b1 * y) + (b2 * z + b3 * t)
+                    out[r2, i] += (c0 * x + c1 * y) + (c2 * z + c3 * t)
+                    out[r3, i] += (d0 * x + d1 * y) + (d2 * z + d3 * t)

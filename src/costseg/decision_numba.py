@@ -60,7 +60,7 @@ class NumbaMixer:
         self.weights[:v] = weights.t().float().numpy()
         self.weights64, self.shifted = weights.double().contiguous().numpy(), shifted
         rows, n = fast.weight.shape  # zero-padded for decision_blocks.block_products
-        self.weight = np.zeros((-(-rows // 4) * 4, n + n % 2), np.float32)
+        self.weight = np.zeros((-(-rows // 4) * 4, -(-n // 4) * 4), np.float32)
         self.weight[:rows, :n] = fast.weight.cpu().numpy()
         self.step = chunk_step(fast, CHUNK)
         # The float64 re-check, in the kernel where its q is p exactly (float32 probabilities
