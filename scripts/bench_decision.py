@@ -55,7 +55,7 @@ def bench(device: str, shape: tuple[int, int, int, int], repeats: int) -> None:
     t_sum = best_time(lambda: probs.sum(), repeats, sync)
     t_argmax = best_time(lambda: probs.argmax(1), repeats, sync)
     t_decide = best_time(lambda: decide(probs, VERTICES[2]), repeats, sync)
-    t_mix = best_time(lambda: decide_mixtures(probs, VERTICES, grid), max(1, repeats // 3), sync)
+    t_mix = best_time(lambda: decide_mixtures(probs, VERTICES, grid), max(3, repeats // 2), sync)
     fine = barycentric_grid(0.05)
     t_fine = best_time(lambda: decide_mixtures(probs, VERTICES, fine), 1, sync)
     t_ops = t_decide_ops = None
