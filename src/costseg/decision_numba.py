@@ -65,9 +65,9 @@ class NumbaMixer:
         self.step = chunk_step(fast, CHUNK)
         # The float64 re-check, in the kernel where its q is p exactly (float32 probabilities
         # read as they are; global priors folded into the weights as for float32: one rounding
-        # of the matrix, one of the division, as q's in _Fast.gamma64): no rows, otherwise.
+        # of the matrix, one of the division, as q's in _Fast.gamma64); no columns otherwise.
         self.exact64 = np.zeros((n, 0))  # transposed: (N, V (N + 1))
-        if self.step != CHUNK:
+        if _read_as_is(fast):
             weight64, priors = fast.weight64.cpu(), fast.priors
             weight64 = weight64 if priors is None else weight64 / priors.double().cpu()
             self.exact64 = weight64.t().contiguous().numpy()
@@ -120,8 +120,13 @@ class NumbaMixer:
 def chunk_step(fast: _Fast, chunk: int) -> int:
     """Pixels per chunk for the compiled kernels: a float32 image without pixel-wise priors is
     read where it lies, whole; others are converted to float32 q ``chunk`` pixels at a time."""
-    as_is = fast.probs.dtype == torch.float32 and fast.pixel_priors is None
-    return fast.probs.shape[2] if as_is else chunk
+    return fast.probs.shape[2] if _read_as_is(fast) else chunk
+
+
+def _read_as_is(fast: _Fast) -> bool:
+    """A float32 image without pixel-wise priors: the kernels read its q where it lies, and q
+    is exactly p."""
+    return fast.probs.dtype == torch.float32 and fast.pixel_priors is None
 
 
 def _up32(values: np.ndarray) -> np.ndarray:
