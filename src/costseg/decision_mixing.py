@@ -37,7 +37,7 @@ SLOTS = 4  # candidates mixed side by side for every pixel of a block
 MANY = 2048  # pixels with more candidates, gathered to be mixed together, in groups by their
 GROUPS = np.array([6, 8, 10, 12])  # count: up to 6 slots, 8, ..., WIDEST (more: left open)
 VERTICES = 3  # at most (a sweep's triangle); fewer are padded with zero weights and costs
-WIDEST = 32  # classes at most (the slots of the second group of pixels with many candidates)
+WIDEST = 32  # candidates at most (the slots of the last group)
 BIG = np.float32(3.4e38)  # an empty slot's cost: above every real one (w >= 0, some w > 0)
 JIT = dict(nogil=True, cache=True, boundscheck=False, error_model="numpy")
 
@@ -75,9 +75,9 @@ def _candidates(costs, size, v_count, coef, arg, threshold, free, count, first):
     """Bit ``c % 32`` of ``free[c // 32, i]``: no vertex winner beats class c at pixel i in
     every vertex by a certain margin: ``x_c > (x_a (1 + slack) + t T + TINY) / (1 - slack)``,
     computed as ``coef · (x_a, T, 1)`` in float32 (coefficients rounded up past its roundings;
-    all terms >= 0, so the result lies above the bound); ``count[i]``: how many classes are free,
-    ``first[i]``: the lowest. ``costs``: (VERTICES, N + 1, BLOCK), past
-    ``v_count`` zeros; ``threshold``: (VERTICES, VERTICES, BLOCK) scratch."""
+    all terms >= 0, so the result lies above the bound); ``count[i]``: how many classes are
+    free, ``first[i]``: the lowest. ``costs``: (VERTICES, N + 1, BLOCK), past ``v_count``
+    zeros; ``threshold``: (VERTICES, VERTICES, BLOCK) scratch."""
     n = U(costs.shape[1] - 1)
     on_x, on_t, alone = np.float32(coef[0]), np.float32(coef[1]), np.float32(coef[2])
     size = U(size)
@@ -207,7 +207,7 @@ def _gather_slots(costs, i, free, slots, xs, cls, column):
     filled = _classes(free, i, slots, cls, column)
     for j in range(slots):
         c = cls[j, column]
-        for v in range(VERTICES):  # padded vertices: zero costs
+        for v in range(VERTICES):  # past v_count: zero costs (and zero weights)
             xs[v, j, column] = costs[v, c, i] if j < filled else BIG
         cls[j, column] = c if j < filled else cls[0, column]
 
@@ -253,7 +253,6 @@ def decide_chunk(
     # (up to GROUPS[0], ..., the last one up to WIDEST), each mixed together when full.
     last = len(GROUPS)
     group_xs = np.empty((last + 1, VERTICES, WIDEST, MANY), np.float32)
-    group_xs[:, v_count:] = 0  # padding: zero costs, zero weights
     group_ts, group_size = np.empty((last + 1, MANY), np.float32), np.zeros(last + 1, np.int64)
     group_cls = np.empty((last + 1, WIDEST, MANY), np.int32)
     group_pixel, widest = np.empty((last + 1, MANY), np.int64), 0  # the last group's most
