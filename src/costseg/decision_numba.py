@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from costseg.decision_blocks import certify64
-from costseg.decision_certified import TINY, U64, _Fast, _reference
+from costseg.decision_certified import TINY, U32, U64, _Fast, _reference
 from costseg.decision_mixing import VERTICES, decide_chunk
 
 
@@ -72,7 +72,13 @@ class NumbaMixer:
             weight64 = weight64 if priors is None else weight64 / priors.double().cpu()
             self.exact64 = weight64.t().contiguous().numpy()
         gamma64 = (1 + fast.gamma64) * (1 + v * U64 / (1 - v * U64)) - 1  # V more terms >= 0
-        gamma, eps, rounding = fast.gamma, fast.eps, 1 + 2.0**-20  # the float tests' rounding
+        # The kernel's own rounding: _Fast.gamma counts a dot product of length N (any order);
+        # block_products adds each cost's terms four per pass, at most three roundings each,
+        # then one per later pass: at most 2 + ceil(N / 4) roundings per term.
+        depth, dot = 2 + -(-n // 4), n * U32 / (1 - n * U32)
+        shorter = (1 + depth * U32 / (1 - depth * U32)) / (1 + dot)
+        gamma, mix_gamma = (1 + fast.gamma) * shorter - 1, (1 + mix_gamma) * shorter - 1
+        eps, rounding = fast.eps, 1 + 2.0**-20  # the float tests' rounding
         slack = 2 * gamma / (1 - gamma) * 1.01  # as _Mixer._candidates
         candidates = np.array([1 + slack, 4 * eps, TINY]) / (1 - slack) * rounding
         self.params = np.array(
