@@ -90,16 +90,17 @@ def decide(
     # eps: the reference's rounding per T
     b, _, h, w = probs.shape
     out = torch.empty(b, h * w, dtype=torch.long, device=probs.device)
+    # the reference's matrix, for the re-checks: built once, where one is needed
+    shifted = functools.cache(lambda: _shift(cost).to(probs.device))
     if kernel := _gpu_kernel(fast):
         rule = kernel.rule(fast.folded, torch.ones(1, 1, dtype=torch.float64), fast.eps, out.device)
         for i in range(b):
             opened = rule(fast.probs[i], out[i : i + 1])
             if opened is not None:
                 redo = opened[0].nonzero()[:, 0]
-                shifted = _shift(cost).to(probs.device)
-                out[i, redo] = fast.settle(fast.exact_q(i, redo), shifted)
+                out[i, redo] = fast.settle(fast.exact_q(i, redo), shifted())
         return out.view(b, h, w)
-    shifted = _shift(cost).to(probs.device)  # the reference's matrix, for the re-checks
+    shifted = shifted()
     rule = _sparse_rule(fast, cost, shifted)
     for i in range(b):
         redo, q64 = [], []
@@ -160,9 +161,9 @@ def decide_mixtures(
     b, _, h, w = probs.shape
     dtype = torch.uint8 if n <= 256 else torch.long  # K label maps add up
     out = torch.empty(b, len(weights), h * w, dtype=dtype, device=probs.device)
-    # The reference's matrices and the weights, for the re-checks.
-    mixed = lambda: _shift(mix_costs(vertices, weights).to(probs.device))  # noqa: E731
-    weights64 = lambda: weights.to(probs.device, torch.float64)  # noqa: E731
+    # The reference's matrices and the weights, for the re-checks: built once, where needed.
+    mixed = functools.cache(lambda: _shift(mix_costs(vertices, weights).to(probs.device)))
+    weights64 = functools.cache(lambda: weights.to(probs.device, torch.float64))
     if kernel := _gpu_kernel(fast):
         rule = kernel.rule(fast.folded, weights, fast.eps, out.device)
         for i in range(b):
