@@ -7,6 +7,7 @@ from pathlib import Path
 SRC = Path(__file__).resolve().parents[1] / "src" / "costseg"
 DECISION_KERNELS = {  # decision.py's fast paths
     "decision_blocks",
+    "decision_candidates",
     "decision_certified",
     "decision_groups",
     "decision_mixing",

@@ -7,9 +7,9 @@ cache (:func:`costseg.decision_blocks.block_products`) instead of over the whole
 
 1. each vertex's argmin and runner-up, certified as in ``_top`` (gap and floor);
 2. where every vertex picks the same class with a certified gap, every mixture picks it;
-3. elsewhere the candidates: classes that no vertex winner beats in every vertex by a certain
-   margin (``_Mixer._candidates``; the threshold in float32 with coefficients rounded up past
-   its roundings); a single candidate decides every mixture;
+3. elsewhere the candidates (:mod:`costseg.decision_candidates`): classes that no vertex
+   winner beats in every vertex by a certain margin; a single candidate decides every
+   mixture;
 4. else, per mixture, the candidates' mixed costs ``Σ_v w_kv x_v``, their argmin (the lowest
    class on ties) and the same certificate with the mixing's rounding in ``γ`` (the mixed T
    taken at its bound ``Σ_v w_kv · max_v T_v``: a stricter floor, one load fewer). Up to
@@ -29,102 +29,40 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from costseg.decision_blocks import U, block_products, keep, recheck, trailing_zeros
+from costseg.decision_blocks import JIT, U, block_products, keep, recheck, trailing_zeros
+from costseg.decision_candidates import UNDERFLOW, VERTICES, candidates, vertex_winners
 
-UNDERFLOW = 2.0**-60  # a runner-up below it: never certified
 BLOCK = 512  # pixels decided together: their vertex costs stay in cache
 SLOTS = 4  # candidates mixed side by side for every pixel of a block
 MANY = 2048  # pixels with more candidates, gathered to be mixed together, in groups by their
 GROUPS = np.array([6, 8, 10, 12])  # count: up to 6 slots, 8, ..., WIDEST (more: left open)
-VERTICES = 3  # at most (a sweep's triangle); fewer are padded with zero weights and costs
 WIDEST = 32  # candidates at most (the slots of the last group)
 BIG = np.float32(3.4e38)  # an empty slot's cost: above every real one (w >= 0, some w > 0)
-JIT = dict(nogil=True, cache=True, boundscheck=False, error_model="numpy")
-
-
-@numba.njit(**JIT)
-def _vertex_winners(costs, size, v_count, v_delta, v_floor, best, second, arg, agree, finite):
-    """Each of the first ``v_count`` vertices' argmin over classes at pixels ``:size``;
-    ``agree``: every vertex picks vertex 0's class with a certified gap; ``finite``: every
-    vertex's T is finite."""
-    n, size = U(costs.shape[1] - 1), U(size)
-    for v in range(U(v_count)):
-        best[v, :size], second[v, :size], arg[v, :size] = np.inf, np.inf, 0
-        for c in range(U(0), n - n % U(4), U(4)):  # four classes per pass; ties keep the lower c
-            c1, c2, c3 = c + U(1), c + U(2), c + U(3)
-            for i in range(size):
-                x, y, z = best[v, i], second[v, i], arg[v, i]
-                x, y, z = keep(costs[v, c, i], np.int32(c), x, y, z)
-                x, y, z = keep(costs[v, c1, i], np.int32(c1), x, y, z)
-                x, y, z = keep(costs[v, c2, i], np.int32(c2), x, y, z)
-                best[v, i], second[v, i], arg[v, i] = keep(costs[v, c3, i], np.int32(c3), x, y, z)
-        for c in range(n - n % U(4), n):
-            for i in range(size):
-                x, y, z = best[v, i], second[v, i], arg[v, i]
-                best[v, i], second[v, i], arg[v, i] = keep(costs[v, c, i], np.int32(c), x, y, z)
-        for i in range(size):
-            low, runner, t = best[v, i], second[v, i], costs[v, n, i]
-            gap = (runner - low > v_delta * runner) & (arg[v, i] == arg[0, i])
-            sure = gap & (runner >= v_floor * t + np.float32(UNDERFLOW))
-            agree[i] = sure if v == 0 else agree[i] & sure
-            finite[i] = (t < np.inf) if v == 0 else finite[i] & (t < np.inf)
-
-
-@numba.njit(**JIT)
-def _candidates(costs, size, v_count, coef, arg, threshold, free, count, first):
-    """Bit ``c % 32`` of ``free[c // 32, i]``: no vertex winner beats class c at pixel i in
-    every vertex by a certain margin: ``x_c > (x_a (1 + slack) + t T + TINY) / (1 - slack)``,
-    computed as ``coef · (x_a, T, 1)`` in float32 (coefficients rounded up past its roundings;
-    all terms >= 0, so the result lies above the bound); ``count[i]``: how many classes are
-    free, ``first[i]``: the lowest. ``costs``: (VERTICES, N + 1, BLOCK), past ``v_count``
-    zeros; ``threshold``: (VERTICES, VERTICES, BLOCK) scratch."""
-    n = U(costs.shape[1] - 1)
-    on_x, on_t, alone = np.float32(coef[0]), np.float32(coef[1]), np.float32(coef[2])
-    size = U(size)
-    for u in range(U(VERTICES)):
-        for v in range(U(VERTICES)):
-            if u >= v_count:  # no such winner: beats nothing
-                threshold[u, v, :size] = np.inf
-            elif v >= v_count:  # no such vertex: every winner beats c in it
-                threshold[u, v, :size] = -np.inf
-            else:
-                for i in range(size):
-                    x_a, t = costs[v, U(arg[u, i]), i], costs[v, n, i]
-                    threshold[u, v, i] = (on_x * x_a + on_t * t) + alone
-    count[:size], free[:, :size] = 0, 0
-    for c in range(n):  # VERTICES = 3 written out: one vectorised pass per class
-        word, bit = c // U(32), np.uint32(c % U(32))
-        for i in range(size):
-            x, y, z = costs[0, c, i], costs[1, c, i], costs[2, c, i]
-            by_0 = (x > threshold[0, 0, i]) & (y > threshold[0, 1, i]) & (z > threshold[0, 2, i])
-            by_1 = (x > threshold[1, 0, i]) & (y > threshold[1, 1, i]) & (z > threshold[1, 2, i])
-            by_2 = (x > threshold[2, 0, i]) & (y > threshold[2, 1, i]) & (z > threshold[2, 2, i])
-            ok = not (by_0 | by_1 | by_2)
-            first[i] = np.int32(c) if ok & (count[i] == 0) else first[i]
-            count[i] += np.int32(ok)
-            free[word, i] |= np.uint32(ok) << bit
 
 
 @numba.njit(**JIT, fastmath={"contract"})  # fused multiply-adds: within the mixing's γ
 def _mix_slots(xs, ts, cls, size, weights, params, mixed, kept, labels, s, opened, touched):
-    """Every mixture of pixels ``:size`` of the slot arrays (costs ``xs`` (VERTICES, SLOTS, ·),
-    classes ``cls`` (SLOTS, ·), the vertices' largest T ``ts``) into columns ``s : s + size`` of
-    labels and ``:size`` of opened (``touched``: any mixture's); where ``mixed`` is 0 the flags
-    are ``kept``. One pass per mixture: with the slots and the vertices fixed, the loop over
-    pixels vectorises. The floor test takes the mixed T at its bound ``Σ_v w_v · max_v T_v``
-    (stricter: a few more pairs left open; its coefficient's margin covers the roundings)."""
+    """Every mixture of pixels ``:size`` of the slot arrays (costs ``xs`` (VERTICES, SLOTS,
+    BLOCK), classes ``cls`` (SLOTS, BLOCK), both flat; the vertices' largest T ``ts``) into
+    columns ``s : s + size`` of labels and ``:size`` of opened (``touched``: any mixture's);
+    where ``mixed`` is 0 the flags are ``kept``. One pass per mixture: with the slots and the
+    vertices fixed, the loop over pixels vectorises; flat arrays with constant strides address
+    every slot from one register. The floor test takes the mixed T at its bound ``Σ_v w_v ·
+    max_v T_v`` (stricter: a few more pairs left open; its coefficient's margin covers the
+    roundings)."""
     m_delta, m_floor = np.float32(params[5]), np.float32(params[6])
-    s, size = U(s), U(size)
+    s, size, row = U(s), U(size), U(SLOTS * BLOCK)  # a vertex's slots
     touched[:size] = 0
     for k in range(U(labels.shape[0])):
         w0, w1, w2 = weights[0, k], weights[1, k], weights[2, k]
         floor = m_floor * ((w0 + w1) + w2)  # T <= Σ_v w_v · max_v T_v
         for i in range(size):
-            best = (w0 * xs[0, 0, i] + w1 * xs[1, 0, i]) + w2 * xs[2, 0, i]
-            second, label = np.float32(np.inf), cls[0, i]
+            best = (w0 * xs[i] + w1 * xs[row + i]) + w2 * xs[U(2) * row + i]
+            second, label = np.float32(np.inf), cls[i]
             for j in range(U(1), U(SLOTS)):  # slots in class order: ties keep the lower class
-                y = (w0 * xs[0, j, i] + w1 * xs[1, j, i]) + w2 * xs[2, j, i]
-                c = cls[j, i]  # loaded either way: a conditional load does not vectorise
+                at = j * U(BLOCK) + i
+                y = (w0 * xs[at] + w1 * xs[row + at]) + w2 * xs[U(2) * row + at]
+                c = cls[at]  # loaded either way: a conditional load does not vectorise
                 best, second, label = keep(y, c, best, second, label)
             gap_ok = second - best > m_delta * second
             sure = np.uint8(gap_ok & (second >= floor * ts[i] + np.float32(UNDERFLOW)))
@@ -261,8 +199,8 @@ def decide_chunk(
     for s in range(start, stop, BLOCK):
         size = min(BLOCK, stop - s)
         block_products(q, s, size, weight, block_costs)
-        _vertex_winners(costs, size, v_count, v_delta, v_floor, best, second, arg, agree, finite)
-        _candidates(costs, size, v_count, params[2:5], arg, threshold, free, count, base)
+        vertex_winners(costs, size, v_count, v_delta, v_floor, best, second, arg, agree, finite)
+        candidates(costs, size, v_count, params[2:5], arg, threshold, free, count, base)
         for i in range(size):  # agreeing vertices, or a single candidate, decide every mixture
             first, lowest = arg[0, i], base[i]
             base[i] = first if agree[i] else lowest
@@ -282,7 +220,7 @@ def decide_chunk(
                 group_ts[group, e], group_pixel[group, e], group_size[group] = ts[i], s + i, e + 1
                 widest = max(widest, count[i]) if group == last else widest
         mixing = mixed, kept, labels, column + s, block_open, touched
-        _mix_slots(xs, ts, cls, size, weights, params, *mixing)
+        _mix_slots(xs.reshape(-1), ts, cls.reshape(-1), size, weights, params, *mixing)
         exact = q, weight64, weights64, params, labels, column  # for the float64 re-check
         opened = block_open, touched, size, np.arange(size) + s
         pairs, found = recheck(*opened, *exact, pairs, found)
