@@ -7,13 +7,15 @@ On (1, 19, H, W) float32 probabilities (softmax of smooth random logits, the rec
 ``torch.argmax(p, 1)``, single-rule ``decide`` (egoistic) and ``decide_mixtures`` over the
 66-point barycentric grid (robotistic / altruistic / egoistic vertices, unscaled), on the CPU
 also without numba's kernels. Each timing is the best of several repeats after a warm-up; every
-ratio compares timings of the same run.
+ratio compares timings of the same run. The target ratios are also given as the median over
+rounds that time both sides back to back (a machine whose speed drifts moves both alike).
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import statistics
 import time
 from collections.abc import Callable
 
@@ -38,6 +40,23 @@ def best_time(fn: Callable[[], object], repeats: int, sync: Callable[[], object]
     return min(times)
 
 
+def paired_ratio(
+    slow: Callable[[], object], fast: Callable[[], object], rounds: int, sync: Callable[[], object]
+) -> float:
+    """Median over ``rounds`` of ``slow``'s time ÷ ``fast``'s, each round timing one call of
+    each back to back (in alternating order)."""
+    ratios = []
+    for r in range(rounds):
+        times, order = {}, (("slow", slow), ("fast", fast))
+        for name, fn in order if r % 2 else order[::-1]:
+            start = time.perf_counter()
+            fn()
+            sync()
+            times[name] = time.perf_counter() - start
+        ratios.append(times["slow"] / times["fast"])
+    return statistics.median(ratios)
+
+
 def probabilities(shape: tuple[int, int, int, int], device: str) -> torch.Tensor:
     """Softmax of smooth random logits: confident almost everywhere, unsure near borders."""
     gen = torch.Generator().manual_seed(0)
@@ -52,10 +71,15 @@ def bench(device: str, shape: tuple[int, int, int, int], repeats: int) -> None:
     probs = probabilities(shape, device)
     sync = torch.cuda.synchronize if device == "cuda" else (lambda: None)
     grid = barycentric_grid(0.1)
-    t_sum = best_time(lambda: probs.sum(), repeats, sync)
+    run_sum, run_decide = (lambda: probs.sum()), (lambda: decide(probs, VERTICES[2]))
+    run_mix = lambda: decide_mixtures(probs, VERTICES, grid)  # noqa: E731
+    t_sum = best_time(run_sum, repeats, sync)
     t_argmax = best_time(lambda: probs.argmax(1), repeats, sync)
-    t_decide = best_time(lambda: decide(probs, VERTICES[2]), repeats, sync)
-    t_mix = best_time(lambda: decide_mixtures(probs, VERTICES, grid), max(3, repeats // 2), sync)
+    t_decide = best_time(run_decide, repeats, sync)
+    t_mix = best_time(run_mix, max(3, repeats // 2), sync)
+    rounds = 2 * repeats + 1
+    paired_decide = paired_ratio(run_decide, run_sum, rounds, sync)
+    paired_mix = paired_ratio(run_mix, run_decide, rounds, sync)
     fine = barycentric_grid(0.05)
     t_fine = best_time(lambda: decide_mixtures(probs, VERTICES, fine), 1, sync)
     t_ops = t_decide_ops = None
@@ -75,9 +99,12 @@ def bench(device: str, shape: tuple[int, int, int, int], repeats: int) -> None:
     print(f"  decide_mixtures, {len(fine)} points   {1e3 * t_fine:8.3f} ms")
     if t_ops:
         print(f"  same, {len(grid)} points, tensor ops  {1e3 * t_ops:8.3f} ms   (without numba)")
+    paired = f"median of {rounds} rounds back to back"
     print(f"  decide / p.sum()               {t_decide / t_sum:8.2f}   (target <= 5)")
+    print(f"  same, {paired}: {paired_decide:.2f}")
     print(f"  decide / argmax                {t_decide / t_argmax:8.2f}")
     print(f"  decide_mixtures / decide       {t_mix / t_decide:8.2f}   (target <= 10)")
+    print(f"  same, {paired}: {paired_mix:.2f}")
     if device == "cuda":
         gigabytes = probs.numel() * probs.element_size() / 1e9
         print(
