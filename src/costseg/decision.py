@@ -100,8 +100,7 @@ def decide(
                 redo = opened[0].nonzero()[:, 0]
                 out[i, redo] = fast.settle(fast.exact_q(i, redo), shifted())
         return out.view(b, h, w)
-    shifted = shifted()
-    rule = _sparse_rule(fast, cost, shifted)
+    rule = _sparse_rule(fast, cost, shifted())
     for i in range(b):
         redo, q64 = [], []
         for s, q in fast.chunks(i, rule and rule.step):
@@ -115,7 +114,7 @@ def decide(
             q64.append(fast.exact_q(i, redo[-1]))  # while the chunk is in cache
         redo = torch.cat(redo)
         if len(redo):
-            out[i, redo] = fast.settle(torch.cat(q64), shifted)
+            out[i, redo] = fast.settle(torch.cat(q64), shifted())
     return out.view(b, h, w)
 
 

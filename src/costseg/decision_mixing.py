@@ -185,8 +185,10 @@ def decide_chunk(
     base, mixed = np.empty(BLOCK, np.int32), np.empty(BLOCK, np.uint8)
     kept, block_open = np.empty(BLOCK, np.uint8), np.empty((k_count, BLOCK), np.uint8)
     touched = np.empty(MANY, np.uint8)  # pixels with an open pair
-    xs = np.zeros((VERTICES, SLOTS, BLOCK), np.float32)
-    ts, cls = np.zeros(BLOCK, np.float32), np.empty((SLOTS, BLOCK), np.int32)
+    flat_xs = np.zeros(VERTICES * SLOTS * BLOCK, np.float32)  # _mix_slots reads them flat
+    flat_cls = np.empty(SLOTS * BLOCK, np.int32)
+    xs, cls = flat_xs.reshape(VERTICES, SLOTS, BLOCK), flat_cls.reshape(SLOTS, BLOCK)  # views
+    ts = np.zeros(BLOCK, np.float32)
     # Pixels with more candidates than SLOTS, gathered in groups of MANY pixels by their count
     # (up to GROUPS[0], ..., the last one up to WIDEST), each mixed together when full.
     last = len(GROUPS)
@@ -220,7 +222,7 @@ def decide_chunk(
                 group_ts[group, e], group_pixel[group, e], group_size[group] = ts[i], s + i, e + 1
                 widest = max(widest, count[i]) if group == last else widest
         mixing = mixed, kept, labels, column + s, block_open, touched
-        _mix_slots(xs.reshape(-1), ts, cls.reshape(-1), size, weights, params, *mixing)
+        _mix_slots(flat_xs, ts, flat_cls, size, weights, params, *mixing)
         exact = q, weight64, weights64, params, labels, column  # for the float64 re-check
         opened = block_open, touched, size, np.arange(size) + s
         pairs, found = recheck(*opened, *exact, pairs, found)
