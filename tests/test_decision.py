@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 
 from costseg.costs import barycentric_grid, load_cost, mix_costs, symmetric_cost
 from costseg.decision import decide, decide_mixtures
+from costseg.label_maps import empty_labels
 
 VERTICES = torch.stack([load_cost(n) for n in ("robotistic", "altruistic", "egoistic")])
 LOW_PRECISION = [torch.float32, torch.float16, torch.bfloat16]
@@ -355,3 +356,11 @@ def test_matrices_and_weights_that_require_grad_decide_the_same():
     assert torch.equal(decide(probs, grad_v[2]), decide(probs, VERTICES[2]))
     got = decide_mixtures(probs, grad_v, grad_w)
     assert torch.equal(got, decide_mixtures(probs, VERTICES, weights))
+
+
+def test_label_maps_have_the_asked_shape_and_type():
+    labels = empty_labels(2, 3, dtype=torch.uint8, device="cpu")
+    labels.fill_(7)
+    assert labels.shape == (2, 3) and labels.dtype == torch.uint8 and int(labels.sum()) == 42
+    assert empty_labels(4, dtype=torch.int64, device="cpu").dtype == torch.int64
+    assert empty_labels(4, dtype=torch.float32, device="cpu").dtype == torch.float32  # torch's

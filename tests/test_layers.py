@@ -17,7 +17,7 @@ DECISION_KERNELS = {  # decision.py's fast paths
 }
 # Lower layers first; a module may import its own layer or lower ones.
 CHAIN = [
-    {"classes", "checkpoints", "options"},
+    {"classes", "checkpoints", "options", "label_maps"},
     {"costs"},
     DECISION_KERNELS,
     {"decision"},
@@ -30,6 +30,7 @@ CHAIN = [
     {"cli"},
 ]
 NO_LIGHTNING = {
+    "label_maps",
     "costs",
     "decision",
     *DECISION_KERNELS,

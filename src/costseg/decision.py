@@ -42,6 +42,7 @@ import torch
 
 from costseg.costs import mix_costs, symmetric_cost
 from costseg.decision_certified import U64, _Fast, _Mixer, _top
+from costseg.label_maps import empty_labels
 
 COMPILED_MIN_PIXELS = 1 << 20  # single rules: numba's kernel from this image size on
 
@@ -89,7 +90,7 @@ def decide(
     fast = _fast(cost, probs, _priors(priors, n, *probs.shape[2:], probs), eps=(n + 4) * U64)
     # eps: the reference's rounding per T
     b, _, h, w = probs.shape
-    out = torch.empty(b, h * w, dtype=torch.long, device=probs.device)
+    out = empty_labels(b, h * w, dtype=torch.long, device=probs.device)
     # the reference's matrix, for the re-checks: built once, where one is needed
     shifted = functools.cache(lambda: _shift(cost).to(probs.device))
     if kernel := _gpu_kernel(fast):
@@ -159,7 +160,7 @@ def decide_mixtures(
     fast = _fast(vertices.double().cpu(), probs, priors, (n + 8) * U64)
     b, _, h, w = probs.shape
     dtype = torch.uint8 if n <= 256 else torch.long  # K label maps add up
-    out = torch.empty(b, len(weights), h * w, dtype=dtype, device=probs.device)
+    out = empty_labels(b, len(weights), h * w, dtype=dtype, device=probs.device)
     # The reference's matrices and the weights, for the re-checks: built once, where needed.
     mixed = functools.cache(lambda: _shift(mix_costs(vertices, weights).to(probs.device)))
     weights64 = functools.cache(lambda: weights.to(probs.device, torch.float64))

@@ -24,6 +24,7 @@ import torch
 from costseg.classes import CLASS_NAMES
 from costseg.costs import PRESETS, barycentric_grid, load_cost, rescale, symmetric_cost
 from costseg.decision import decide, decide_mixtures
+from costseg.label_maps import empty_labels
 
 RULE_NAMES = (*PRESETS, "ml")
 Decider = Callable[[torch.Tensor, torch.Tensor | None], torch.Tensor]
@@ -114,8 +115,8 @@ def apply_rules(
     rule with priors needs ``priors`` ((N,) or (N, H, W)) and one pass of its own.
     """
     n = probs.shape[1]
-    out = torch.empty(probs.shape[0], len(rules), *probs.shape[2:], dtype=torch.long)
-    out = out.to(probs.device)
+    shape = probs.shape[0], len(rules), *probs.shape[2:]
+    out = empty_labels(*shape, dtype=torch.long, device=probs.device)
     plain = [k for k, r in enumerate(rules) if not r.priors_alpha]
     if plain:
         vertices = torch.stack([_matrix(rules[k].cost, n) for k in plain])
