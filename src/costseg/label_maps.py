@@ -2,8 +2,9 @@
 
 A (K, H·W) map of a mixture sweep is large (66 × 1024 × 2048 bytes = 138 MB), and a fresh one
 is new memory: on the CPU, filled in 4 KiB pages (~34 000 page faults), it made
-``decide_mixtures`` about 18 % slower on the bench's image. numpy advises the kernel to back large arrays with 2 MiB pages (its
-default on Linux; ``NUMPY_MADVISE_HUGEPAGE=0`` turns it off), so CPU maps come from numpy.
+``decide_mixtures`` about 18 % slower on the bench's image. numpy advises the kernel to back
+large arrays with 2 MiB pages (its default on Linux; ``NUMPY_MADVISE_HUGEPAGE=0`` turns it
+off): 66 faults. So CPU maps come from numpy.
 """
 
 from __future__ import annotations
