@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import functools
-import os
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import torch
@@ -21,6 +19,7 @@ from costseg.metrics.functional import (
     label_segments,
     mask_segment_errors,
 )
+from costseg.metrics.threads import threads
 
 _COUNTS = ("fp", "fn", "n_pred", "n_gt")
 
@@ -59,14 +58,6 @@ def _pack_bits(masks: Tensor) -> Tensor:
     bits = torch.tensor(_BITS, dtype=torch.uint8, device=masks.device)
     eights = masks.view(*masks.shape[:-1], -1, 8).to(torch.uint8)
     return eights.mul_(bits).sum(-1, dtype=torch.uint8)
-
-
-@functools.cache
-def _threads() -> ThreadPoolExecutor:
-    return ThreadPoolExecutor(len(os.sched_getaffinity(0)), thread_name_prefix="segments")
-
-
-os.register_at_fork(after_in_child=_threads.cache_clear)  # a forked child has none of its threads
 
 
 def _rule_errors(
@@ -118,10 +109,10 @@ def _distinct_errors(
     # One unpacking and labelling per mask, on threads: numpy's unpacking, scipy's labelling and
     # the compiled counting run without the GIL for the most part.
     if not maps and (counting := _compiled_counts()):
-        counts = _threads().map(lambda m: counting(crop(m), gt_mask, roi, num_rois, gt), packed)
+        counts = threads().map(lambda m: counting(crop(m), gt_mask, roi, num_rois, gt), packed)
         return np.stack(list(counts)), None, None
     errors = list(
-        _threads().map(lambda m: mask_segment_errors(crop(m), gt_mask, roi, num_rois, gt), packed)
+        threads().map(lambda m: mask_segment_errors(crop(m), gt_mask, roi, num_rois, gt), packed)
     )
     counts = np.stack([e.counts for e in errors])
     if not maps:

@@ -1,0 +1,77 @@
+"""The confusion counts of :func:`~costseg.metrics.functional.roi_confusion` for many rules in
+one compiled pass (numba), for :class:`~costseg.metrics.RoIPrecisionRecall` on the CPU.
+
+Each rule's label map is read once, in order, and each pixel adds one to its bin (RoI, target,
+label) of that rule's histogram; four histograms take alternate pixels, so that neighbouring
+pixels, which mostly share a bin, do not wait for each other's additions. The tensor operations
+it replaces made a K-fold index array: 3 s per 1024 × 2048 image at 231 rules.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import torch
+from torch import Tensor
+
+from costseg.metrics.functional import check_batch
+from costseg.metrics.threads import threads
+
+LANES = 4  # histograms per rule, each taking every fourth pixel
+
+
+@numba.njit(nogil=True, cache=True, boundscheck=False)
+def _histograms(rules, rows, n, counts, first, last):
+    """``counts[k, rows[i] + rules[k, i]] += 1`` for rules ``first:last`` of (K, P) ``rules`` and
+    every pixel i (``rows``: the pixel's first bin). Returns how many of these rules hold a label
+    outside [0, n) (checked before counting it)."""
+    pixels, bad = rules.shape[1], 0
+    lanes = np.zeros((LANES, counts.shape[1]), np.int64)
+    for k in range(first, last if pixels else first):
+        low, high = rules[k, 0], rules[k, 0]
+        for i in range(pixels):  # vectorised
+            low, high = min(low, rules[k, i]), max(high, rules[k, i])
+        if low < 0 or high >= n:
+            bad += 1
+            continue
+        lanes[:] = 0
+        whole = pixels - pixels % LANES
+        for i in range(0, whole, LANES):
+            for lane in range(LANES):
+                lanes[lane, rows[i + lane] + rules[k, i + lane]] += 1
+        for i in range(whole, pixels):
+            lanes[0, rows[i] + rules[k, i]] += 1
+        for lane in range(LANES):
+            counts[k] += lanes[lane]
+    return bad
+
+
+def count_confusion(
+    rules: Tensor, target: Tensor, roi: Tensor | None, num_classes: int, num_rois: int, ignore: int
+) -> Tensor:
+    """``roi_confusion(rules, target, roi, ...)`` for (B, K, H, W) CPU rules: (K, R+1, N, N) int64,
+    the inputs checked as there (the same ValueErrors)."""
+    check_batch(rules, target, roi, num_rois)
+    b, k = rules.shape[:2]
+    n, r1 = num_classes, num_rois + 1
+    bad = ((target < 0) | (target >= n)) & (target != ignore)
+    if bad.any():
+        raise ValueError(f"expected target in [0, {n}) or {ignore}, got {target[bad][0].item()}")
+    # Ignored pixels count in an extra target row n, dropped below (as roi_confusion does).
+    rows = torch.where(target == ignore, n, target.long())
+    if roi is not None:
+        rows = rows + roi.long().expand_as(target) * (n + 1)
+    rows = (rows * n).reshape(b, -1).numpy()
+    labels = rules.reshape(b, k, -1).contiguous().numpy()
+    counts = np.zeros((b, k, r1 * (n + 1) * n), np.int64)
+    step = max(1, -(-k // threads()._max_workers))
+    jobs = [
+        threads().submit(_histograms, labels[i], rows[i], n, counts[i], s, min(s + step, k))
+        for i in range(b)
+        for s in range(0, k, step)
+    ]
+    if sum(job.result() for job in jobs):
+        lo, hi = (int(v) for v in torch.aminmax(rules))
+        raise ValueError(f"expected preds in [0, {n}), got values in {lo}..{hi}")
+    per_roi = torch.from_numpy(counts.sum(0)).view(k, r1, n + 1, n)[:, :, :n]
+    return torch.cat([per_roi.sum(1, keepdim=True), per_roi[:, 1:]], dim=1)
