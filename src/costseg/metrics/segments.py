@@ -120,6 +120,18 @@ def _distinct_errors(
     return counts, np.stack([e.fp_mask for e in errors]), np.stack([e.fn_mask for e in errors])
 
 
+def _packed_at_once(rules: Tensor, classes: tuple[int, ...], valid: Tensor) -> np.ndarray | None:
+    """:func:`costseg.metrics.mask_bits.packed_class_masks` for uint8 rules (a grid of mixtures'
+    label maps) where numba imports, else None (``packed_masks`` class by class)."""
+    if rules.dtype != torch.uint8:
+        return None
+    try:
+        from costseg.metrics.mask_bits import packed_class_masks
+    except ImportError:
+        return None
+    return packed_class_masks(rules, classes, valid)
+
+
 @functools.cache
 def _compiled_counts():
     """:func:`costseg.metrics.segment_counts.mask_counts` where numba imports, else None."""
@@ -207,8 +219,9 @@ class SegmentErrors(SumMetric):
         rois = None if roi is None else roi.expand_as(target).cpu().numpy()
         fp_map, fn_map = self._map_states(tuple(target.shape[-2:]))
         valid = target != self.ignore_index
+        packed = _packed_at_once(rules, self.classes, valid)
         for ci, cls in enumerate(self.classes):
-            pred_masks = packed_masks(rules, cls, valid)
+            pred_masks = packed_masks(rules, cls, valid) if packed is None else packed[ci]
             gt_masks = (target == cls).cpu().numpy()
             for b in range(len(target)):
                 r = None if rois is None else rois[b]
