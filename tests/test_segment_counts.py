@@ -66,3 +66,13 @@ def test_masks_packed_in_torch_equal_numpy_packbits(shape: tuple[int, int, int])
 
     masks = torch.rand(shape, generator=torch.Generator().manual_seed(sum(shape))) > 0.5
     assert np.array_equal(_pack_bits(masks).numpy(), np.packbits(masks.numpy(), axis=-1))
+
+
+def test_one_row_without_rois() -> None:
+    """A (1, W) mask without RoIs: every component belongs to RoI 0 (the compiled pass once
+    took the (1, 1) stand-in for a RoI map of that height and read past it)."""
+    pred = np.array([[True, False, True, True, False, True]])
+    gt = np.array([[True, False, False, False, False, True]])
+    gt_segments = label_segments(gt, None, 2)
+    expected = mask_segment_errors(pred, gt, None, 2, gt_segments).counts
+    np.testing.assert_array_equal(mask_counts(pred, gt, None, 2, gt_segments), expected)

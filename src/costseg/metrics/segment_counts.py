@@ -34,7 +34,7 @@ def _counts(labels, count, gt_mask, gt_labels, gt_count, gt_owner, roi, r1):
     pred_hit = np.zeros(count + 1, np.bool_)  # the component holds a ground-truth pixel
     gt_hit = np.zeros(gt_count + 1, np.bool_)  # the ground-truth component, a predicted one
     height, width = labels.shape
-    with_roi = roi.shape[0] == height
+    with_roi = roi.shape == labels.shape  # _NO_ROI is (1, 1): a 1 x 1 image reads its 0 alike
     for i in range(height):
         for j in range(width):
             label = labels[i, j]
