@@ -9,7 +9,7 @@ import torch
 from costseg.metrics import RoIPrecisionRecall
 from costseg.metrics.confusion_counts import count_confusion
 from costseg.metrics.functional import roi_confusion
-from costseg.metrics.roi import RUNS_MIN_RULES
+from costseg.metrics.roi import COMPILED_MIN_RULES
 
 
 def sweep_like(gen: torch.Generator, b: int, k: int, h: int, w: int, n: int) -> torch.Tensor:
@@ -63,7 +63,7 @@ def test_empty_images_and_bad_inputs() -> None:
 
 def test_metric_counts_a_sweep_as_single_rules() -> None:
     gen = torch.Generator().manual_seed(0)
-    k, n = RUNS_MIN_RULES + 3, 6
+    k, n = COMPILED_MIN_RULES + 3, 6
     rules = sweep_like(gen, 2, k, 11, 12, n)
     target = torch.randint(0, n, (2, 11, 12), generator=gen)
     roi = torch.randint(0, 3, (11, 12), generator=gen)

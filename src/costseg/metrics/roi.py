@@ -16,12 +16,12 @@ from costseg.metrics.functional import (
     roi_confusion,
 )
 
-RUNS_MIN_RULES = 16  # from this many rules on (sweeps), the CPU counts in one compiled pass;
+COMPILED_MIN_RULES = 16  # from this many rules on (sweeps), the CPU counts in one compiled pass;
 # fewer do not pay for importing numba (about 0.8 s of an evaluation's start)
 
 
 @functools.cache
-def _runs():
+def _compiled_confusion():
     """:func:`costseg.metrics.confusion_counts.count_confusion` where numba imports, else None."""
     try:
         from costseg.metrics.confusion_counts import count_confusion
@@ -81,9 +81,10 @@ class RoIPrecisionRecall(SumMetric):
         """Add a batch: preds (B, K, H, W) (or (B, H, W) when K = 1), target (B, H, W), roi
         None, (H, W) or (B, H, W)."""
         rules = as_rules(preds, self.num_rules)
-        if self.num_rules >= RUNS_MIN_RULES and rules.device.type == "cpu" and (runs := _runs()):
+        sweep = self.num_rules >= COMPILED_MIN_RULES and rules.device.type == "cpu"
+        if sweep and (count := _compiled_confusion()):
             n, r, ignore = self.num_classes, self.num_rois, self.ignore_index
-            self.confmat += runs(rules, target, roi, n, r, ignore)
+            self.confmat += count(rules, target, roi, n, r, ignore)
             return
         if self.num_rules > 1:
             rules, target, roi = self._count_agreeing_once(rules, target, roi)

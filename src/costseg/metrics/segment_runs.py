@@ -40,7 +40,7 @@ class Prepared:
         _extend(labels, row, stop)
         self.gt_row_start = np.searchsorted(row, np.arange(h + 1)).astype(np.int64)
         self.gt_start, self.gt_stop, self.gt_label = start, stop, label
-        self.gt_count, self.gt_owner, self.r1 = gt.count, gt.owner.astype(np.int64), r1
+        self.gt_count, self.gt_owner = gt.count, gt.owner.astype(np.int64)
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
@@ -57,9 +57,8 @@ def _extend(labels, row, stop):
 def run_counts(bits: np.ndarray, shape: tuple[int, int], prepared: Prepared) -> np.ndarray:
     """(4, R+1) int64 fp, fn, n_pred, n_gt segments (column 0: whole image) of the (H, W) mask
     packed in ``bits`` (``np.packbits`` of its rows' pixels, W a multiple of 64)."""
-    words = bits.view(">u8").astype(np.uint64).reshape(shape[0], shape[1] // 64)  # first pixel:
-    # the highest bit
-    p = prepared
+    words = bits.view(">u8").astype(np.uint64)  # big-endian: the first pixel is the highest bit
+    words, p = words.reshape(shape[0], shape[1] // 64), prepared
     return _count(words, p.roi_prefix, p.gt_prefix, p.gt_row_start, p.gt_start, p.gt_stop,
                   p.gt_label, p.gt_count, p.gt_owner)  # fmt: skip
 
