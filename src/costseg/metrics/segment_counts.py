@@ -43,15 +43,28 @@ def _counts(labels, count, gt_mask, gt_labels, gt_count, gt_owner, roi, r1):
                 if gt_mask[i, j]:
                     pred_hit[label] = True
                     gt_hit[gt_labels[i, j]] = True
+    component = np.ones(count + 1, np.bool_)
+    component[0] = False  # the background
+    return tally(votes, component, pred_hit, gt_owner, gt_hit)
+
+
+@numba.njit(nogil=True, cache=True, boundscheck=False)
+def tally(votes, component, hit, gt_owner, gt_hit):
+    """(4, R+1) fp, fn, n_pred, n_gt per owning RoI (column 0: all) from each predicted
+    component's (rows of ``votes`` where ``component``) pixels per RoI and whether it holds a
+    ground-truth pixel, and each ground-truth component's owner and whether it is hit."""
+    r1 = votes.shape[1]
     per_owner = np.zeros((4, r1), np.int64)
-    for label in range(1, count + 1):
+    for label in range(len(votes)):
+        if not component[label]:
+            continue
         owner = 0  # the RoI with most pixels; ties to the lowest id
         for r in range(1, r1):
             if votes[label, r] > votes[label, owner]:
                 owner = r
         per_owner[2, owner] += 1
-        per_owner[0, owner] += not pred_hit[label]
-    for g in range(1, gt_count + 1):
+        per_owner[0, owner] += not hit[label]
+    for g in range(1, len(gt_owner)):
         per_owner[3, gt_owner[g]] += 1
         per_owner[1, gt_owner[g]] += not gt_hit[g]
     counts = per_owner.copy()

@@ -15,6 +15,7 @@ import numba
 import numpy as np
 
 from costseg.metrics.functional import Segments
+from costseg.metrics.segment_counts import tally
 
 
 class Prepared:
@@ -124,23 +125,7 @@ def _count(words, roi_prefix, gt_prefix, gt_row_start, gt_start, gt_stop, gt_lab
             for g in range(gt_row_start[y], gt_row_start[y + 1]):
                 if gt_start[g] < x1 and x0 < gt_stop[g]:
                     gt_hit[gt_label[g]] = True
-    per_owner = np.zeros((4, r1), np.int64)
-    for i in range(n):
-        if parent[i] != i:
-            continue
-        owner = 0  # the RoI with most pixels; ties to the lowest id
-        for r in range(1, r1):
-            if votes[i, r] > votes[i, owner]:
-                owner = r
-        per_owner[2, owner] += 1
-        per_owner[0, owner] += not hit[i]
-    for g in range(1, gt_count + 1):
-        per_owner[3, gt_owner[g]] += 1
-        per_owner[1, gt_owner[g]] += not gt_hit[g]
-    counts = per_owner.copy()
-    for r in range(4):
-        counts[r, 0] = per_owner[r].sum()
-    return counts
+    return tally(votes, parent[:n] == np.arange(n), hit, gt_owner, gt_hit)  # roots: components
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
