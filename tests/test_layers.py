@@ -17,7 +17,7 @@ DECISION_KERNELS = {  # decision.py's fast paths
 }
 # Lower layers first; a module may import its own layer or lower ones.
 CHAIN = [
-    {"classes", "checkpoints", "options", "label_maps"},
+    {"classes", "checkpoints", "options", "label_maps", "threads"},
     {"costs"},
     DECISION_KERNELS,
     {"decision"},
@@ -31,6 +31,7 @@ CHAIN = [
 ]
 NO_LIGHTNING = {
     "label_maps",
+    "threads",
     "costs",
     "decision",
     *DECISION_KERNELS,

@@ -12,10 +12,6 @@ and cached beside the modules.
 
 from __future__ import annotations
 
-import os
-from concurrent.futures import ThreadPoolExecutor
-from functools import cache
-
 import numba
 import numpy as np
 import torch
@@ -23,6 +19,7 @@ import torch
 from costseg.decision_blocks import certify64
 from costseg.decision_certified import TINY, U32, U64, _Fast, _reference
 from costseg.decision_mixing import VERTICES, decide_chunk
+from costseg.threads import in_pieces
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False, error_model="numpy")
@@ -103,7 +100,7 @@ class NumbaMixer:
         vertices = self.weights64.shape[1]
         weights = self.weights, self.weights64, self.params
         args = (q, self.weight, self.exact64, vertices, *weights, labels.numpy(), column)
-        pairs = _in_pieces(decide_chunk, args, q.shape[1], per_thread=PIECES)
+        pairs = in_pieces(decide_chunk, args, q.shape[1], per_thread=PIECES)
         return torch.from_numpy(np.concatenate(pairs, 1))
 
     def settle(self, q: torch.Tensor, grid: torch.Tensor, pixel: torch.Tensor) -> torch.Tensor:
@@ -117,7 +114,7 @@ class NumbaMixer:
         costs = (q @ fast.weight64.t()).view(len(q), *fast.rows).numpy()
         labels, unsure = np.empty(len(grid), np.int64), np.empty(len(grid), np.bool_)
         args = (costs, self.weights64, grid.numpy(), pixel.numpy(), *self.params[7:])
-        _in_pieces(_settle_pairs, (*args, labels, unsure), len(grid))
+        in_pieces(_settle_pairs, (*args, labels, unsure), len(grid))
         labels, unsure = torch.from_numpy(labels), torch.from_numpy(unsure).nonzero()[:, 0]
         if len(unsure):
             matrices = self.shifted[grid[unsure]]
@@ -141,20 +138,3 @@ def _up32(values: np.ndarray) -> np.ndarray:
     """float64 → the float32 values at or above them (as float64)."""
     single = values.astype(np.float32)
     return np.where(single < values, np.nextafter(single, np.float32(np.inf)), single).astype(float)
-
-
-def _in_pieces(kernel, args: tuple, count: int, align: int = 1, per_thread: int = 4) -> list:
-    """``kernel(*args, start, stop)`` over ``range(count)`` in ``per_thread`` pieces per thread
-    (taken in turn by the threads that are free), each starting at a multiple of ``align``."""
-    step = max(1, -(-count // (per_thread * _threads()._max_workers)))
-    step = -(-step // align) * align
-    pieces = [(s, min(s + step, count)) for s in range(0, count, step)]
-    return [job.result() for job in [_threads().submit(kernel, *args, *p) for p in pieces]]
-
-
-@cache
-def _threads() -> ThreadPoolExecutor:
-    return ThreadPoolExecutor(len(os.sched_getaffinity(0)), thread_name_prefix="decision")
-
-
-os.register_at_fork(after_in_child=_threads.cache_clear)  # a forked child has none of its threads

@@ -35,7 +35,8 @@ import torch
 from costseg.decision_blocks import keep
 from costseg.decision_certified import TINY, U32, U64, _Fast
 from costseg.decision_groups import PASS, TOTAL, program, shared_rows, supports, with_zeros
-from costseg.decision_numba import _in_pieces, chunk_step
+from costseg.decision_numba import chunk_step
+from costseg.threads import in_pieces
 
 BLOCK = 1024  # pixels decided together: (N x BLOCK) float32 probabilities stay in cache
 CHUNK = 1 << 20  # pixels converted to float32 q at once (other types, pixel-wise priors)
@@ -214,7 +215,7 @@ class SparseRule:
         to ``_Fast.settle``: those open where q is not exactly p, else those with NaN costs."""
         q, n, p = q.contiguous().numpy(), q.shape[0], q.shape[1]
         whole, out, args = p - p % BLOCK, labels.numpy(), (self.program, self.certificate)
-        pieces = _in_pieces(_decide_blocks, (q, *args, out), whole, BLOCK)
+        pieces = in_pieces(_decide_blocks, (q, *args, out), whole, BLOCK)
         if whole < p:  # the last pixels, padded to a block
             tail = np.zeros((n, BLOCK), np.float32)
             tail[:, : p - whole] = q[:, whole:]
@@ -226,7 +227,7 @@ class SparseRule:
         values = np.concatenate([part[1] for part in pieces])
         if self.reference64 is not None and len(opened):  # the reference, on these q
             decided = np.empty(len(opened), np.int64)
-            _in_pieces(_reference_pixels, (values, *self.reference64, decided), len(opened))
+            in_pieces(_reference_pixels, (values, *self.reference64, decided), len(opened))
             out[opened] = decided
             opened = opened[decided < 0]
         return torch.from_numpy(opened)

@@ -15,7 +15,7 @@ import torch
 from torch import Tensor
 
 from costseg.metrics.functional import check_batch
-from costseg.metrics.threads import threads
+from costseg.threads import in_pieces
 
 LANES = 4  # histograms per rule, each taking every fourth pixel
 
@@ -64,13 +64,11 @@ def count_confusion(
     rows = (rows * n).reshape(b, -1).numpy()
     labels = rules.reshape(b, k, -1).contiguous().numpy()
     counts = np.zeros((b, k, r1 * (n + 1) * n), np.int64)
-    step = max(1, -(-k // threads()._max_workers))
-    jobs = [
-        threads().submit(_histograms, labels[i], rows[i], n, counts[i], s, min(s + step, k))
+    bad = [
+        in_pieces(_histograms, (labels[i], rows[i], n, counts[i]), k, per_thread=1)
         for i in range(b)
-        for s in range(0, k, step)
     ]
-    if sum(job.result() for job in jobs):
+    if np.sum(bad):
         lo, hi = (int(v) for v in torch.aminmax(rules))
         raise ValueError(f"expected preds in [0, {n}), got values in {lo}..{hi}")
     per_roi = torch.from_numpy(counts.sum(0)).view(k, r1, n + 1, n)[:, :, :n]

@@ -15,7 +15,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from costseg.metrics.threads import threads
+from costseg.threads import in_pieces
 
 LOW7, HIGH = np.uint64(0x7F7F7F7F7F7F7F7F), np.uint64(0x8080808080808080)
 EVERY_BYTE = np.uint64(0x0101010101010101)
@@ -50,12 +50,6 @@ def packed_class_masks(rules: Tensor, classes: tuple[int, ...], valid: Tensor) -
     valid_bits = np.packbits(valid.reshape(b, pixels).numpy(), axis=-1)
     out = np.empty((len(classes), b, k, pixels // 8), np.uint8)
     wanted = np.array(classes, np.int64)
-    step = max(1, -(-k // threads()._max_workers))
-    jobs = [
-        threads().submit(_pack, words[i], valid_bits[i], wanted, out[:, i], s, min(s + step, k))
-        for i in range(b)
-        for s in range(0, k, step)
-    ]
-    for job in jobs:
-        job.result()
+    for i in range(b):
+        in_pieces(_pack, (words[i], valid_bits[i], wanted, out[:, i]), k, per_thread=1)
     return out

@@ -19,7 +19,7 @@ from costseg.metrics.functional import (
     label_segments,
     mask_segment_errors,
 )
-from costseg.metrics.threads import threads
+from costseg.threads import threads
 
 _COUNTS = ("fp", "fn", "n_pred", "n_gt")
 
