@@ -32,9 +32,9 @@ def bench_network_and_rules(steps: int = 2) -> None:
     """VainF's ResNet-101 DeepLabV3+ (random weights) + three rules per 1024 x 2048 image, and
     reading saved float16 probabilities of such an image from disk instead."""
     from costseg.networks import load_network
+    from costseg.networks.probs_files import load_probs, save_probs
     from costseg.networks.vainf import export_vainf_state, vainf_deeplabv3plus
-    from costseg.probs_files import load_probs, save_probs
-    from costseg.rules import apply_rules, parse_rules
+    from costseg.rules.groups import apply_rules, parse_rules
 
     rules = parse_rules(["robotistic", "altruistic", "egoistic"])
     images = torch.randint(0, 256, (1, 3, 1024, 2048), dtype=torch.uint8)
@@ -67,7 +67,7 @@ def bench_network_and_rules(steps: int = 2) -> None:
 
 def bench_training(steps: int = 5) -> None:
     from costseg.data.datamodule import StreetScenesDataModule
-    from costseg.module import SegmentationModule
+    from costseg.training.module import SegmentationModule
 
     config = yaml.safe_load((ROOT / "configs" / "toy.yaml").read_text())
     module = SegmentationModule(**config["model"])
@@ -86,7 +86,7 @@ def bench_training(steps: int = 5) -> None:
 
 
 def bench_training_cuda(steps: int = 10) -> None:
-    from costseg.module import SegmentationModule
+    from costseg.training.module import SegmentationModule
 
     config = yaml.safe_load((ROOT / "configs" / "cityscapes.yaml").read_text())
     model, data = config["model"], config["data"]["init_args"]

@@ -5,7 +5,7 @@
 Needs a trained checkpoint (default: the newest runs/**/last.ckpt, e.g. after `make demo`).
 Sections:
 
-1. start-up: `evaluate.py --help`, `train.py --help`, `import costseg.evaluation`, and
+1. start-up: `evaluate.py --help`, `train.py --help`, `import costseg.evaluation.run`, and
    `evaluate.py` from start to its first image (when its progress bar counts the first of two
    images), each as a fresh process;
 2. the 231-point sweep (step 0.05) ÷ a single-rule evaluation on the toy validation set,
@@ -29,7 +29,7 @@ import torch
 
 import costseg.report.evaluation as report
 from costseg.checkpoints import find_checkpoint
-from costseg.evaluation import evaluate
+from costseg.evaluation.run import evaluate
 from costseg.options import EvalOptions
 from costseg.report.evaluation import write_evaluation
 
@@ -71,14 +71,14 @@ def first_image_seconds(args: list[str], repeats: int = 3) -> float:
 def bench_startup(ckpt: str, out: Path) -> None:
     t_eval_help = process_seconds(["evaluate.py", "--help"])
     t_train_help = process_seconds(["train.py", "--help"])
-    t_import = process_seconds(["-c", "import costseg.evaluation"])
+    t_import = process_seconds(["-c", "import costseg.evaluation.run"])
     two = ["evaluate.py", "--ckpt_path", ckpt, "--cost", "robotistic", "--limit", "2"]
     two += ["--batch_size", "1", "--num_examples", "0", "--overwrite", "--output_dir", str(out)]
     t_first = first_image_seconds(two)
     print("start-up (fresh processes, best of 3):")
     print(f"  evaluate.py --help                       {t_eval_help:6.2f} s   (target <= 1)")
     print(f"  train.py --help                          {t_train_help:6.2f} s   (target <= 1)")
-    print(f"  import costseg.evaluation                {t_import:6.2f} s")
+    print(f"  import costseg.evaluation.run                {t_import:6.2f} s")
     print(f"  evaluate.py from start to its first image {t_first:5.2f} s   (target <= 4)")
 
 

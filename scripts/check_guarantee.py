@@ -29,17 +29,17 @@ from matplotlib.figure import Figure
 from torch.utils.data import DataLoader, Subset
 from tqdm import tqdm
 
+from costseg.calibration.guarantee import learn_then_test
 from costseg.checkpoints import find_checkpoint
 from costseg.costs import barycentric_grid
 from costseg.data.prior_maps import PriorMaps
 from costseg.data.toy import StreetScenes
 from costseg.decision import decide_mixtures
-from costseg.guarantee import learn_then_test
 from costseg.metrics.per_image import per_image_counts, per_image_loss
+from costseg.metrics.selection import best_points, meets, parse_metric, parse_target, risk_level
 from costseg.networks import load_costseg_checkpoint, load_network
 from costseg.report.files import save_figure, write_json
-from costseg.rules import vertex_matrices
-from costseg.selection import best_points, meets, parse_metric, parse_target, risk_level
+from costseg.rules.groups import vertex_matrices
 
 RULES = {"ltt": "Learn-then-Test", "naive": "naive --target"}
 

@@ -13,13 +13,13 @@ import torch.multiprocessing as mp
 from scipy.optimize import minimize_scalar
 from torchmetrics.functional.classification import multiclass_calibration_error
 
-from costseg.calibration import (
+from costseg.calibration.sample import PixelSampler
+from costseg.calibration.scaling import (
     TEMPERATURE_RANGE,
     Scaling,
     fit_temperature,
     fit_vector_scaling,
 )
-from costseg.calibration_sample import PixelSampler
 from costseg.metrics import CalibrationError
 
 # ---------------------------------------------------------------- ECE references and data

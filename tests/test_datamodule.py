@@ -24,7 +24,7 @@ def _check_batch(batch: list[torch.Tensor], n: int, size: tuple[int, int]) -> No
 
 @pytest.fixture(scope="module")
 def toy() -> StreetScenesDataModule:
-    pytest.importorskip("costseg.data.toy")
+    pytest.importorskip("costseg.data.toy.dataset")
     return StreetScenesDataModule(
         batch_size=2, num_workers=0, size=SIZE, train_length=5, val_length=3, test_length=2,
         prior_images=4,

@@ -14,9 +14,9 @@ from costseg.cli import evaluate_main
 from costseg.costs import load_cost, mix_costs, save_cost
 from costseg.data.prior_maps import PriorMaps
 from costseg.data.toy import StreetScenes
-from costseg.evaluation import evaluate
+from costseg.evaluation.run import evaluate
 from costseg.options import EvalOptions
-from costseg.rules import apply_rules, parse_rules
+from costseg.rules.groups import apply_rules, parse_rules
 
 
 @pytest.fixture(scope="module")
@@ -74,7 +74,7 @@ def test_tensorboard_holds_scalars_images_and_table(evaluated):
 
 def test_prediction_pngs_decode_to_the_same_labels(evaluated):
     ckpt, out = evaluated
-    from costseg.module import SegmentationModule
+    from costseg.training.module import SegmentationModule
 
     module = SegmentationModule.load_from_checkpoint(ckpt, map_location="cpu").eval()
     image, label = StreetScenes("val", 3, (64, 128))[1]

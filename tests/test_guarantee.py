@@ -10,7 +10,7 @@ import pytest
 import torch
 from scipy.stats import binom
 
-from costseg.guarantee import (
+from costseg.calibration.guarantee import (
     fn_segment_rate,
     fp_segment_rate,
     hoeffding_bentkus_pvalue,

@@ -130,7 +130,7 @@ def test_roi_map_on_hand_made_priors() -> None:
 
 
 def test_roi_map_on_toy_priors() -> None:
-    toy = pytest.importorskip("costseg.data.toy")
+    toy = pytest.importorskip("costseg.data.toy.dataset")
     scenes = toy.StreetScenes(split="train", length=100, size=(64, 128), seed=0)
     # Unsmoothed counts: with the default σ = 5 px the thinner left sidewalk loses to road.
     roi = roi_map(pixel_priors((label for _, label in scenes), sigma=0, progress=False))

@@ -1,4 +1,4 @@
-"""Tests for costseg.probs_files: per-image probability files (SPEC §8)."""
+"""Tests for costseg.networks.probs_files: per-image probability files (SPEC §8)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from costseg.probs_files import find_probs_file, load_probs, save_probs
+from costseg.networks.probs_files import find_probs_file, load_probs, save_probs
 
 STEM = "frankfurt_000000_000294"
 

@@ -1,4 +1,4 @@
-"""Tests of the procedural street scenes (costseg.data.toy)."""
+"""Tests of the procedural street scenes (costseg.data.toy.dataset)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import torch
 
 from costseg.classes import CLASS_NAMES, IGNORE_INDEX, NUM_CLASSES, class_index
 from costseg.data.toy import StreetScenes, render_scene
-from costseg.data.toy_draw import Camera
+from costseg.data.toy.draw import Camera
 
 SIZE = (128, 256)
 # Cityscapes' pixel frequencies (%), over labelled pixels of the fine training annotations.

@@ -9,7 +9,7 @@ from conftest import TINY_TRAIN
 from costseg.checkpoints import find_checkpoint
 from costseg.cli import train_main
 from costseg.data.toy import StreetScenes
-from costseg.module import SegmentationModule
+from costseg.training.module import SegmentationModule
 
 
 def _last(runs: Path) -> Path:

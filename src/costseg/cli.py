@@ -60,7 +60,7 @@ def train_main(args: Sequence[str] | None = None) -> tuple[Any, Any]:
     from jsonargparse import ArgumentError
     from lightning.fabric.utilities.exceptions import MisconfigurationException
 
-    from costseg.training import run_training
+    from costseg.training.run import run_training
 
     with user_errors(ArgumentError, MisconfigurationException, ImportError):
         return run_training(args)
@@ -245,6 +245,6 @@ def evaluate_main(args: Sequence[str] | None = None) -> Any:
     """``python evaluate.py --cost egoistic`` (see ``--help``); returns the results."""
     opts = EvalOptions(**vars(evaluate_parser().parse_args(args)))
     with user_errors():
-        from costseg.evaluation import evaluate
+        from costseg.evaluation.run import evaluate
 
         return evaluate(opts)

@@ -30,8 +30,13 @@ import torch
 from numpy.typing import ArrayLike
 from torch import Tensor
 
+from costseg.calibration.guarantee import (
+    fn_segment_rate,
+    fp_segment_rate,
+    precision_loss,
+    recall_loss,
+)
 from costseg.classes import IGNORE_INDEX
-from costseg.guarantee import fn_segment_rate, fp_segment_rate, precision_loss, recall_loss
 from costseg.metrics.functional import check_batch
 from costseg.metrics.segments import _rule_errors, packed_masks
 

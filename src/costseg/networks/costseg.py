@@ -1,8 +1,9 @@
 """costseg's own checkpoints (written by ``train.py``), read without importing Lightning.
 
-A Lightning checkpoint of `costseg.module.SegmentationModule` holds only tensors and plain data
-(hyper-parameters are a dict of strings and numbers), so ``torch.load(weights_only=True)`` reads
-it, and the network is rebuilt from ``hyper_parameters`` and the ``net.*`` weights.
+A Lightning checkpoint of `costseg.training.module.SegmentationModule` holds only tensors and
+plain data (hyper-parameters are a dict of strings and numbers), so
+``torch.load(weights_only=True)`` reads it, and the network is rebuilt from ``hyper_parameters``
+and the ``net.*`` weights.
 """
 
 from __future__ import annotations

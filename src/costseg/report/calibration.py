@@ -19,7 +19,7 @@ from costseg.costs import mix_costs, save_cost
 from costseg.report.curves import plot_curves
 from costseg.report.drawing import Batch
 from costseg.report.files import write_csv, write_json
-from costseg.results import EvalResults
+from costseg.report.results import EvalResults
 
 
 def write_calibration(results: EvalResults) -> list[tuple[str, Batch]]:

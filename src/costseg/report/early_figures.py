@@ -16,15 +16,15 @@ import torch
 
 from costseg.classes import CLASS_NAMES
 from costseg.report.drawing import Batch, Drawing, Drawn
-from costseg.results import Example
-from costseg.rules import RuleGroup
+from costseg.report.results import Example
+from costseg.rules.groups import RuleGroup
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 
 class EarlyFigures:
-    """Pass :meth:`after_batch` to :func:`costseg.evaluation.run`, then this object to
+    """Pass :meth:`after_batch` to :func:`costseg.evaluation.run.run`, then this object to
     :func:`costseg.report.evaluation.write_evaluation`, which draws the rest.
 
     Args:

@@ -14,9 +14,9 @@ from costseg.report.drawing import Batch, save_and_log_all
 from costseg.report.early_figures import EarlyFigures, example_figures, plan_figures
 from costseg.report.figures import heatmap_grid_figures
 from costseg.report.files import write_csv, write_json, write_text
+from costseg.report.results import EvalResults, GroupResult
 from costseg.report.tables import ROI_NAMES, compare_with_paper, console_table, paper_table
 from costseg.report.tensorboard import log_masks, log_scalars, log_table
-from costseg.results import EvalResults, GroupResult
 
 SUMMARY_COLUMNS = ("matrix", "class", "roi", "precision", "recall", "fp_segments", "fn_segments")
 

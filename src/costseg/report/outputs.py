@@ -94,7 +94,7 @@ class BatchWriter:
 
     def save_probs(self, stems: list[str], probs: torch.Tensor) -> None:
         """(B, N, H, W) probabilities → ``probs/<image>.npz`` (float16, SPEC §8)."""
-        from costseg.probs_files import save_probs
+        from costseg.networks.probs_files import save_probs
 
         for stem, p in zip(stems, probs, strict=True):
             save_probs(self.output_dir / "probs" / f"{stem}.npz", p)

@@ -11,12 +11,12 @@ from collections.abc import Iterator
 
 from costseg.classes import CLASS_NAMES
 from costseg.costs import mix_costs, save_cost
+from costseg.metrics.selection import choose
 from costseg.report.curves import plot_curves
 from costseg.report.drawing import Batch
 from costseg.report.files import write_csv, write_json
+from costseg.report.results import EvalResults, GroupResult
 from costseg.report.ternary import edge_tradeoff_figures, ternary_figures
-from costseg.results import EvalResults, GroupResult
-from costseg.selection import choose
 
 SWEEP_ROIS = (0, 1, 2)
 

@@ -19,7 +19,7 @@ from lightning.pytorch.cli import LightningCLI
 
 from costseg.checkpoints import check_classes, find_checkpoint
 from costseg.data.priors import default_sigma, pixel_priors, roi_map, save_priors
-from costseg.module import SegmentationModule
+from costseg.training.module import SegmentationModule
 
 
 class TrainCLI(LightningCLI):

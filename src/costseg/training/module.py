@@ -2,10 +2,10 @@
 
 Training is ordinary cross-entropy (ignore index 255). Validation takes the softmax and swaps
 ``argmax`` for the configured decision rules (robotistic by default, i.e. argmax), all rules
-in one pass (the step of :mod:`costseg.scoring`, shared with evaluation), and logs mIoU,
+in one pass (the step of :mod:`costseg.metrics.scoring`, shared with evaluation), and logs mIoU,
 per-class IoU and person/building recall in the street RoI per rule. The pixel-wise priors (and
 so the RoI map) travel inside the checkpoint. Side outputs (masks in TensorBoard) are callbacks
-(:mod:`costseg.callbacks`).
+(:mod:`costseg.training.callbacks`).
 """
 
 from __future__ import annotations
@@ -19,9 +19,9 @@ import torch.nn.functional as F
 from costseg.classes import CLASS_NAMES, IGNORE_INDEX, class_index
 from costseg.data.prior_maps import PriorMaps
 from costseg.metrics import CalibrationError
+from costseg.metrics.scoring import GroupMetrics, score_batch
 from costseg.models.deeplabv3plus import DeepLabV3Plus
-from costseg.rules import parse_rules, rules_group
-from costseg.scoring import GroupMetrics, score_batch
+from costseg.rules.groups import parse_rules, rules_group
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)

@@ -11,15 +11,15 @@ from dataclasses import dataclass
 
 import torch
 
-from costseg.calibration import Scaling
-from costseg.calibration_sample import PixelSampler
+from costseg.calibration.guarantee import LTTResult, learn_then_test
+from costseg.calibration.sample import PixelSampler
+from costseg.calibration.scaling import Scaling
 from costseg.classes import CLASS_NAMES
-from costseg.guarantee import LTTResult, learn_then_test
 from costseg.metrics.per_image import per_image_counts, per_image_loss
-from costseg.rules import RuleGroup
-from costseg.scoring import GroupMetrics, score_batch
-from costseg.selection import metric_values, parse_metric, parse_target, risk_level
-from costseg.sources import Batch
+from costseg.metrics.scoring import GroupMetrics, score_batch
+from costseg.metrics.selection import metric_values, parse_metric, parse_target, risk_level
+from costseg.networks.sources import Batch
+from costseg.rules.groups import RuleGroup
 
 
 def as_logits(batch: Batch, kind: str) -> torch.Tensor:
@@ -84,7 +84,7 @@ def certify(
     ``E[L_i]`` of the target's per-image loss is ≤ α, and the best of them by ``maximize``.
 
     Args:
-        batches: the calibration batches (:class:`~costseg.sources.Batch`).
+        batches: the calibration batches (:class:`~costseg.networks.sources.Batch`).
         group: the candidate rules.
         probabilities: ``batch → (B, N, H, W)`` probabilities the rules see.
         priors_at: ``(h, w) → (priors, roi)``.

@@ -4,7 +4,7 @@ Argmax does not change when the probabilities are sharpened or flattened; a cost
 the probabilities a rule sees are ``softmax(z / T)`` (temperature scaling) or
 ``softmax(a ⊙ z + b)`` (vector scaling), fitted by minimising the mean negative log-likelihood
 (NLL) of the non-ignored pixels of a calibration set. Fitting streams:
-:class:`~costseg.calibration_sample.PixelSampler` keeps a fixed number of pixels per image, so a
+:class:`~costseg.calibration.sample.PixelSampler` keeps a fixed number of pixels per image, so a
 full-resolution split is never held in memory.
 :class:`Scaling` records what was fitted and applies it.
 """

@@ -13,7 +13,7 @@ import numpy as np
 from PIL import Image
 
 from costseg.classes import IGNORE_INDEX
-from costseg.data.toy_draw import (
+from costseg.data.toy.draw import (
     BUILDING,
     FENCE,
     RGB,
@@ -28,7 +28,7 @@ from costseg.data.toy_draw import (
     pick,
     shade,
 )
-from costseg.data.toy_scenery import FACADES, GREEN, barrier, building, green_wall
+from costseg.data.toy.scenery import FACADES, GREEN, barrier, building, green_wall
 
 
 @dataclass(frozen=True)

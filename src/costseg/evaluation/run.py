@@ -1,12 +1,13 @@
 """The ``evaluate.py`` job: options → plan (once) → one loop over the images → results.
 
-:func:`plan` checks every option, opens the probability source (:mod:`costseg.sources`) and the
-data, builds the rule groups (:mod:`costseg.rules`), splits off calibration images when a
-scaling or a guarantee needs them, and claims a fresh output folder. :func:`run` fits and
-certifies on the calibration images (:mod:`costseg.calibration_set`), then passes over the
-reported images once: scores → probabilities → every rule group → metrics (the step of
-:mod:`costseg.scoring`, shared with validation). :func:`evaluate` does both and hands the results
-to :mod:`costseg.report.evaluation`. Under ``torchrun`` every process takes its own share of the
+:func:`plan` checks every option, opens the probability source
+(:mod:`costseg.networks.sources`) and the data, builds the rule groups
+(:mod:`costseg.rules.groups`), splits off calibration images when a scaling or a guarantee needs
+them, and claims a fresh output folder. :func:`run` fits and certifies on the calibration images
+(:mod:`costseg.evaluation.held_out`), then passes over the reported images once: scores →
+probabilities → every rule group → metrics (:mod:`costseg.metrics.scoring`, shared with
+validation). :func:`evaluate` does both and hands the results to
+:mod:`costseg.report.evaluation`. Under ``torchrun`` every process takes its own share of the
 reported images and the metrics' sums are merged.
 """
 
@@ -21,24 +22,24 @@ import torch
 import torch.distributed as dist
 from torch.utils.data import Dataset
 
-from costseg.calibration import Scaling
-from costseg.calibration_set import as_logits, certify, fit_scaling
+from costseg.calibration.scaling import Scaling
 from costseg.classes import CLASS_NAMES, class_indices
 from costseg.data.from_config import build_dataset, eval_batch_size
 from costseg.data.prior_maps import PriorMaps, heatmap_canvas
-from costseg.metrics import CalibrationError
-from costseg.options import EvalOptions
-from costseg.plan_checks import (
+from costseg.evaluation.checks import (
     check_calibration_size,
     check_options,
     needs_priors,
     source_priors,
 )
+from costseg.evaluation.held_out import as_logits, certify, fit_scaling
+from costseg.metrics import CalibrationError
+from costseg.metrics.scoring import GroupMetrics, score_batch
+from costseg.networks.sources import Batch, Source, batches, open_source, resolve_device
+from costseg.options import EvalOptions
 from costseg.report.outputs import BatchWriter, claim_output_dir
-from costseg.results import EvalResults, Example, GroupResult
-from costseg.rules import RuleGroup, temperature_group
-from costseg.scoring import GroupMetrics, score_batch
-from costseg.sources import Batch, Source, batches, open_source, resolve_device
+from costseg.report.results import EvalResults, Example, GroupResult
+from costseg.rules.groups import RuleGroup, temperature_group
 
 
 @dataclass

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from costseg.calibration import Scaling, ScalingKind, fit_temperature, fit_vector_scaling
+from costseg.calibration.scaling import Scaling, ScalingKind, fit_temperature, fit_vector_scaling
 from costseg.classes import IGNORE_INDEX
 
 

@@ -1,11 +1,11 @@
-"""Drawing primitives of the procedural street scenes (:mod:`costseg.data.toy`).
+"""Drawing primitives of the procedural street scenes (:mod:`costseg.data.toy.dataset`).
 
 Train ids, colour helpers, a pinhole camera, a two-layer canvas and boxes. The camera looks along
 +Z over a flat ground (X to the right, Y up, metres). Every shape is drawn twice: crisp train ids
 on the label canvas and colours on the RGB canvas (smoothed later, so image edges are anti-aliased
 while label edges stay sharp). Colours fade towards the haze colour with distance, so far objects
-are genuinely harder to recognise. The objects themselves are in :mod:`costseg.data.toy_traffic`
-and :mod:`costseg.data.toy_scenery`.
+are genuinely harder to recognise. The objects themselves are in :mod:`costseg.data.toy.traffic`
+and :mod:`costseg.data.toy.scenery`.
 """
 
 from __future__ import annotations

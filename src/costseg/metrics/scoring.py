@@ -1,7 +1,7 @@
 """The step shared by validation and evaluation: probabilities → rule groups → metrics.
 
 >>> import torch
->>> from costseg.rules import parse_rules, rules_group
+>>> from costseg.rules.groups import parse_rules, rules_group
 >>> groups = [rules_group(parse_rules(["robotistic", "egoistic"]))]
 >>> metrics = GroupMetrics(groups[0], num_classes=19, num_rois=0)
 >>> probs = torch.rand(1, 19, 4, 4).softmax(1)
@@ -17,7 +17,7 @@ from collections.abc import Sequence
 from torch import Tensor, nn
 
 from costseg.metrics import RoIPrecisionRecall, SegmentErrors
-from costseg.rules import RuleGroup
+from costseg.rules.groups import RuleGroup
 
 
 class GroupMetrics(nn.Module):

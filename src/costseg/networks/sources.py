@@ -49,7 +49,7 @@ class Source:
         """(B, N, H, W) float logits (network) or probabilities (files) for a batch."""
         if self.network is not None:
             return self.network(images).float()
-        from costseg.probs_files import find_probs_file, load_probs
+        from costseg.networks.probs_files import find_probs_file, load_probs
 
         assert self.probs_dir is not None
         size = tuple(images.shape[-2:])

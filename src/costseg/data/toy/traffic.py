@@ -1,6 +1,6 @@
 """Road users of the procedural street scenes: cars, trucks, buses, trams, persons and riders.
 
-Each drawing function takes the :class:`~costseg.data.toy_draw.Canvas` and the scene's generator,
+Each drawing function takes the :class:`~costseg.data.toy.draw.Canvas` and the scene's generator,
 places its object in world coordinates (metres) and paints it on image and label alike.
 """
 
@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from costseg.data.toy_draw import (
+from costseg.data.toy.draw import (
     BICYCLE,
     BUS,
     CAR,

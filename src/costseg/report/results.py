@@ -1,6 +1,6 @@
 """What an evaluation produces, as typed values: per rule group its metrics, and flat rows.
 
-The job (:mod:`costseg.evaluation`) fills these; :mod:`costseg.report` writes them. Nothing here
+The job (:mod:`costseg.evaluation.run`) fills these; :mod:`costseg.report` writes them. Nothing here
 knows the model, the data loading or Lightning.
 """
 
@@ -13,7 +13,7 @@ from pathlib import Path
 import torch
 
 from costseg.classes import CLASS_NAMES
-from costseg.rules import RuleGroup
+from costseg.rules.groups import RuleGroup
 
 ROIS = (0, 1, 2, 3, 4)
 

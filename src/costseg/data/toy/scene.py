@@ -1,6 +1,6 @@
 """Scene composition of the procedural street scenes: what stands where, drawn far to near.
 
-:func:`draw_street` paints a sampled :class:`~costseg.data.toy_street.Street`: its fixed parts,
+:func:`draw_street` paints a sampled :class:`~costseg.data.toy.street.Street`: its fixed parts,
 then poles, trees, pedestrians, parked two-wheelers, vehicles and riders, and finally cast
 shadows and maybe the ego vehicle's hood.
 """
@@ -14,10 +14,10 @@ import numpy as np
 from PIL import ImageDraw
 
 from costseg.classes import IGNORE_INDEX
-from costseg.data.toy_draw import FENCE, Canvas, Span, pick
-from costseg.data.toy_scenery import barrier, clutter, pole, sign, tree
-from costseg.data.toy_street import Street, draw_backdrop, draw_edges, draw_ground, draw_markings
-from costseg.data.toy_traffic import (
+from costseg.data.toy.draw import FENCE, Canvas, Span, pick
+from costseg.data.toy.scenery import barrier, clutter, pole, sign, tree
+from costseg.data.toy.street import Street, draw_backdrop, draw_edges, draw_ground, draw_markings
+from costseg.data.toy.traffic import (
     BUS_PAINT,
     CAR_PAINT,
     TRAM_PAINT,

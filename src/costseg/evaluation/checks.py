@@ -11,10 +11,11 @@ from pathlib import Path
 
 import torch
 
-from costseg.calibration_set import minimum_images
 from costseg.classes import class_indices
+from costseg.evaluation.held_out import minimum_images
+from costseg.metrics.selection import parse_metric, parse_target, risk_level
 from costseg.options import EvalOptions
-from costseg.rules import (
+from costseg.rules.groups import (
     TEMPERATURES,
     RuleGroup,
     alpha_group,
@@ -23,7 +24,6 @@ from costseg.rules import (
     rules_group,
     temperature_group,
 )
-from costseg.selection import parse_metric, parse_target, risk_level
 
 
 def check_options(opts: EvalOptions) -> list[RuleGroup]:

@@ -2,7 +2,7 @@
 
 Poles with traffic signs, traffic lights or lamps; trees, hedges and tree lines; facades with
 windows; walls and fences; unlabelled clutter. All are drawn on a
-:class:`~costseg.data.toy_draw.Canvas` in world coordinates (metres).
+:class:`~costseg.data.toy.draw.Canvas` in world coordinates (metres).
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from costseg.classes import IGNORE_INDEX
-from costseg.data.toy_draw import (
+from costseg.data.toy.draw import (
     BUILDING,
     FENCE,
     LIGHT,

@@ -18,10 +18,10 @@ import torch
 from PIL import Image, ImageDraw
 from torch.utils.data import Dataset
 
-from costseg.data.toy_draw import SKY, Canvas
-from costseg.data.toy_photo import photograph
-from costseg.data.toy_scene import draw_street
-from costseg.data.toy_street import Street
+from costseg.data.toy.draw import SKY, Canvas
+from costseg.data.toy.photo import photograph
+from costseg.data.toy.scene import draw_street
+from costseg.data.toy.street import Street
 
 MIN_SIZE = 64
 SPLITS = {"train": 0, "val": 1, "test": 2}

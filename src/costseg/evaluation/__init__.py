@@ -1,0 +1,6 @@
+"""The ``evaluate.py`` job: options → checks → plan → one pass over the images → results.
+
+:mod:`~costseg.evaluation.checks` validates options before anything heavy,
+:mod:`~costseg.evaluation.run` plans and runs the pass, and :mod:`~costseg.evaluation.held_out`
+fits and certifies on the calibration images.
+"""
