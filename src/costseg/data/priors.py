@@ -28,10 +28,8 @@ from scipy.ndimage import gaussian_filter
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from costseg.classes import CLASS_NAMES, IGNORE_INDEX, NUM_CLASSES, class_indices
+from costseg.classes import CLASS_NAMES, IGNORE_INDEX, NUM_CLASSES, ROI_CLASSES, class_indices
 
-ROI_CLASSES = ("road", "sidewalk", "building", "sky")
-"""The class that defines RoI id 1, 2, 3, 4."""
 _FORMAT = "costseg-pixel-priors-v1"
 _HANDFUL = 10  # no progress bar for a few labels (doctests, tests)
 
