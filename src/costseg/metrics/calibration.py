@@ -19,9 +19,10 @@ from costseg.metrics.functional.calibration import (
     calibration_bins,
     calibration_error,
 )
+from costseg.metrics.shapes import KeepShapes
 
 
-class CalibrationError(Metric):
+class CalibrationError(KeepShapes, Metric):
     """Expected calibration error over pixels, top-label or class-wise.
 
     Top-label: ``ECE = Σ_b (n_b / n) |acc_b − conf_b|`` over the bins of ``max_k p_k``.

@@ -11,9 +11,10 @@ from torchmetrics import Metric
 
 from costseg.classes import IGNORE_INDEX, NUM_CLASSES, NUM_ROIS
 from costseg.metrics.functional.roi import roi_metrics, rule_confusion
+from costseg.metrics.shapes import KeepShapes
 
 
-class RoIPrecisionRecall(Metric):
+class RoIPrecisionRecall(KeepShapes, Metric):
     """Confusion matrices of K decision rules over the whole image and each RoI.
 
     The only state is the int64 (K, R+1, N, N) confusion count (``cm[k, r, t, p]``, r = 0: whole

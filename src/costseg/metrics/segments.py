@@ -16,9 +16,10 @@ from costseg.classes import IGNORE_INDEX, NUM_ROIS
 from costseg.metrics.functional.inputs import as_rules, check_batch
 from costseg.metrics.functional.segment_rules import batch_segment_errors
 from costseg.metrics.names import SEGMENT_COUNTS, SEGMENT_RATE_PARTS
+from costseg.metrics.shapes import KeepShapes
 
 
-class SegmentErrors(Metric):
+class SegmentErrors(KeepShapes, Metric):
     """Counts of false-positive / false-negative 8-connected segments and their location maps.
 
     Per decision rule k, class c and RoI r (r = 0: whole image) the states sum the numbers of FP
