@@ -9,7 +9,12 @@ from typing import Any, NamedTuple
 from torch import Tensor
 
 from costseg.classes import CLASS_NAMES, NUM_CLASSES
-from costseg.data.priors import normalise_settings, count_pixel_priors, read_priors_file, save_priors
+from costseg.data.priors import (
+    count_pixel_priors,
+    normalise_settings,
+    read_priors_file,
+    save_priors,
+)
 
 
 class CachedPriors(NamedTuple):
@@ -74,7 +79,9 @@ def cached_priors(
     if payload is not None and (payload.get("settings") or {}).get("request") == wanted:
         info = payload["settings"]
         return CachedPriors(payload["priors"], info["num_labels"], info["sigma_px"], True)
-    pi, count, used_sigma = count_pixel_priors(labels(), num_classes, sigma, eps, progress, max_labels)
+    pi, count, used_sigma = count_pixel_priors(
+        labels(), num_classes, sigma, eps, progress, max_labels
+    )
     record = {"request": wanted, "num_labels": count, "sigma_px": used_sigma}
     save_priors(cache_file, pi, class_names, settings=record)
     return CachedPriors(pi, count, used_sigma, False)
