@@ -34,7 +34,7 @@ def bench_network_and_rules(steps: int = 2) -> None:
     from costseg.networks import load_network
     from costseg.networks.probs_files import load_probs, save_probs
     from costseg.networks.vainf import export_vainf_state, vainf_deeplabv3plus
-    from costseg.rules.groups import apply_rules, parse_rules
+    from costseg.rules import apply_rules, parse_rules
 
     rules = parse_rules(["robotistic", "altruistic", "egoistic"])
     images = torch.randint(0, 256, (1, 3, 1024, 2048), dtype=torch.uint8)

@@ -39,7 +39,7 @@ from costseg.metrics.per_image import per_image_counts, per_image_loss
 from costseg.metrics.selection import best_points, meets, parse_metric, parse_target, risk_level
 from costseg.networks import load_costseg_checkpoint, load_network
 from costseg.report.files import save_figure, write_json
-from costseg.rules.groups import vertex_matrices
+from costseg.rules import vertex_matrices
 
 RULES = {"ltt": "Learn-then-Test", "naive": "naive --target"}
 

@@ -9,7 +9,7 @@ import torch
 from costseg.metrics import RoIPrecisionRecall
 from costseg.metrics.confusion_counts import count_confusion
 from costseg.metrics.functional import roi_confusion
-from costseg.metrics.roi import COMPILED_MIN_RULES
+from costseg.metrics.functional.roi import COMPILED_MIN_RULES
 
 
 def sweep_like(gen: torch.Generator, b: int, k: int, h: int, w: int, n: int) -> torch.Tensor:

@@ -16,7 +16,7 @@ from costseg.data.prior_maps import PriorMaps
 from costseg.data.toy import StreetScenes
 from costseg.evaluation.run import evaluate
 from costseg.options import EvalOptions
-from costseg.rules.groups import apply_rules, parse_rules
+from costseg.rules import apply_rules, parse_rules
 
 
 @pytest.fixture(scope="module")

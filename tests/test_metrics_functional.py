@@ -12,13 +12,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import ndimage
 
-from costseg.metrics import functional
 from costseg.metrics.functional import (
     iou_from_confusion,
     precision_recall,
     roi_confusion,
     segment_errors,
 )
+from costseg.metrics.functional import roi as functional_roi
 
 IGNORE = 255
 
@@ -44,7 +44,7 @@ def confusion_reference(preds, target, roi, n, num_rois):
 @pytest.mark.parametrize("roi_kind", ["none", "shared", "per_image"])
 @pytest.mark.parametrize("chunk", [1 << 20, 5])  # one chunk of pixels, or a few pixels each
 def test_roi_confusion_matches_pixel_loop(seed: int, roi_kind: str, chunk: int, monkeypatch):
-    monkeypatch.setattr(functional, "CONFUSION_CHUNK", chunk)
+    monkeypatch.setattr(functional_roi, "CONFUSION_CHUNK", chunk)
     g = torch.Generator().manual_seed(seed)
     b, k, h, w, n, r = 2, 3, 5, 7, 4, 2
     preds = torch.randint(0, n, (b, k, h, w), generator=g)

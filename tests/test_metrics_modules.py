@@ -189,3 +189,39 @@ def test_images_of_another_size_land_on_the_same_canvas() -> None:
     assert got["fp_map"].shape == expected["fp_map"].shape
     assert torch.allclose(got["fp_map"], expected["fp_map"])
     assert torch.allclose(got["fn_map"], expected["fn_map"])
+
+
+def test_metrics_work_in_a_metric_collection() -> None:
+    """One update of a torchmetrics MetricCollection feeds every metric; batches, merging and
+    cloning behave as for the metrics alone."""
+    from torchmetrics import MetricCollection
+
+    from costseg.metrics.scoring import GroupMetrics
+    from costseg.rules import parse_rules, rules_group
+
+    preds, target, roi = make_batch(7)
+    collection = MetricCollection(
+        {
+            "pixels": RoIPrecisionRecall(num_rules=4),
+            "segments": SegmentErrors(classes=(3, 5), num_rules=4),
+        },
+        compute_groups=False,
+    )
+    pixels, segments = RoIPrecisionRecall(num_rules=4), SegmentErrors((3, 5), num_rules=4)
+    for metric in (pixels, segments):
+        metric.update(preds, target, roi)
+    first = collection(preds[:2], target[:2], roi)  # forward: the first batch alone
+    collection.update(preds[2:], target[2:], roi)
+    out = collection.compute()  # the results' keys are distinct, so they stay unprefixed
+    assert_same({k: out[k] for k in pixels.compute()}, pixels.compute())
+    assert_same({k: out[k] for k in segments.compute()}, segments.compute())
+    assert first["confmat"].sum() == (target[:2] != IGNORE).sum() * 4
+    # The group wrapper of evaluation and validation fits in a collection too.
+    group = rules_group(parse_rules(["robotistic", "altruistic", "egoistic", "ml"]))
+    wrapped = MetricCollection({"named": GroupMetrics(group, 19, segment_classes=(3, 5))})
+    wrapped.update(preds, target, roi)
+    nested = wrapped["named"].compute()
+    assert_same(nested["pixels"], pixels.compute())
+    assert_same(nested["segments"], segments.compute())
+    wrapped.reset()
+    assert wrapped["named"].pixels.confmat.sum() == 0

@@ -62,10 +62,10 @@ def test_segment_errors_without_maps_counts_as_with_them() -> None:
 @pytest.mark.parametrize("shape", [(1, 1, 8), (2, 3, 13), (1, 4, 5 * 7)])
 def test_masks_packed_in_torch_equal_numpy_packbits(shape: tuple[int, int, int]) -> None:
     # The GPU's packing (8 times fewer bytes to copy) against numpy's, odd pixel counts included.
-    from costseg.metrics.segments import _pack_bits
+    from costseg.metrics.functional.segment_rules import pack_bits
 
     masks = torch.rand(shape, generator=torch.Generator().manual_seed(sum(shape))) > 0.5
-    assert np.array_equal(_pack_bits(masks).numpy(), np.packbits(masks.numpy(), axis=-1))
+    assert np.array_equal(pack_bits(masks).numpy(), np.packbits(masks.numpy(), axis=-1))
 
 
 def test_one_row_without_rois() -> None:

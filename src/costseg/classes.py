@@ -5,6 +5,8 @@ checks that they agree), kept here so that the classes load without importing to
 
 >>> NUM_CLASSES, CLASS_NAMES[11], class_index("person")
 (19, 'person', 11)
+>>> ROI_NAMES[1], ROI_CLASSES[0], ROI_IDS["roi2"], NUM_ROIS
+('street', 'road', 2, 4)
 >>> int(LABEL_ID_TO_TRAIN_ID[7]), int(LABEL_ID_TO_TRAIN_ID[0])   # road, unlabeled
 (0, 255)
 """
@@ -55,8 +57,24 @@ LABEL_ID_TO_TRAIN_ID = np.full(256, IGNORE_INDEX, dtype=np.uint8)
 """(256,) uint8 lookup: Cityscapes label id → train id (255 for void and ignored classes)."""
 LABEL_ID_TO_TRAIN_ID[TRAIN_ID_TO_LABEL_ID] = np.arange(NUM_CLASSES)
 
-ROI_NAMES: tuple[str, ...] = ("image", "street", "sidewalk", "building", "sky")
-"""Names of the RoI ids 0 (whole image) … 4 (SPEC §3)."""
+# (name, class whose pixel-wise prior decides the region) of each RoI id (docs/definitions.md §3).
+_ROIS: tuple[tuple[str, str | None], ...] = (
+    ("image", None),  # id 0: the whole image
+    ("street", "road"),
+    ("sidewalk", "sidewalk"),
+    ("building", "building"),
+    ("sky", "sky"),
+)
+ROI_NAMES: tuple[str, ...] = tuple(name for name, _ in _ROIS)
+"""Names of the RoI ids 0 (whole image) … 4."""
+NUM_ROIS = len(ROI_NAMES) - 1
+"""R, the number of regions of interest (id 0, the whole image, is none of them)."""
+ROI_CLASSES: tuple[str, ...] = tuple(cls for _, cls in _ROIS[1:] if cls)
+"""The class of each RoI id 1 … R: a location belongs to the RoI whose class has the highest
+prior there."""
+ROI_IDS: dict[str, int] = {f"roi{i}": i for i in range(len(ROI_NAMES))}
+ROI_IDS |= {name: i for i, name in enumerate(ROI_NAMES)}
+"""How a RoI may be written (``roi1`` or ``street``) → its id."""
 
 
 def class_index(name: str, names: Sequence[str] = CLASS_NAMES) -> int:

@@ -28,10 +28,8 @@ from scipy.ndimage import gaussian_filter
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from costseg.classes import CLASS_NAMES, IGNORE_INDEX, NUM_CLASSES, class_indices
+from costseg.classes import CLASS_NAMES, IGNORE_INDEX, NUM_CLASSES, ROI_CLASSES, class_indices
 
-ROI_CLASSES = ("road", "sidewalk", "building", "sky")
-"""The class that defines RoI id 1, 2, 3, 4."""
 _FORMAT = "costseg-pixel-priors-v1"
 _HANDFUL = 10  # no progress bar for a few labels (doctests, tests)
 
@@ -74,15 +72,15 @@ def pixel_priors(
     >>> pi[:, 0, 0].tolist(), pi[:, 0, 1].tolist()
     ([0.5, 0.5], [0.5, 0.5])
     """
-    return _pixel_priors(labels, num_classes, sigma, eps, progress, max_labels)[0]
+    return count_pixel_priors(labels, num_classes, sigma, eps, progress, max_labels)[0]
 
 
-def _normalise(settings: Mapping[str, Any]) -> dict[str, Any]:
+def normalise_settings(settings: Mapping[str, Any]) -> dict[str, Any]:
     """A JSON round trip: tuples become lists and paths strings, so equal settings compare equal."""
     return json.loads(json.dumps(dict(settings), default=str, sort_keys=True))
 
 
-def _pixel_priors(
+def count_pixel_priors(
     labels: Iterable[Tensor],
     num_classes: int,
     sigma: float | None,
@@ -210,7 +208,7 @@ def save_priors(
         "format": _FORMAT,
         "class_names": list(class_names),
         "priors": pi.float().cpu(),
-        "settings": None if settings is None else _normalise(settings),
+        "settings": None if settings is None else normalise_settings(settings),
     }
     with tempfile.NamedTemporaryFile(dir=path.parent, suffix=".tmp", delete=False) as tmp:
         torch.save(payload, tmp)
@@ -227,10 +225,10 @@ def load_priors(path: str | Path, class_names: Sequence[str] = CLASS_NAMES) -> T
         FileNotFoundError: No file at ``path``.
         ValueError: The file is not a priors file, or its classes differ from ``class_names``.
     """
-    return _read(path, class_names)["priors"]
+    return read_priors_file(path, class_names)["priors"]
 
 
-def _read(path: str | Path, class_names: Sequence[str]) -> dict[str, Any]:
+def read_priors_file(path: str | Path, class_names: Sequence[str]) -> dict[str, Any]:
     """The checked payload of a priors file (see :func:`load_priors` for the errors)."""
     path = Path(path)
     if not path.is_file():

@@ -9,7 +9,12 @@ from typing import Any, NamedTuple
 from torch import Tensor
 
 from costseg.classes import CLASS_NAMES, NUM_CLASSES
-from costseg.data.priors import _normalise, _pixel_priors, _read, save_priors
+from costseg.data.priors import (
+    count_pixel_priors,
+    normalise_settings,
+    read_priors_file,
+    save_priors,
+)
 
 
 class CachedPriors(NamedTuple):
@@ -63,18 +68,20 @@ def cached_priors(
     >>> first.reused, again.reused, torch.equal(first.priors, again.priors), again.num_labels
     (False, True, True, 1)
     """
-    wanted = _normalise(
+    wanted = normalise_settings(
         {**settings, "costseg": {"num_classes": num_classes, "sigma": sigma, "eps": eps,
                                  "max_labels": max_labels}}
     )  # fmt: skip
     try:
-        payload = _read(cache_file, class_names)
+        payload = read_priors_file(cache_file, class_names)
     except (FileNotFoundError, ValueError):
         payload = None  # no usable cache: compute below
     if payload is not None and (payload.get("settings") or {}).get("request") == wanted:
         info = payload["settings"]
         return CachedPriors(payload["priors"], info["num_labels"], info["sigma_px"], True)
-    pi, count, used_sigma = _pixel_priors(labels(), num_classes, sigma, eps, progress, max_labels)
+    pi, count, used_sigma = count_pixel_priors(
+        labels(), num_classes, sigma, eps, progress, max_labels
+    )
     record = {"request": wanted, "num_labels": count, "sigma_px": used_sigma}
     save_priors(cache_file, pi, class_names, settings=record)
     return CachedPriors(pi, count, used_sigma, False)

@@ -15,7 +15,7 @@ from costseg.classes import class_indices
 from costseg.evaluation.held_out import minimum_images
 from costseg.metrics.selection import parse_metric, parse_target, risk_level
 from costseg.options import EvalOptions
-from costseg.rules.groups import (
+from costseg.rules import (
     TEMPERATURES,
     RuleGroup,
     alpha_group,
@@ -96,13 +96,13 @@ def check_calibration_size(opts: EvalOptions, n_images: int, family: int) -> Non
 
 def needs_priors(groups: list[RuleGroup]) -> bool:
     """Whether some rule divides by the pixel-wise priors (``ml``, the α sweep)."""
-    return any(r.priors_alpha for r in groups[0].rules) or any(g.kind == "alpha" for g in groups)
+    return any(g.needs_priors for g in groups)
 
 
 def source_priors(source, opts: EvalOptions, config: dict, cache_dir: Path) -> torch.Tensor | None:
     """The priors of a costseg checkpoint, or, for another network, the dataset's training
-    labels' priors (SPEC §3, §8), computed once and cached in ``cache_dir`` (next to the
-    outputs)."""
+    labels' priors (docs/definitions.md §3, §8), computed once and cached in ``cache_dir``
+    (next to the outputs)."""
     if source.priors is not None:
         return source.priors
     from costseg.data.from_config import build_dataset

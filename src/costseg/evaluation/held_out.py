@@ -1,4 +1,5 @@
-"""The held-out calibration images: fit a scaling (SPEC §6) and certify a value system (§7).
+"""The held-out calibration images: fit a scaling (docs/definitions.md §6) and certify a value
+system (§7).
 
 Both run before the reported images are seen, on images disjoint from them, each in one pass
 of the network over the calibration images.
@@ -14,12 +15,13 @@ import torch
 from costseg.calibration.guarantee import LTTResult, learn_then_test
 from costseg.calibration.sample import PixelSampler
 from costseg.calibration.scaling import Scaling
-from costseg.classes import CLASS_NAMES
+from costseg.classes import CLASS_NAMES, NUM_ROIS
+from costseg.metrics.names import SEGMENT_RATES
 from costseg.metrics.per_image import per_image_counts, per_image_loss
 from costseg.metrics.scoring import GroupMetrics, score_batch
 from costseg.metrics.selection import metric_values, parse_metric, parse_target, risk_level
 from costseg.networks.sources import Batch
-from costseg.rules.groups import RuleGroup
+from costseg.rules import RuleGroup
 
 
 def as_logits(batch: Batch, kind: str) -> torch.Tensor:
@@ -96,8 +98,8 @@ def certify(
     """
     t, goal = parse_target(target), parse_metric(maximize)
     alpha = risk_level(t)
-    segments = sorted({*class_ids, t.cls} | ({goal.cls} if "rate" in goal.metric else set()))
-    metrics = GroupMetrics(group, len(CLASS_NAMES), 4, segments)
+    segments = sorted({*class_ids, t.cls} | ({goal.cls} if goal.metric in SEGMENT_RATES else set()))
+    metrics = GroupMetrics(group, len(CLASS_NAMES), NUM_ROIS, segments)
     counts, n = [], 0
     for batch in batches:
         priors, roi = priors_at(tuple(batch.labels.shape[-2:]))

@@ -2,7 +2,7 @@
 
 :func:`plan` checks every option, opens the probability source
 (:mod:`costseg.networks.sources`) and the data, builds the rule groups
-(:mod:`costseg.rules.groups`), splits off calibration images when a scaling or a guarantee needs
+(:mod:`costseg.rules`), splits off calibration images when a scaling or a guarantee needs
 them, and claims a fresh output folder. :func:`run` fits and certifies on the calibration images
 (:mod:`costseg.evaluation.held_out`), then passes over the reported images once: scores →
 probabilities → every rule group → metrics (:mod:`costseg.metrics.scoring`, shared with
@@ -23,7 +23,7 @@ import torch.distributed as dist
 from torch.utils.data import Dataset
 
 from costseg.calibration.scaling import Scaling
-from costseg.classes import CLASS_NAMES, class_indices
+from costseg.classes import CLASS_NAMES, NUM_ROIS, class_indices
 from costseg.data.from_config import build_dataset, eval_batch_size
 from costseg.data.prior_maps import PriorMaps, heatmap_canvas
 from costseg.evaluation.checks import (
@@ -39,7 +39,7 @@ from costseg.networks.sources import Batch, Source, batches, open_source, resolv
 from costseg.options import EvalOptions
 from costseg.report.outputs import BatchWriter, claim_output_dir
 from costseg.report.results import EvalResults, Example, GroupResult
-from costseg.rules.groups import RuleGroup, temperature_group
+from costseg.rules import RuleGroup, named_group, temperature_group
 
 
 @dataclass
@@ -78,7 +78,7 @@ def plan(opts: EvalOptions) -> EvalPlan:
         raise ValueError(f"the {opts.split} split holds no images: nothing to evaluate")
     reported, calibration = _split_calibration(opts, config, dataset, count)
     if calibration is not None:
-        candidates = next((g for g in groups if g.kind in ("grid", "alpha")), groups[0])
+        candidates = next((g for g in groups if g.candidates), named_group(groups))
         check_calibration_size(opts, len(calibration[1]), len(candidates.names))
     base = _default_base(source)
     cache = (Path(opts.output_dir).resolve().parent if opts.output_dir else base.parent) / "priors"
@@ -115,9 +115,10 @@ def run(plan: EvalPlan, after_batch: Callable[[list[Example]], None] | None = No
         print(f"calibration: {scaling.describe()}")
         extra["scaling"] = scaling.to_dict()
         if opts.temperature_sweep and scaling.kind == "temperature":
-            plan.groups.append(temperature_group(plan.groups[0].rules, scaling.temperature))
+            named = named_group(plan.groups)
+            plan.groups.append(temperature_group(named.rules, scaling.temperature))
     if opts.guarantee is not None:
-        group = next(g for g in plan.groups if g.kind in ("grid", "alpha"))
+        group = next(g for g in plan.groups if g.candidates)
         extra["certificate"] = certify(
             _calibration_batches(plan, "certify"),
             group,
@@ -136,14 +137,15 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> 
     opts, device = plan.options, plan.device
     metrics = [
         GroupMetrics(
-            g, len(CLASS_NAMES), 4, None if g.temperature else plan.class_ids, plan.canvas
+            g, len(CLASS_NAMES), NUM_ROIS, None if g.temperature else plan.class_ids, plan.canvas
         ).to(device)
         for g in plan.groups
     ]
     ece = {"raw": CalibrationError(len(CLASS_NAMES)).to(device)}
     if scaling.kind != "none":
         ece["scaled"] = CalibrationError(len(CLASS_NAMES)).to(device)
-    writer = BatchWriter(plan.output_dir, plan.groups[0].names, opts.save_predictions)
+    named = plan.groups.index(named_group(plan.groups))
+    writer = BatchWriter(plan.output_dir, plan.groups[named].names, opts.save_predictions)
     examples: list[Example] = []
     desc = "evaluate" if opts.progress and _rank() == 0 else None
     with torch.inference_mode():
@@ -161,8 +163,8 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> 
                 score_batch([g], [m], by_temperature[g.temperature], batch.labels, priors, roi)[0]
                 for g, m in zip(plan.groups, metrics, strict=True)
             ]
-            writer.save_predictions(batch.stems, preds[0])
-            _keep_examples(examples, opts.num_examples, batch, preds[0])
+            writer.save_predictions(batch.stems, preds[named])
+            _keep_examples(examples, opts.num_examples, batch, preds[named])
             if after_batch:
                 after_batch(examples)
     extra["ece"] = {k: m.compute() for k, m in ece.items()}
@@ -189,7 +191,8 @@ def evaluate(opts: EvalOptions) -> EvalResults:
         from costseg.report.early_figures import EarlyFigures
 
         roi = planned.priors.roi_map()
-        early = EarlyFigures(planned.output_dir, planned.groups[0], roi, opts.num_examples)
+        named = named_group(planned.groups)
+        early = EarlyFigures(planned.output_dir, named, roi, opts.num_examples)
     try:
         results = run(planned, early.after_batch if early else None)
     except BaseException:

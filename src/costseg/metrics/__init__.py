@@ -1,10 +1,11 @@
-"""Metrics of SPEC §4 and §6: pixel-wise precision / recall per RoI, segment-wise errors and
-calibration error.
+"""Metrics of docs/definitions.md §4 and §6: pixel-wise precision / recall per RoI, segment-wise
+errors and calibration error, as :class:`torchmetrics.Metric` s.
 
-Pure functions live in :mod:`costseg.metrics.functional` (and
-:func:`costseg.metrics.calibration.calibration_bins`); the classes here are thin
-stateful wrappers (:class:`costseg.metrics.base.SumMetric`, torchmetrics' pattern without its
-import cost) whose states are count sums.
+Each family is a functional core in :mod:`costseg.metrics.functional` (a batch → sums, sums →
+metrics) and a thin Metric here that holds the sums as states (``dist_reduce_fx="sum"``), so the
+metrics are the same in one batch, many batches, across DDP processes and in a
+:class:`torchmetrics.MetricCollection`. The reported names are listed once in
+:mod:`costseg.metrics.names`.
 """
 
 from costseg.metrics.calibration import CalibrationError

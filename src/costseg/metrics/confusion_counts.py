@@ -14,7 +14,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from costseg.metrics.functional import check_batch
+from costseg.metrics.functional.inputs import check_batch
 from costseg.threads import in_pieces
 
 LANES = 4  # histograms per rule, each taking every fourth pixel

@@ -37,9 +37,9 @@ def _pack(words, valid, classes, out, first, last):
 
 
 def packed_class_masks(rules: Tensor, classes: tuple[int, ...], valid: Tensor) -> np.ndarray | None:
-    """(C, B, K, H·W / 8) uint8: :func:`costseg.metrics.segments.packed_masks` of every class at
-    once, for (B, K, H, W) uint8 CPU ``rules`` with H·W a multiple of 8 and (B, H, W) ``valid``;
-    None for other rules (the caller packs them class by class)."""
+    """(C, B, K, H·W / 8) uint8: ``packed_masks`` (:mod:`costseg.metrics.functional.segment_rules`)
+    of every class at once, for (B, K, H, W) uint8 CPU ``rules`` with H·W a multiple of 8 and
+    (B, H, W) ``valid``; None for other rules (the caller packs them class by class)."""
     b, k = rules.shape[:2]
     pixels = rules[0, 0].numel() if rules.numel() else 0
     if rules.dtype != torch.uint8 or rules.device.type != "cpu" or pixels % 8 or not pixels:

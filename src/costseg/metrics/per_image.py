@@ -1,4 +1,5 @@
-"""Per-image counts and losses of one guarantee target, for K decision rules at once (SPEC §7).
+"""Per-image counts and losses of one guarantee target, for K decision rules at once
+(docs/definitions.md §7).
 
 Learn-then-Test needs a loss ``L_i(λ)`` per image i and rule λ. For a class ``cls`` in a RoI
 these come from per-image counts (numerator, denominator):
@@ -23,8 +24,6 @@ gives exactly the pooled metrics' counts. RoI id 0 means the whole image.
 
 from __future__ import annotations
 
-from typing import Literal, get_args
-
 import numpy as np
 import torch
 from numpy.typing import ArrayLike
@@ -36,16 +35,17 @@ from costseg.calibration.guarantee import (
     precision_loss,
     recall_loss,
 )
-from costseg.classes import IGNORE_INDEX
-from costseg.metrics.functional import check_batch
-from costseg.metrics.segments import _rule_errors, packed_masks
+from costseg.classes import IGNORE_INDEX, NUM_ROIS
+from costseg.metrics.functional.inputs import check_batch
+from costseg.metrics.functional.segment_rules import packed_masks, rule_errors
+from costseg.metrics.names import (
+    PIXEL_RATES,
+    SEGMENT_COUNTS,
+    SEGMENT_RATE_PARTS,
+    TARGET_METRICS,
+)
 
-__all__ = ["PerImageMetric", "per_image_counts", "per_image_loss"]
-
-PerImageMetric = Literal["recall", "precision", "fn_rate", "fp_rate"]
-_METRICS: tuple[str, ...] = get_args(PerImageMetric)
-# Rows of the (4, R+1) segment counts of mask_segment_errors: fp, fn, n_pred, n_gt.
-_SEGMENT_ROWS = {"fp_rate": (0, 2), "fn_rate": (1, 3)}
+__all__ = ["per_image_counts", "per_image_loss"]
 
 
 def per_image_counts(
@@ -54,8 +54,8 @@ def per_image_counts(
     roi: Tensor | None,
     cls: int,
     roi_id: int,
-    metric: PerImageMetric,
-    num_rois: int = 4,
+    metric: str,
+    num_rois: int = NUM_ROIS,
     ignore_index: int = IGNORE_INDEX,
 ) -> Tensor:
     """Per image and rule, the (numerator, denominator) counts behind ``metric``.
@@ -66,7 +66,7 @@ def per_image_counts(
         roi: None, (H, W) or (B, H, W) RoI ids in 0..num_rois (0 = in no RoI).
         cls: the class.
         roi_id: the RoI (0 = whole image; an id >= 1 needs ``roi``).
-        metric: "recall", "precision", "fn_rate" or "fp_rate" (see the module docstring).
+        metric: one of :data:`~costseg.metrics.names.TARGET_METRICS` (see the module docstring).
         num_rois: R.
         ignore_index: target value that counts nowhere.
 
@@ -80,7 +80,7 @@ def per_image_counts(
     [[[1, 2]]]
     """
     _check_args(preds, target, roi, cls, roi_id, metric, num_rois, ignore_index)
-    if metric in ("recall", "precision"):
+    if metric in PIXEL_RATES:
         return _pixel_counts(preds, target, roi, cls, roi_id, metric, ignore_index)
     return _segment_counts(preds, target, roi, cls, roi_id, metric, num_rois, ignore_index)
 
@@ -100,8 +100,8 @@ def _check_args(
         got = f"shape {tuple(preds.shape)}" if isinstance(preds, Tensor) else type(preds).__name__
         raise ValueError(f"expected preds as an integer (B, K, H, W) tensor, got {got}")
     check_batch(preds, target, roi, num_rois)
-    if metric not in _METRICS:
-        raise ValueError(f"metric must be one of {', '.join(_METRICS)}; got {metric!r}")
+    if metric not in TARGET_METRICS:
+        raise ValueError(f"metric must be one of {', '.join(TARGET_METRICS)}; got {metric!r}")
     if cls < 0 or cls == ignore_index:
         raise ValueError(f"expected cls >= 0 and != ignore_index {ignore_index}, got {cls}")
     if not 0 <= roi_id <= num_rois:
@@ -145,21 +145,21 @@ def _segment_counts(
     ignore_index: int,
 ) -> Tensor:
     """(B, K, 2): (FN, GT) or (FP, predicted) segments of ``cls`` owned by RoI ``roi_id``."""
-    rows = list(_SEGMENT_ROWS[metric])
+    rows = [SEGMENT_COUNTS.index(name) for name in SEGMENT_RATE_PARTS[metric]]
     pred_masks = packed_masks(preds, cls, target != ignore_index)
     gt_masks = (target == cls).cpu().numpy()
     rois = None if roi is None else roi.expand_as(target).cpu().numpy()
     out = np.zeros((*preds.shape[:2], 2), dtype=np.int64)
     for b in range(len(target)):
         # The segment core of SegmentErrors: one labelling per distinct mask of the K rules.
-        inverse, counts, _, _ = _rule_errors(
+        errors = rule_errors(
             pred_masks[b], gt_masks[b], None if rois is None else rois[b], num_rois, maps=False
         )
-        out[b] = counts[inverse][:, rows, roi_id]
+        out[b] = errors.counts[errors.inverse][:, rows, roi_id]
     return torch.from_numpy(out).to(preds.device)
 
 
-def per_image_loss(counts: ArrayLike | Tensor, metric: PerImageMetric) -> Tensor:
+def per_image_loss(counts: ArrayLike | Tensor, metric: str) -> Tensor:
     """Per-image losses in [0, 1] from :func:`per_image_counts`; NaN where undefined.
 
     Args:
@@ -178,8 +178,8 @@ def per_image_loss(counts: ArrayLike | Tensor, metric: PerImageMetric) -> Tensor
     counts = torch.as_tensor(counts)
     if counts.ndim != 3 or counts.shape[-1] != 2:
         raise ValueError(f"expected (n, K, 2) counts, got shape {tuple(counts.shape)}")
-    if metric not in _METRICS:
-        raise ValueError(f"metric must be one of {', '.join(_METRICS)}; got {metric!r}")
+    if metric not in TARGET_METRICS:
+        raise ValueError(f"metric must be one of {', '.join(TARGET_METRICS)}; got {metric!r}")
     part, whole = counts.unbind(-1)
     if metric == "recall":
         return recall_loss(part, whole - part)

@@ -1,36 +1,20 @@
-"""RoIPrecisionRecall: pixel-wise confusion counts per decision rule and RoI (SPEC §4)."""
+"""RoIPrecisionRecall: pixel-wise confusion counts per decision rule and RoI
+(docs/definitions.md §4); the core is :mod:`costseg.metrics.functional.roi`."""
 
 from __future__ import annotations
 
-import functools
+from typing import Any
 
 import torch
 from torch import Tensor
+from torchmetrics import Metric
 
-from costseg.classes import IGNORE_INDEX, NUM_CLASSES
-from costseg.metrics.base import SumMetric
-from costseg.metrics.functional import (
-    as_rules,
-    iou_from_confusion,
-    precision_recall,
-    roi_confusion,
-)
-
-COMPILED_MIN_RULES = 16  # from this many rules on (sweeps), the CPU counts in one compiled pass;
-# fewer do not pay for importing numba (about 0.8 s of an evaluation's start)
+from costseg.classes import IGNORE_INDEX, NUM_CLASSES, NUM_ROIS
+from costseg.metrics.functional.roi import roi_metrics, rule_confusion
+from costseg.metrics.shapes import KeepShapes
 
 
-@functools.cache
-def _compiled_confusion():
-    """:func:`costseg.metrics.confusion_counts.count_confusion` where numba imports, else None."""
-    try:
-        from costseg.metrics.confusion_counts import count_confusion
-    except ImportError:
-        return None
-    return count_confusion
-
-
-class RoIPrecisionRecall(SumMetric):
+class RoIPrecisionRecall(KeepShapes, Metric):
     """Confusion matrices of K decision rules over the whole image and each RoI.
 
     The only state is the int64 (K, R+1, N, N) confusion count (``cm[k, r, t, p]``, r = 0: whole
@@ -41,6 +25,7 @@ class RoIPrecisionRecall(SumMetric):
         num_rules: K, the number of decision rules in each ``preds``.
         num_rois: R.
         ignore_index: target value that counts nowhere.
+        kwargs: torchmetrics' options of every ``Metric`` (e.g. ``sync_on_compute``).
 
     ``compute()`` returns "confmat" (K, R+1, N, N) int64; "precision", "recall" (K, R+1, N)
     float64, NaN for 0/0; "iou" (K, N) float64 over the whole image, NaN for a class absent from
@@ -59,14 +44,19 @@ class RoIPrecisionRecall(SumMetric):
     ([0.5, 0.5, nan], [0.5])
     """
 
+    is_differentiable = False
+    higher_is_better = True
+    full_state_update = False
+
     def __init__(
         self,
         num_classes: int = NUM_CLASSES,
         num_rules: int = 1,
-        num_rois: int = 4,
+        num_rois: int = NUM_ROIS,
         ignore_index: int = IGNORE_INDEX,
+        **kwargs: Any,
     ) -> None:
-        super().__init__()
+        super().__init__(**kwargs)
         if num_classes < 1 or num_rules < 1 or num_rois < 0:
             raise ValueError(
                 "expected num_classes >= 1, num_rules >= 1, num_rois >= 0, "
@@ -75,55 +65,15 @@ class RoIPrecisionRecall(SumMetric):
         self.num_classes, self.num_rules, self.num_rois = num_classes, num_rules, num_rois
         self.ignore_index = ignore_index
         shape = (num_rules, num_rois + 1, num_classes, num_classes)
-        self.add_state("confmat", torch.zeros(shape, dtype=torch.long))
+        self.add_state("confmat", torch.zeros(shape, dtype=torch.long), dist_reduce_fx="sum")
 
     def update(self, preds: Tensor, target: Tensor, roi: Tensor | None = None) -> None:
         """Add a batch: preds (B, K, H, W) (or (B, H, W) when K = 1), target (B, H, W), roi
         None, (H, W) or (B, H, W)."""
-        rules = as_rules(preds, self.num_rules)
-        sweep = self.num_rules >= COMPILED_MIN_RULES and rules.device.type == "cpu"
-        if sweep and (count := _compiled_confusion()):
-            n, r, ignore = self.num_classes, self.num_rois, self.ignore_index
-            self.confmat += count(rules, target, roi, n, r, ignore)
-            return
-        if self.num_rules > 1:
-            rules, target, roi = self._count_agreeing_once(rules, target, roi)
-        self.confmat += roi_confusion(
-            rules, target, roi, self.num_classes, self.num_rois, self.ignore_index
+        self.confmat += rule_confusion(
+            preds, target, roi, self.num_classes, self.num_rules, self.num_rois, self.ignore_index
         )
 
-    def _count_agreeing_once(
-        self, rules: Tensor, target: Tensor, roi: Tensor | None
-    ) -> tuple[Tensor, Tensor, Tensor | None]:
-        """Count pixels on which all K rules agree once, for every rule; return the others.
-
-        In a sweep most pixels get the same class from every rule, so this saves most of the
-        K-fold counting. The rest come back as one (1, K, 1, P') batch.
-        """
-        agree = (rules == rules[:, :1]).all(1)  # (B, H, W)
-        roi = None if roi is None else roi.expand_as(target)
-        shared = roi_confusion(
-            rules[:, 0][agree].view(1, 1, -1),
-            target[agree].view(1, 1, -1),
-            None if roi is None else roi[agree].view(1, 1, -1),
-            self.num_classes,
-            self.num_rois,
-            self.ignore_index,
-        )
-        self.confmat += shared
-        other = ~agree
-        rest = rules.transpose(0, 1)[:, other].view(1, self.num_rules, 1, -1)
-        rest_roi = None if roi is None else roi[other].view(1, 1, -1)
-        return rest, target[other].view(1, 1, -1), rest_roi
-
-    def _compute(self) -> dict[str, Tensor]:
+    def compute(self) -> dict[str, Tensor]:
         """Confusion counts, precision, recall, IoU and mIoU (shapes in the class docstring)."""
-        precision, recall = precision_recall(self.confmat)
-        iou = iou_from_confusion(self.confmat[:, 0])
-        return {
-            "confmat": self.confmat,
-            "precision": precision,
-            "recall": recall,
-            "iou": iou,
-            "miou": iou.nanmean(-1),
-        }
+        return roi_metrics(self.confmat)

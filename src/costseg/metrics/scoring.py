@@ -1,7 +1,7 @@
 """The step shared by validation and evaluation: probabilities → rule groups → metrics.
 
 >>> import torch
->>> from costseg.rules.groups import parse_rules, rules_group
+>>> from costseg.rules import parse_rules, rules_group
 >>> groups = [rules_group(parse_rules(["robotistic", "egoistic"]))]
 >>> metrics = GroupMetrics(groups[0], num_classes=19, num_rois=0)
 >>> probs = torch.rand(1, 19, 4, 4).softmax(1)
@@ -13,57 +13,79 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
-from torch import Tensor, nn
+from torch import Tensor
+from torchmetrics.wrappers.abstract import WrapperMetric
 
-from costseg.metrics import RoIPrecisionRecall, SegmentErrors
-from costseg.rules.groups import RuleGroup
+from costseg.classes import NUM_ROIS
+from costseg.metrics.roi import RoIPrecisionRecall
+from costseg.metrics.segments import SegmentErrors
+from costseg.rules import RuleGroup
 
 
-class GroupMetrics(nn.Module):
+class GroupMetrics(WrapperMetric):
     """The metrics of one rule group: pixel counts per RoI and, optionally, segment errors.
+
+    A torchmetrics wrapper: it holds no state of its own; its two metrics sum and synchronise
+    theirs, so it merges across batches and processes like them and fits in a
+    :class:`torchmetrics.MetricCollection`.
 
     Args:
         group: the rule group (its K rules).
         num_classes: N.
-        num_rois: R (4: street, sidewalk, building, sky).
+        num_rois: R (street, sidewalk, building, sky: :data:`costseg.classes.ROI_NAMES`).
         segment_classes: classes of the segment metrics; None = no segment metrics.
         heatmap_size: (h, w) canvas of the FP/FN location maps (see :class:`SegmentErrors`);
             ignored for groups without heatmaps.
+        kwargs: torchmetrics' options of every ``Metric``, passed to both metrics.
     """
 
     def __init__(
         self,
         group: RuleGroup,
         num_classes: int,
-        num_rois: int = 4,
+        num_rois: int = NUM_ROIS,
         segment_classes: Sequence[int] | None = None,
         heatmap_size: tuple[int, int] | None = None,
+        **kwargs: Any,
     ) -> None:
         super().__init__()
         k = len(group.names)
-        self.pixels = RoIPrecisionRecall(num_classes, num_rules=k, num_rois=num_rois)
+        self.pixels = RoIPrecisionRecall(num_classes, k, num_rois, **kwargs)
         self.segments = None
         if segment_classes:
             size = heatmap_size if group.heatmaps else (0, 0)
-            self.segments = SegmentErrors(segment_classes, k, num_rois, heatmap_size=size)
+            self.segments = SegmentErrors(segment_classes, k, num_rois, heatmap_size=size, **kwargs)
 
-    def update(self, preds: Tensor, labels: Tensor, roi: Tensor | None) -> None:
+    def _children(self) -> list[RoIPrecisionRecall | SegmentErrors]:
+        return [self.pixels] + ([] if self.segments is None else [self.segments])
+
+    def update(self, preds: Tensor, target: Tensor, roi: Tensor | None = None) -> None:
         """Add (B, K, H, W) decisions of the group for (B, H, W) labels."""
-        self.pixels.update(preds, labels, roi)
+        for metric in self._children():
+            metric.update(preds, target, roi)
+
+    def forward(self, preds: Tensor, target: Tensor, roi: Tensor | None = None) -> dict:
+        """Add a batch and return its metrics alone (as :meth:`compute` does for all)."""
+        out = {"pixels": self.pixels(preds, target, roi), "segments": {}}
         if self.segments is not None:
-            self.segments.update(preds, labels, roi)
+            out["segments"] = self.segments(preds, target, roi)
+        return out
 
     def compute(self) -> dict[str, dict[str, Tensor]]:
-        """``{"pixels": RoIPrecisionRecall.compute(), "segments": SegmentErrors.compute()}``."""
-        out = {"pixels": self.pixels.compute()}
-        out["segments"] = {} if self.segments is None else self.segments.compute()
+        """``{"pixels": RoIPrecisionRecall.compute(), "segments": SegmentErrors.compute()}``
+        (``{}`` without segment metrics)."""
+        out = {"pixels": self.pixels.compute(), "segments": {}}
+        if self.segments is not None:
+            out["segments"] = self.segments.compute()
         return out
 
     def reset(self) -> None:
-        self.pixels.reset()
-        if self.segments is not None:
-            self.segments.reset()
+        """Back to the metrics' default states."""
+        for metric in self._children():
+            metric.reset()
+        super().reset()
 
 
 def score_batch(

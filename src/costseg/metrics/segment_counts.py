@@ -13,7 +13,7 @@ import numba
 import numpy as np
 from scipy import ndimage
 
-from costseg.metrics.functional import _EIGHT_CONNECTED, Segments
+from costseg.metrics.functional.segments import EIGHT_CONNECTED, Segments
 
 _NO_ROI = np.zeros((1, 1), dtype=np.int64)
 
@@ -23,7 +23,7 @@ def mask_counts(
 ) -> np.ndarray:
     """``mask_segment_errors(pred_mask, gt_mask, roi, num_rois, gt).counts``: (4, R+1) int64 fp,
     fn, n_pred, n_gt segments; column 0 = whole image."""
-    labels, count = ndimage.label(pred_mask, structure=_EIGHT_CONNECTED)
+    labels, count = ndimage.label(pred_mask, structure=EIGHT_CONNECTED)
     roi = _NO_ROI if roi is None else roi
     return _counts(labels, count, gt_mask, gt.labels, gt.count, gt.owner, roi, num_rois + 1)
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from costseg.metrics.functional import Segments
+from costseg.metrics.functional.segments import Segments
 from costseg.metrics.segment_counts import tally
 
 

@@ -16,11 +16,9 @@ from typing import NamedTuple
 
 import torch
 
-from costseg.classes import CLASS_NAMES, class_index
+from costseg.classes import CLASS_NAMES, ROI_IDS, class_index
+from costseg.metrics.names import PIXEL_RATES, TARGET_METRICS
 
-METRICS = ("precision", "recall", "fp_rate", "fn_rate")
-ROI_IDS = {"roi0": 0, "image": 0, "roi1": 1, "street": 1, "roi2": 2, "sidewalk": 2}
-ROI_IDS |= {"roi3": 3, "building": 3, "roi4": 4, "sky": 4}
 _OPS = {">=": float.__ge__, "<=": float.__le__, ">": float.__gt__, "<": float.__lt__}
 
 
@@ -48,9 +46,9 @@ def parse_metric(text: str, class_names: Sequence[str] = CLASS_NAMES) -> Metric:
     name, roi, metric = (p.strip() for p in parts)
     if roi not in ROI_IDS:
         raise ValueError(f"unknown RoI {roi!r} in {text!r}: expected one of {', '.join(ROI_IDS)}")
-    if metric not in METRICS:
+    if metric not in TARGET_METRICS:
         raise ValueError(
-            f"unknown metric {metric!r} in {text!r}: expected one of {', '.join(METRICS)}"
+            f"unknown metric {metric!r} in {text!r}: expected one of {', '.join(TARGET_METRICS)}"
         )
     return Metric(class_index(name, class_names), ROI_IDS[roi], metric)
 
@@ -77,7 +75,7 @@ def metric_values(
     class_ids: Sequence[int],
 ) -> torch.Tensor:
     """(K,) values of ``metric`` for every rule of a group (NaN where undefined)."""
-    if metric.metric in ("precision", "recall"):
+    if metric.metric in PIXEL_RATES:
         return pixels[metric.metric][:, metric.roi, metric.cls]
     if metric.cls not in class_ids:
         name = CLASS_NAMES[metric.cls]
@@ -153,7 +151,7 @@ def risk_level(target: Target) -> float:
     >>> round(risk_level(parse_target("person:roi1:recall>=0.95")), 6)
     0.05
     """
-    if target.metric in ("recall", "precision"):
+    if target.metric in PIXEL_RATES:
         if target.op not in (">=", ">"):
             raise ValueError("--guarantee certifies recall or precision >= a value")
         return 1 - target.value

@@ -14,12 +14,15 @@ import numpy as np
 import torch
 from matplotlib.figure import Figure
 
-from costseg.classes import CLASS_NAMES
-from costseg.costs import mix_costs, save_cost
+from costseg.classes import CLASS_NAMES, ROI_NAMES
+from costseg.costs import save_cost
+from costseg.metrics.names import PIXEL_RATES
 from costseg.report.curves import plot_curves
 from costseg.report.drawing import Batch
 from costseg.report.files import write_csv, write_json
 from costseg.report.results import EvalResults
+from costseg.report.sweep import SWEEP_ROIS
+from costseg.rules import RuleGroup
 
 
 def write_calibration(results: EvalResults) -> list[tuple[str, Batch]]:
@@ -72,7 +75,7 @@ def _temperature_sweep(results: EvalResults) -> dict[str, Figure]:
     )
     if not groups:
         return {}
-    rows = [row for g in groups for row in g.rows(results.class_ids, (0, 1, 2))]
+    rows = [row for g in groups for row in g.rows(results.class_ids, SWEEP_ROIS)]
     write_csv(results.output_dir / "temperature_sweep.csv", rows)
     write_json(results.output_dir / "temperature_sweep.json", {"rows": rows})
     temps = [g.group.temperature for g in groups]
@@ -82,10 +85,10 @@ def _temperature_sweep(results: EvalResults) -> dict[str, Figure]:
         series = {
             f"{rule} {metric}": [g.pixels[metric][k, 1, cls].item() for g in groups]
             for k, rule in enumerate(c["matrix"] for c in groups[0].group.columns)
-            for metric in ("precision", "recall")
+            for metric in PIXEL_RATES
         }
         figures[f"temperature_{name}"] = plot_curves(
-            temps, series, "temperature T of softmax(z / T)", f"{name} in RoI 1 (street)"
+            temps, series, "temperature T of softmax(z / T)", f"{name} in RoI 1 ({ROI_NAMES[1]})"
         )
     return figures
 
@@ -120,10 +123,10 @@ def _write_certificate(results: EvalResults) -> None:
         "images_used": int(ltt.n[k]),
         "images_left_out": int(ltt.n_undefined[k]),
         "calibration_value": float(cert.objective[k]),
-        "report": _reported(results, group.kind, k),
+        "report": _reported(results, group, k),
     }
-    if group.vertices is not None:
-        matrix = mix_costs(group.vertices, group.weights[k : k + 1])[0]
+    matrix = group.cost(k)
+    if matrix is not None:
         save_cost(out / "guarantee_cost.yaml", matrix, "guaranteed")
         record["matrix"] = matrix.tolist()
     write_json(out / "guarantee.json", record)
@@ -135,13 +138,11 @@ def _write_certificate(results: EvalResults) -> None:
     )
 
 
-def _reported(results: EvalResults, kind: str, k: int) -> dict:
+def _reported(results: EvalResults, group: RuleGroup, k: int) -> dict:
     """The chosen rule's precision and recall on the reported images (RoI 0-2, --classes)."""
-    pixels = results.group(kind).pixels
+    pixels = results.result_of(group).pixels
     return {
-        f"{CLASS_NAMES[cls]}/roi{roi}": {
-            m: pixels[m][k, roi, cls].item() for m in ("precision", "recall")
-        }
+        f"{CLASS_NAMES[cls]}/roi{roi}": {m: pixels[m][k, roi, cls].item() for m in PIXEL_RATES}
         for cls in results.class_ids
-        for roi in (0, 1, 2)
+        for roi in SWEEP_ROIS
     }

@@ -15,7 +15,7 @@ from matplotlib.colors import LogNorm
 from matplotlib.figure import Figure
 
 from costseg.classes import CLASS_NAMES
-from costseg.report.figures import ArrayLike, _numpy, freeze_layout
+from costseg.report.figures import ArrayLike, as_numpy, freeze_layout
 
 
 def plot_cost_matrix(
@@ -51,7 +51,7 @@ def cost_matrix_figures(
     fig = image = None
     n = len(class_names)
     for tag, C, title in matrices:
-        cost = _numpy(C).astype(np.float64)
+        cost = as_numpy(C).astype(np.float64)
         if cost.shape != (n, n):
             raise ValueError(
                 f"expected a ({n}, {n}) cost matrix for {n} class names, got {cost.shape}"

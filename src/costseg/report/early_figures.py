@@ -17,7 +17,7 @@ import torch
 from costseg.classes import CLASS_NAMES
 from costseg.report.drawing import Batch, Drawing, Drawn
 from costseg.report.results import Example
-from costseg.rules.groups import RuleGroup
+from costseg.rules import RuleGroup
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

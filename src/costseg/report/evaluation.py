@@ -9,16 +9,25 @@ from __future__ import annotations
 
 from torch.utils.tensorboard import SummaryWriter
 
-from costseg.classes import CLASS_NAMES
+from costseg.classes import CLASS_NAMES, ROI_NAMES
+from costseg.metrics.names import ERROR_COLUMNS, PIXEL_RATES
 from costseg.report.drawing import Batch, save_and_log_all
 from costseg.report.early_figures import EarlyFigures, example_figures, plan_figures
 from costseg.report.figures import heatmap_grid_figures
 from costseg.report.files import write_csv, write_json, write_text
 from costseg.report.results import EvalResults, GroupResult
-from costseg.report.tables import ROI_NAMES, compare_with_paper, console_table, paper_table
+from costseg.report.tables import (
+    PAPER_COLUMNS,
+    PAPER_ROIS,
+    compare_with_paper,
+    console_table,
+    paper_table,
+)
 from costseg.report.tensorboard import log_masks, log_scalars, log_table
 
-SUMMARY_COLUMNS = ("matrix", "class", "roi", "precision", "recall", "fp_segments", "fn_segments")
+SUMMARY_COLUMNS = (*PAPER_COLUMNS, *ERROR_COLUMNS)
+SCALARS = (*PIXEL_RATES, *ERROR_COLUMNS)
+"""The metrics of the named rules logged to TensorBoard, per class and RoI."""
 
 
 def write_evaluation(results: EvalResults, early: EarlyFigures | None = None) -> None:
@@ -29,9 +38,9 @@ def write_evaluation(results: EvalResults, early: EarlyFigures | None = None) ->
     from costseg.report.sweep import write_sweeps
 
     out = results.output_dir
-    named = results.groups[0]
+    named = results.named
     rows = named.rows(results.class_ids)
-    headline = [r for r in rows if r["roi"] in (1, 2)]
+    headline = [r for r in rows if r["roi"] in PAPER_ROIS]
     print(f"probabilities: {results.probabilities}")
     print(console_table(headline, SUMMARY_COLUMNS))
     print("mIoU: " + ", ".join(f"{n} {100 * v:.2f}" for n, v in _miou(named).items()))
@@ -83,7 +92,7 @@ def _tables(headline: list[dict], named: GroupResult, probabilities: str) -> str
 
 
 def _json(results: EvalResults, rows: list[dict]) -> dict:
-    named = results.groups[0]
+    named = results.named
     pixels, names = named.pixels, named.group.names
     return {
         "options": results.options,
@@ -110,7 +119,7 @@ def _scalars(rows: list[dict], named: GroupResult) -> dict[str, float]:
     scalars = {f"evaluation/miou/{n}": v for n, v in _miou(named).items()}
     for r in rows:
         base = f"evaluation/{r['class']}/roi{r['roi']}"
-        for key in ("precision", "recall", "fp_segments", "fn_segments"):
+        for key in SCALARS:
             scalars[f"{base}/{key}/{r['matrix']}"] = r[key]
     return scalars
 
@@ -118,7 +127,7 @@ def _scalars(rows: list[dict], named: GroupResult) -> dict[str, float]:
 def _figures(results: EvalResults) -> list[tuple[str, Batch]]:
     """The named rules' figures from their results, undrawn, in batches: figures of one kind
     are one figure redrawn."""
-    named = results.groups[0]
+    named = results.named
     names, segments = named.group.names, named.segments
     grids = []
     for kind, key in (("FP", "fp_map"), ("FN", "fn_map")):

@@ -45,12 +45,13 @@ def freeze_layout(fig: Figure) -> Figure:
     return fig
 
 
-def _numpy(x: ArrayLike) -> np.ndarray:
+def as_numpy(x: ArrayLike) -> np.ndarray:
+    """``x`` (a tensor on any device, or array-like) as a numpy array."""
     return x.detach().cpu().numpy() if isinstance(x, torch.Tensor) else np.asarray(x)
 
 
 def _image(image: ArrayLike) -> np.ndarray:
-    img = _numpy(image)
+    img = as_numpy(image)
     if img.ndim == 3 and img.shape[0] == 3 and img.shape[-1] != 3:
         img = img.transpose(1, 2, 0)  # datasets yield (3, H, W)
     if img.ndim != 3 or img.shape[-1] != 3 or img.dtype != np.uint8:
@@ -61,8 +62,8 @@ def _image(image: ArrayLike) -> np.ndarray:
 def _masks(
     image: ArrayLike, target: ArrayLike, preds: Mapping[str, ArrayLike]
 ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
-    img, gt = _image(image), _numpy(target)
-    masks = {name: _numpy(p) for name, p in preds.items()}
+    img, gt = _image(image), as_numpy(target)
+    masks = {name: as_numpy(p) for name, p in preds.items()}
     for name, m in {"target": gt, **masks}.items():
         if m.shape != img.shape[:2]:
             raise ValueError(
@@ -172,7 +173,7 @@ def _mask_legend(fig: Figure, handles: list[Patch], ncols: int) -> None:
 
 
 def _heat(heat: ArrayLike) -> np.ndarray:
-    arr = _numpy(heat).astype(np.float64)
+    arr = as_numpy(heat).astype(np.float64)
     if arr.ndim != 2:
         raise ValueError(f"expected an (h, w) heatmap, got shape {arr.shape}")
     return arr

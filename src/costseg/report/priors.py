@@ -10,7 +10,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
 from costseg.classes import CLASS_NAMES, PALETTE, ROI_NAMES, class_index
-from costseg.report.figures import PANEL, ArrayLike, _numpy
+from costseg.report.figures import PANEL, ArrayLike, as_numpy
 
 _ROI_COLOURS = np.vstack([[0, 0, 0], PALETTE[[0, 1, 2, 10]]]) / 255  # road, sidewalk, building, sky
 
@@ -24,7 +24,7 @@ def plot_roi_map(roi: ArrayLike) -> Figure:
     >>> plot_roi_map(np.array([[1, 2], [3, 4]])).axes[0].get_legend().texts[0].get_text()
     '1 street'
     """
-    ids = _numpy(roi)
+    ids = as_numpy(roi)
     if ids.ndim != 2 or not np.isin(ids, range(len(ROI_NAMES))).all():
         raise ValueError(
             f"expected an (H, W) map of RoI ids 0..4, got shape {ids.shape}, "
@@ -69,7 +69,7 @@ def plot_priors(
     >>> len(plot_priors(np.full((19, 4, 8), 1 / 19), classes=("road", "sky")).axes)  # + 2 bars
     4
     """
-    pi = _numpy(priors)
+    pi = as_numpy(priors)
     if pi.ndim != 3 or pi.shape[0] != len(class_names):
         raise ValueError(f"expected ({len(class_names)}, H, W) priors, got shape {pi.shape}")
     index = [class_index(name, class_names) for name in classes]

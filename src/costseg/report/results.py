@@ -12,10 +12,17 @@ from pathlib import Path
 
 import torch
 
-from costseg.classes import CLASS_NAMES
-from costseg.rules.groups import RuleGroup
+from costseg.classes import CLASS_NAMES, ROI_NAMES
+from costseg.metrics.names import (
+    PIXEL_RATES,
+    RULE_RATES,
+    SEGMENT_COUNTS,
+    SEGMENT_RATES,
+    segment_column,
+)
+from costseg.rules import RuleGroup
 
-ROIS = (0, 1, 2, 3, 4)
+ROIS = tuple(range(len(ROI_NAMES)))
 
 
 @dataclass
@@ -29,27 +36,21 @@ class GroupResult:
     per_image: dict[str, torch.Tensor] = field(default_factory=dict)
 
     def rows(self, class_ids: Sequence[int], rois: Sequence[int] = ROIS) -> list[dict]:
-        """One row per rule × class × RoI: precision, recall, segment counts and rates, mIoU.
+        """One row per rule × class × RoI: the columns of
+        :data:`~costseg.metrics.names.ROW_METRICS` (segment ones only where measured).
 
         The rule is identified by the group's columns (``matrix``; ``alpha, beta, gamma``; or
         ``prior_alpha``). NaN marks an undefined ratio.
         """
-        pixels = self.pixels
         rows = []
         for k, columns in enumerate(self.group.columns):
             for c, cls in enumerate(class_ids):
                 for r in rois:
-                    rows.append(
-                        {
-                            **columns,
-                            "class": CLASS_NAMES[cls],
-                            "roi": r,
-                            "precision": pixels["precision"][k, r, cls].item(),
-                            "recall": pixels["recall"][k, r, cls].item(),
-                            **self._segment_columns(k, c, r),
-                            "miou": pixels["miou"][k].item(),
-                        }
-                    )
+                    row = {**columns, "class": CLASS_NAMES[cls], "roi": r}
+                    row |= {m: self.pixels[m][k, r, cls].item() for m in PIXEL_RATES}
+                    row |= self._segment_columns(k, c, r)
+                    row |= {m: self.pixels[m][k].item() for m in RULE_RATES}
+                    rows.append(row)
         return rows
 
     def _segment_columns(self, k: int, c: int, r: int) -> dict:
@@ -57,10 +58,8 @@ class GroupResult:
         if not self.segments:
             return {}
         seg = self.segments
-        counts = {f"{key}_segments": int(seg[key][k, c, r]) for key in ("fp", "fn")}
-        totals = {f"{key}_segments": int(seg[key][k, c, r]) for key in ("n_pred", "n_gt")}
-        rates = {key: seg[key][k, c, r].item() for key in ("fp_rate", "fn_rate")}
-        return counts | totals | rates
+        counts = {segment_column(m): int(seg[m][k, c, r]) for m in SEGMENT_COUNTS}
+        return counts | {m: seg[m][k, c, r].item() for m in SEGMENT_RATES}
 
 
 @dataclass
@@ -83,7 +82,7 @@ class EvalResults:
         source: what produced the probabilities (network, checkpoint or folder).
         probabilities: which probabilities were used (raw, or the scaling and its parameters).
         class_ids: classes of the segment metrics and tables.
-        groups: one result per rule group; the named rules come first.
+        groups: one result per rule group (:attr:`named` is the named rules').
         examples: images for the mask figures.
         roi: (H, W) RoI map at label resolution, if priors exist.
         num_images: images evaluated.
@@ -107,9 +106,15 @@ class EvalResults:
             result.per_image = _cpu(result.per_image)
         self.extra = _cpu(self.extra)
 
-    def group(self, kind: str) -> GroupResult | None:
-        """The result of the group of ``kind`` ("rules", "grid", "alpha"), if evaluated."""
-        return next((g for g in self.groups if g.group.kind == kind), None)
+    @property
+    def named(self) -> GroupResult:
+        """The result of the named rules (``--cost``)."""
+        return next(g for g in self.groups if g.group.is_named)
+
+    def result_of(self, group: RuleGroup) -> GroupResult:
+        """The result of ``group`` (the same family and rules)."""
+        same = (group.family, group.names)
+        return next(g for g in self.groups if (g.group.family, g.group.names) == same)
 
 
 def _cpu(value):

@@ -1,8 +1,11 @@
-"""Outputs of the value-space sweep and of the prior-adapted α sweep.
+"""Outputs of the groups that sweep many rules (the value-space grid, the α path, any other).
 
-``sweep.csv`` / ``sweep.json`` hold every grid point; ``figures/ternary_*.png`` the paper-style
-triangles; ``figures/edges_*.png`` the precision–recall trade-off along each edge; with
-``--target``, ``best.json`` and ``best_cost.yaml`` the chosen value system.
+Each such group (``RuleGroup.output`` set) gets ``<output>.csv`` / ``<output>.json`` with every
+rule's rows, and its figures from where its rules lie: rules in the value triangle
+(``weights``) give the paper-style triangles ``figures/ternary_*.png`` and the precision–recall
+trade-off along each edge ``figures/edges_*.png``; rules along one axis (``line``) give curves.
+With ``--target``, ``best.json`` (and ``best_cost.yaml`` when the rule is a cost matrix) answer
+it over the first group of candidates.
 """
 
 from __future__ import annotations
@@ -10,57 +13,81 @@ from __future__ import annotations
 from collections.abc import Iterator
 
 from costseg.classes import CLASS_NAMES
-from costseg.costs import mix_costs, save_cost
+from costseg.costs import save_cost
+from costseg.metrics.names import PIXEL_RATES, SEGMENT_RATES
 from costseg.metrics.selection import choose
 from costseg.report.curves import plot_curves
 from costseg.report.drawing import Batch
 from costseg.report.files import write_csv, write_json
 from costseg.report.results import EvalResults, GroupResult
+from costseg.report.tables import PAPER_ROIS
 from costseg.report.ternary import edge_tradeoff_figures, ternary_figures
 
-SWEEP_ROIS = (0, 1, 2)
+SWEEP_ROIS = (0, *PAPER_ROIS)
+"""The RoIs of a sweep's rows: the whole image and the paper's."""
 
 
 def write_sweeps(results: EvalResults) -> list[tuple[str, Batch]]:
-    """Files of the grid and α groups, if evaluated, and the ``--target`` answer; returns their
-    figures, undrawn, as ``(TensorBoard prefix, batch)`` (:mod:`costseg.report.drawing`)."""
-    grid, alpha = results.group("grid"), results.group("alpha")
-    batches = [] if grid is None else _write_grid(results, grid)
-    return batches + ([] if alpha is None else _write_alpha(results, alpha))
+    """Files of every sweeping group and the ``--target`` answer; returns their figures,
+    undrawn, as ``(TensorBoard prefix, batch)`` (:mod:`costseg.report.drawing`)."""
+    batches: list[tuple[str, Batch]] = []
+    for result in results.groups:
+        group, out = result.group, results.output_dir
+        if group.output is None:
+            continue
+        rows = result.rows(results.class_ids, SWEEP_ROIS)
+        write_csv(out / f"{group.output}.csv", rows)
+        record = {"note": group.note, "probabilities": results.probabilities, "rows": rows}
+        write_json(out / f"{group.output}.json", record)
+        if group.weights is not None:
+            batches += _triangle_figures(results, result)
+        if group.line is not None:
+            batches.append((group.output, _line_figures(results, result)))
+    candidates = next((r for r in results.groups if r.group.candidates), None)
+    if results.options.get("target") and candidates is not None:
+        _write_choice(results, candidates)
+    return batches
 
 
-def _write_grid(results: EvalResults, grid: GroupResult) -> list[tuple[str, Batch]]:
-    out, note, weights = results.output_dir, grid.group.note, grid.group.weights
-    rows = grid.rows(results.class_ids, SWEEP_ROIS)
-    write_csv(out / "sweep.csv", rows)
-    write_json(
-        out / "sweep.json", {"note": note, "probabilities": results.probabilities, "rows": rows}
-    )
-    labels = tuple(v.capitalize() for v in results.options["vertices"])
-    pixels, segments = grid.pixels, grid.segments
+def _triangle_figures(results: EvalResults, grid: GroupResult) -> list[tuple[str, Batch]]:
+    group, pixels, segments = grid.group, grid.pixels, grid.segments
+    labels = tuple(v.capitalize() for v in group.corners)
     ternary, edges = [], []
     for c, cls in enumerate(results.class_ids):
         name = CLASS_NAMES[cls]
-        for roi in (1, 2):
-            precision, recall = pixels["precision"][:, roi, cls], pixels["recall"][:, roi, cls]
-            for metric, values in (("precision", precision), ("recall", recall)):
+        for roi in PAPER_ROIS:
+            precision, recall = (pixels[m][:, roi, cls] for m in PIXEL_RATES)
+            for metric, values in zip(PIXEL_RATES, (precision, recall), strict=True):
                 title = f"{metric} of {name}, RoI {roi}"
                 ternary.append((f"ternary_{name}_roi{roi}_{metric}", values, title, metric))
             edges.append((f"edges_{name}_roi{roi}", precision, recall))
-        for metric in ("fp_rate", "fn_rate"):
+        for metric in SEGMENT_RATES:
             title = f"{metric.replace('_', ' ')} of {name} segments"
             ternary.append((f"ternary_{name}_{metric}", segments[metric][:, c, 0], title, metric))
-    if results.options.get("target"):
-        _write_choice(results, grid)
     return [
-        ("sweep", ternary_figures(weights, ternary, labels, note=note)),
-        ("sweep", edge_tradeoff_figures(weights, edges, labels, note=note)),
+        (group.output, ternary_figures(group.weights, ternary, labels, note=group.note)),
+        (group.output, edge_tradeoff_figures(group.weights, edges, labels, note=group.note)),
     ]
 
 
-def _write_choice(results: EvalResults, grid: GroupResult) -> None:
-    opts, out = results.options, results.output_dir
-    choice = choose(grid.pixels, grid.segments, opts["target"], opts["maximize"], results.class_ids)
+def _line_figures(results: EvalResults, result: GroupResult) -> Iterator[tuple]:
+    group = result.group
+    for cls in results.class_ids:
+        name = CLASS_NAMES[cls]
+        series = {
+            f"{metric} RoI {roi}": result.pixels[metric][:, roi, cls].tolist()
+            for roi in PAPER_ROIS
+            for metric in PIXEL_RATES
+        }
+        figure = plot_curves(list(group.line), series, group.axis, f"{name}: {group.note}")
+        yield f"{group.family}_{name}", figure
+
+
+def _write_choice(results: EvalResults, result: GroupResult) -> None:
+    opts, out, group = results.options, results.output_dir, result.group
+    choice = choose(
+        result.pixels, result.segments, opts["target"], opts["maximize"], results.class_ids
+    )
     record = {
         "target": choice.target,
         "maximize": choice.maximize,
@@ -68,52 +95,21 @@ def _write_choice(results: EvalResults, grid: GroupResult) -> None:
     }
     if not choice.points:
         print(
-            f"no grid point meets {choice.target} (the best on the grid: {choice.best_reached:.4f})"
+            f"no {group.family} point meets {choice.target} "
+            f"(the best among them: {choice.best_reached:.4f})"
         )
         write_json(out / "best.json", {**record, "found": False, "best": choice.best_reached})
         return
-    points = [grid.group.columns[k] for k in choice.points]
-    matrix = mix_costs(grid.group.vertices, grid.group.weights[choice.points[:1]])[0]
-    save_cost(out / "best_cost.yaml", matrix, "best")
+    points = [group.columns[k] for k in choice.points]
+    matrix = group.cost(choice.points[0])
+    where = ""
+    record |= {"found": True, "value": choice.value, "points": points}
+    if matrix is not None:
+        save_cost(out / "best_cost.yaml", matrix, "best")
+        record["matrix"] = matrix.tolist()
+        where = f"; cost matrix of the first: {out / 'best_cost.yaml'}"
     print(
-        f"{len(points)} grid point(s) meet {choice.target} with the largest {choice.maximize} "
-        f"= {choice.value:.4f}: {points}; cost matrix of the first: {out / 'best_cost.yaml'}"
+        f"{len(points)} {group.family} point(s) meet {choice.target} with the largest "
+        f"{choice.maximize} = {choice.value:.4f}: {points}{where}"
     )
-    write_json(
-        out / "best.json",
-        {
-            **record,
-            "found": True,
-            "value": choice.value,
-            "points": points,
-            "matrix": matrix.tolist(),
-        },
-    )
-
-
-def _write_alpha(results: EvalResults, alpha: GroupResult) -> list[tuple[str, Batch]]:
-    out = results.output_dir
-    alphas = [c["prior_alpha"] for c in alpha.group.columns]
-    rows = alpha.rows(results.class_ids, SWEEP_ROIS)
-    write_csv(out / "alpha_sweep.csv", rows)
-    write_json(out / "alpha_sweep.json", {"note": alpha.group.note, "rows": rows})
-    return [("alpha_sweep", _alpha_figures(results, alpha, alphas))]
-
-
-def _alpha_figures(results: EvalResults, alpha: GroupResult, alphas: list) -> Iterator[tuple]:
-    for cls in results.class_ids:
-        name = CLASS_NAMES[cls]
-        series = {
-            f"{metric} RoI {roi}": alpha.pixels[metric][:, roi, cls].tolist()
-            for roi in (1, 2)
-            for metric in ("precision", "recall")
-        }
-        yield (
-            f"alpha_{name}",
-            plot_curves(
-                alphas,
-                series,
-                "α (0 = Bayes, 1 = maximum likelihood)",
-                f"{name}: {alpha.group.note}",
-            ),
-        )
+    write_json(out / "best.json", record)

@@ -1,8 +1,9 @@
 """Result tables as text: GitHub Markdown, the paper's layout, and aligned console output.
 
 Rows are plain dicts, e.g. ``{"matrix": "altruistic", "class": "person", "roi": 1,
-"precision": 0.4112, "recall": 0.9981}``. Precision, recall and mIoU are fractions and are shown
-as percentages with two decimals, like the paper. An undefined ratio (NaN) is shown as ``nan``;
+"precision": 0.4112, "recall": 0.9981}``. Rates (precision, recall, mIoU, …:
+:data:`costseg.metrics.names.RATES`) are fractions and are shown as percentages with two
+decimals, like the paper. An undefined ratio (NaN) is shown as ``nan``;
 a value that was not measured at all as ``—``.
 """
 
@@ -13,13 +14,14 @@ import numbers
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from costseg.classes import CLASS_NAMES, ROI_NAMES
+from costseg.classes import CLASS_NAMES, NUM_CLASSES, NUM_ROIS, ROI_NAMES
+from costseg.metrics.names import PIXEL_RATES, RATES, RULE_RATES, SEGMENT_COLUMNS
 
 Row = Mapping[str, Any]
 
-
-PERCENT = ("precision", "recall", "miou")
-EXTRA_COLUMNS = ("fp_segments", "fn_segments", "n_pred_segments", "n_gt_segments", "miou")
+PERCENT = RATES
+EXTRA_COLUMNS = (*SEGMENT_COLUMNS, *RULE_RATES)
+"""Columns added to the paper's layout when the rows have them."""
 
 PAPER_TABLE: tuple[dict[str, Any], ...] = tuple(
     {"matrix": m, "class": c, "roi": r, "precision": p, "recall": q}
@@ -38,8 +40,13 @@ PAPER_TABLE: tuple[dict[str, Any], ...] = tuple(
         ("egoistic", "building", 2, 18.48, 99.90),
     ]
 )
-"""The paper's headline table (SPEC §5): Cityscapes val, DeepLabv3+ Xception; precision and
-recall in percent as printed there."""
+"""The paper's headline table (docs/definitions.md §5): Cityscapes val, DeepLabv3+ Xception;
+precision and recall in percent as printed there."""
+
+PAPER_ROIS: tuple[int, ...] = tuple(dict.fromkeys(r["roi"] for r in PAPER_TABLE))
+"""The RoIs of the paper's table (1 street, 2 sidewalk): the headline rows."""
+PAPER_COLUMNS = ("matrix", "class", "roi", *PIXEL_RATES)
+"""The columns every row of a paper-style table needs."""
 
 MISSING = "—"
 
@@ -154,12 +161,13 @@ def _roi_label(roi: Any) -> str:
 
 
 _PAPER = {_key(r): r for r in PAPER_TABLE}
-_PERCENT_WITH_PAPER = (*PERCENT, "paper precision", "paper recall")
+_PAPER_RATES = tuple(f"paper {m}" for m in PIXEL_RATES)
+_PERCENT_WITH_PAPER = (*PERCENT, *_PAPER_RATES)
 
 
 def _paper_fractions(paper: Row) -> dict[str, float | None]:
     # The paper prints percent; as fractions they share the measured columns' formatting.
-    return {f"paper {k}": paper[k] / 100 if k in paper else None for k in ("precision", "recall")}
+    return {f"paper {k}": paper[k] / 100 if k in paper else None for k in PIXEL_RATES}
 
 
 def paper_table(rows: Sequence[Row]) -> str:
@@ -191,28 +199,31 @@ def paper_table(rows: Sequence[Row]) -> str:
         previous = group
         paper = _PAPER.get(_key(r), {})
         table.append({**r, "class": shown[0], "roi": shown[1], **_paper_fractions(paper)})
-    columns = ["class", "roi", "matrix", "precision", "recall", *extra]
-    columns += ["paper precision", "paper recall"] if with_paper else []
+    columns = ["class", "roi", "matrix", *PIXEL_RATES, *extra]
+    columns += list(_PAPER_RATES) if with_paper else []
     headers = ["RoI" if c == "roi" else c for c in columns]
     return markdown_table(table, columns, headers, percent=_PERCENT_WITH_PAPER)
 
 
 def _check_rows(rows: Sequence[Row]) -> None:
     for r in rows:
-        missing = [k for k in ("matrix", "class", "roi", "precision", "recall") if k not in r]
+        missing = [k for k in PAPER_COLUMNS if k not in r]
         if missing:
             raise ValueError(
-                f"each row needs matrix, class, roi, precision, recall; row {r} lacks "
-                f"{', '.join(missing)}"
+                f"each row needs {', '.join(PAPER_COLUMNS)}; row {r} lacks {', '.join(missing)}"
             )
-        if r["roi"] not in ROI_NAMES and r["roi"] not in range(len(ROI_NAMES)):
-            raise ValueError(f"expected roi in 0..4 or one of {ROI_NAMES}, got {r['roi']!r}")
-        if r["class"] not in CLASS_NAMES and r["class"] not in range(len(CLASS_NAMES)):
-            raise ValueError(f"expected a class name or train id 0..18, got {r['class']!r}")
+        if r["roi"] not in ROI_NAMES and r["roi"] not in range(NUM_ROIS + 1):
+            raise ValueError(
+                f"expected roi in 0..{NUM_ROIS} or one of {ROI_NAMES}, got {r['roi']!r}"
+            )
+        if r["class"] not in CLASS_NAMES and r["class"] not in range(NUM_CLASSES):
+            raise ValueError(
+                f"expected a class name or train id 0..{NUM_CLASSES - 1}, got {r['class']!r}"
+            )
 
 
 def compare_with_paper(rows: Sequence[Row]) -> str:
-    """Markdown table of the paper's 12 rows (SPEC §5) next to the measured values.
+    """Markdown table of the paper's 12 rows (docs/definitions.md §5) next to the measured values.
 
     Measured precision/recall come from the row with the same (matrix, class, RoI), matched
     case-insensitively on the matrix name; ``—`` where none was measured.
@@ -232,11 +243,10 @@ def compare_with_paper(rows: Sequence[Row]) -> str:
                 "matrix": p["matrix"],
                 "class": p["class"],
                 "roi": _roi_label(p["roi"]),
-                "precision": m.get("precision"),
-                "recall": m.get("recall"),
+                **{k: m.get(k) for k in PIXEL_RATES},
                 **_paper_fractions(p),
             }
         )
-    columns = ["matrix", "class", "roi", "precision", "recall", "paper precision", "paper recall"]
+    columns = [*PAPER_COLUMNS, *_PAPER_RATES]
     headers = ["matrix", "class", "RoI", *columns[3:]]
     return markdown_table(table, columns, headers, percent=_PERCENT_WITH_PAPER)

@@ -21,10 +21,9 @@ from costseg.data.prior_maps import PriorMaps
 from costseg.metrics import CalibrationError
 from costseg.metrics.scoring import GroupMetrics, score_batch
 from costseg.models.deeplabv3plus import DeepLabV3Plus
-from costseg.rules.groups import parse_rules, rules_group
+from costseg.networks.base import IMAGENET_MEAN, IMAGENET_STD
+from costseg.rules import parse_rules, rules_group
 
-IMAGENET_MEAN = (0.485, 0.456, 0.406)
-IMAGENET_STD = (0.229, 0.224, 0.225)
 CHECKPOINT_KEY = "costseg"
 
 

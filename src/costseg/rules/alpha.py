@@ -1,0 +1,69 @@
+"""The prior-adapted path of ``--alpha_sweep``: one rule on ``p / π_α``, ``π_α = (1 - α) + α π``,
+for α from 0 (Bayes) to 1 (maximum likelihood), decided as one group (docs/definitions.md §1).
+
+>>> alpha_group(0.5).names
+['robotistic@alpha=0.00', 'robotistic@alpha=0.50', 'robotistic@alpha=1.00']
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+
+from costseg.classes import CLASS_NAMES
+from costseg.decision import decide
+from costseg.rules.base import RuleGroup, adapted_priors
+from costseg.rules.named import parse_rules
+
+
+@dataclass(frozen=True)
+class PriorAdapted:
+    """``probs, priors → (B, K, H, W)``: the rule of ``cost`` on ``p / π_α`` for each α."""
+
+    cost: torch.Tensor | None
+    alphas: tuple[float, ...]
+
+    def __call__(self, probs: torch.Tensor, priors: torch.Tensor | None) -> torch.Tensor:
+        if priors is None:
+            raise ValueError("the α sweep needs pixel-wise priors")
+        return torch.stack(
+            [decide(probs, self.cost, adapted_priors(priors, a)) for a in self.alphas], 1
+        )
+
+
+def alpha_grid(step: float) -> list[float]:
+    """α = 0, step, …, 1.
+
+    >>> alpha_grid(0.25)
+    [0.0, 0.25, 0.5, 0.75, 1.0]
+    """
+    n = round(1 / step) if step > 0 else 0
+    if n < 1 or not math.isclose(n * step, 1.0, rel_tol=1e-9):
+        raise ValueError(f"alpha step must be 1/n for a whole number n >= 1, got {step}")
+    return [i / n for i in range(n + 1)]
+
+
+def alpha_group(
+    step: float, cost_name: str | None = None, class_names: Sequence[str] = CLASS_NAMES
+) -> RuleGroup:
+    """The prior-adapted rule on ``p / π_α`` for α = 0, step, …, 1 (0 = Bayes, 1 = ML)."""
+    base = parse_rules([cost_name], class_names)[0] if cost_name else None
+    if base is not None and base.priors_alpha:
+        raise ValueError("--alpha_cost must be a cost matrix, not 'ml'")
+    cost, label = (base.cost, base.name) if base else (None, "robotistic")
+    alphas = alpha_grid(step)
+    return RuleGroup(
+        "alpha",
+        [f"{label}@alpha={a:.2f}" for a in alphas],
+        PriorAdapted(cost, tuple(alphas)),
+        [{"prior_alpha": a} for a in alphas],
+        needs_priors=True,
+        candidates=True,
+        output="alpha_sweep",
+        line=tuple(alphas),
+        axis="α (0 = Bayes, 1 = maximum likelihood)",
+        note=f"{label} on p/π_α, π_α = (1-α) + απ",
+    )

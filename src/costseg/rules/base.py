@@ -1,0 +1,102 @@
+"""The shared types of every rule family: a :class:`Rule` and a :class:`RuleGroup`.
+
+A rule family (named rules, the value triangle, the α path, temperatures) is one module of
+:mod:`costseg.rules` that builds a :class:`RuleGroup`; the group carries everything the
+evaluation and the reports need (its label, its result columns, where its rules lie for figures,
+each rule's cost matrix), so any group is evaluated and written without special cases.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import torch
+
+from costseg.costs import mix_costs
+
+Decider = Callable[[torch.Tensor, torch.Tensor | None], torch.Tensor]
+
+
+@dataclass(frozen=True)
+class Rule:
+    """One decision rule.
+
+    Attributes:
+        name: shown in tables, files and TensorBoard tags.
+        cost: (N, N) float64 matrix; ``None`` = the symmetric matrix.
+        priors_alpha: 0 = no priors; α in (0, 1] = the rule on ``p / π_α`` with
+            ``π_α = (1 - α) + α π`` (1 = maximum likelihood when ``cost`` is None).
+    """
+
+    name: str
+    cost: torch.Tensor | None
+    priors_alpha: float = 0.0
+
+
+def adapted_priors(priors: torch.Tensor, alpha: float) -> torch.Tensor:
+    """Bayes ↔ ML interpolation (docs/definitions.md §1): ``π_α = (1 - α)·1 + α·π``.
+
+    >>> adapted_priors(torch.tensor([0.2, 0.8], dtype=torch.float64), 0.5).tolist()
+    [0.6, 0.9]
+    """
+    return (1 - alpha) + alpha * priors
+
+
+@dataclass
+class RuleGroup:
+    """K rules decided together: ``decide(probs (B,N,H,W), priors) → (B, K, H, W)``.
+
+    Attributes:
+        family: the family's label (``rules``, ``grid``, ``alpha``, ``temperature``), for
+            messages and TensorBoard tags.
+        names: the K rule names.
+        decide: the decision function.
+        columns: per rule, the columns that identify it in result rows.
+        is_named: the rules named by ``--cost``: the headline tables, masks and saved label maps.
+        heatmaps: whether FP/FN location maps are kept (off for sweeps of many rules).
+        needs_priors: whether some rule divides by the pixel-wise priors.
+        candidates: whether ``--target`` and ``--guarantee`` choose among its rules.
+        output: file stem of its own result rows and figures (``sweep`` → ``sweep.csv``), or
+            None when it is written with the headline results or elsewhere.
+        rules: the named rules (named and temperature groups).
+        vertices: (3, N, N) vertex matrices, ``weights`` (K, 3) and ``corners`` (3 names) of
+            rules that lie in the value triangle (drawn as triangles).
+        line: (K,) positions of rules that lie along one axis (drawn as curves), ``axis`` its
+            label.
+        note: how the group was built, for every output that shows it.
+        temperature: decide on ``softmax(z / T)`` of the raw logits instead of the
+            probabilities every other group sees (the temperature sweep, docs/definitions.md §6).
+    """
+
+    family: str
+    names: list[str]
+    decide: Decider
+    columns: list[dict[str, object]]
+    is_named: bool = False
+    heatmaps: bool = False
+    needs_priors: bool = False
+    candidates: bool = False
+    output: str | None = None
+    rules: list[Rule] = field(default_factory=list)
+    vertices: torch.Tensor | None = None
+    weights: torch.Tensor | None = None
+    corners: tuple[str, ...] = ()
+    line: tuple[float, ...] | None = None
+    axis: str = ""
+    note: str = ""
+    temperature: float | None = None
+
+    def cost(self, k: int) -> torch.Tensor | None:
+        """The (N, N) cost matrix of rule k, or None when the rule is no plain matrix (it uses
+        the priors, or is the symmetric matrix of argmax)."""
+        if self.vertices is not None and self.weights is not None:
+            return mix_costs(self.vertices, self.weights[k : k + 1])[0]
+        if self.rules and not self.rules[k].priors_alpha:
+            return self.rules[k].cost
+        return None
+
+
+def named_group(groups: Sequence[RuleGroup]) -> RuleGroup:
+    """The group of the named rules (``--cost``) among ``groups``."""
+    return next(g for g in groups if g.is_named)

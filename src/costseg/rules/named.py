@@ -1,0 +1,104 @@
+"""The named rules of ``--cost``: the presets, ``ml`` and YAML cost files (docs/definitions.md §1,
+§2), decided together as one group.
+
+A :class:`~costseg.rules.base.Rule` is a cost matrix (``None`` = the symmetric one) and whether it
+acts on ``p / π`` with the pixel-wise priors π (``ml`` is the symmetric matrix on ``p / π``).
+
+>>> [r.name for r in parse_rules(["robotistic", "ml"])]
+['robotistic', 'ml']
+>>> rules_group(parse_rules(["egoistic"])).columns
+[{'matrix': 'egoistic'}]
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from costseg.classes import CLASS_NAMES
+from costseg.costs import PRESETS, load_cost, symmetric_cost
+from costseg.decision import decide, decide_mixtures
+from costseg.label_maps import empty_labels
+from costseg.rules.base import Rule, RuleGroup, adapted_priors
+
+RULE_NAMES = (*PRESETS, "ml")
+
+
+def parse_rules(names: Sequence[str], class_names: Sequence[str] = CLASS_NAMES) -> list[Rule]:
+    """Rules from names: the presets, ``ml``, or paths to YAML cost files.
+
+    Raises:
+        ValueError: an unknown name (listing the valid ones) or an invalid cost file.
+    """
+    rules = []
+    for name in names:
+        if name == "ml":
+            rules.append(Rule("ml", None, 1.0))
+        elif name in PRESETS or Path(name).suffix in (".yaml", ".yml"):
+            rules.append(Rule(Path(name).stem, load_cost(name, class_names)))
+        else:
+            raise ValueError(
+                f"unknown cost {name!r}: expected one of {', '.join(RULE_NAMES)} "
+                "or a path to a .yaml cost file"
+            )
+    if len({r.name for r in rules}) != len(rules):
+        raise ValueError(f"cost rules must have distinct names, got {[r.name for r in rules]}")
+    return rules
+
+
+def apply_rules(
+    probs: torch.Tensor, rules: Sequence[Rule], priors: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Decisions of every rule: probs (B, N, H, W) → (B, K, H, W) int64.
+
+    Rules without priors share one pass (:func:`decide_mixtures` with identity weights); each
+    rule with priors needs ``priors`` ((N,) or (N, H, W)) and one pass of its own.
+    """
+    n = probs.shape[1]
+    shape = probs.shape[0], len(rules), *probs.shape[2:]
+    out = empty_labels(*shape, dtype=torch.long, device=probs.device)
+    plain = [k for k, r in enumerate(rules) if not r.priors_alpha]
+    if plain:
+        vertices = torch.stack([cost_or_symmetric(rules[k].cost, n) for k in plain])
+        weights = torch.eye(len(plain), dtype=torch.float64)
+        out[:, plain] = decide_mixtures(probs, vertices, weights).long()
+    for k, rule in enumerate(rules):
+        if rule.priors_alpha:
+            if priors is None:
+                raise ValueError(f"rule {rule.name!r} needs pixel-wise priors")
+            out[:, k] = decide(probs, rule.cost, adapted_priors(priors, rule.priors_alpha))
+    return out
+
+
+def cost_or_symmetric(cost: torch.Tensor | None, n: int) -> torch.Tensor:
+    """``cost``, or the (N, N) symmetric matrix for None."""
+    return symmetric_cost(n) if cost is None else cost
+
+
+@dataclass(frozen=True)
+class NamedRules:
+    """``probs, priors → (B, K, H, W)`` for named rules (a class, not a closure: groups travel
+    to DDP worker processes with the LightningModule, so they must pickle)."""
+
+    rules: tuple[Rule, ...]
+
+    def __call__(self, probs: torch.Tensor, priors: torch.Tensor | None) -> torch.Tensor:
+        return apply_rules(probs, self.rules, priors)
+
+
+def rules_group(rules: Sequence[Rule]) -> RuleGroup:
+    """The named rules of ``--cost`` as one group (with FP/FN location maps)."""
+    rules = list(rules)
+    return RuleGroup(
+        "rules",
+        [r.name for r in rules],
+        NamedRules(tuple(rules)),
+        [{"matrix": r.name} for r in rules],
+        is_named=True,
+        heatmaps=True,
+        needs_priors=any(r.priors_alpha for r in rules),
+        rules=rules,
+    )
