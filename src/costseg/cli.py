@@ -1,9 +1,11 @@
-"""Command lines: ``python train.py`` and ``python evaluate.py``. Only this module parses arguments.
+"""Command lines: ``python train.py`` and ``python evaluate.py``; only this module parses
+arguments.
 
 A user mistake ends with one line on stderr and exit status 2, Ctrl-C with one line and exit
 status 130 (set ``COSTSEG_DEBUG=1`` for the traceback). The options of ``evaluate.py`` are the
-fields of :class:`costseg.options.EvalOptions`; :func:`build_parser` derives the parser. Heavy libraries (torch, Lightning) are imported only once they are needed, so
-``--help`` answers at once.
+fields of :class:`costseg.options.EvalOptions`; :func:`build_parser` derives the parser. Heavy
+libraries (torch, Lightning) are imported only once they are needed, so ``--help`` answers at
+once.
 """
 
 from __future__ import annotations

@@ -124,7 +124,9 @@ class EvalOptions(SourceOptions):
         "none", "'mean': rescale each vertex to unit mean off-diagonal cost before mixing"
     )
     target: str | None = option(help="constraint on the sweep, e.g. 'person:roi1:recall>=0.99'")
-    maximize: str | None = option(help="what to maximise under --target, e.g. person:roi1:precision")
+    maximize: str | None = option(
+        help="what to maximise under --target, e.g. person:roi1:precision"
+    )
     alpha_sweep: float | None = option(
         help="also sweep the prior-adapted rule from Bayes (α=0) to ML (α=1)",
         type=step_size,

@@ -16,7 +16,7 @@ from costseg.report.figures import heatmap_grid_figures
 from costseg.report.files import write_csv, write_json, write_text
 from costseg.report.results import EvalResults, GroupResult
 from costseg.report.tables import ROI_NAMES, compare_with_paper, console_table, paper_table
-from costseg.report.tensorboard import log_masks, log_scalars, log_table
+from costseg.report.tensorboard import log_evaluation, log_masks, log_table
 
 SUMMARY_COLUMNS = ("matrix", "class", "roi", "precision", "recall", "fp_segments", "fn_segments")
 
@@ -41,7 +41,7 @@ def write_evaluation(results: EvalResults, early: EarlyFigures | None = None) ->
     write_json(out / "results.json", _json(results, rows))
     with SummaryWriter(str(out)) as writer:
         log_table(writer, "evaluation/table", tables)
-        log_scalars(writer, _scalars(rows, named))
+        log_evaluation(writer, results, rows)
         for i, ex in enumerate(results.examples):
             log_masks(
                 writer,
@@ -104,15 +104,6 @@ def _json(results: EvalResults, rows: list[dict]) -> dict:
         "scaling": results.extra.get("scaling"),
         "ece": {k: float(v["ece"]) for k, v in results.extra.get("ece", {}).items()},
     }
-
-
-def _scalars(rows: list[dict], named: GroupResult) -> dict[str, float]:
-    scalars = {f"evaluation/miou/{n}": v for n, v in _miou(named).items()}
-    for r in rows:
-        base = f"evaluation/{r['class']}/roi{r['roi']}"
-        for key in ("precision", "recall", "fp_segments", "fn_segments"):
-            scalars[f"{base}/{key}/{r['matrix']}"] = r[key]
-    return scalars
 
 
 def _figures(results: EvalResults) -> list[tuple[str, Batch]]:
