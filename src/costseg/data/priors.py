@@ -28,6 +28,7 @@ from scipy.ndimage import gaussian_filter
 from torch import Tensor
 
 from costseg.classes import CLASS_NAMES, IGNORE_INDEX, NUM_CLASSES, class_indices
+from costseg.progress import progress as progress_of
 
 ROI_CLASSES = ("road", "sidewalk", "building", "sky")
 """The class that defines RoI id 1, 2, 3, 4."""
@@ -121,7 +122,7 @@ def _count(
     bins = num_classes + 1  # the extra bin collects 255, so no masking is needed
     counts = position = ones = None
     size: tuple[int, ...] = ()
-    for i, label in enumerate(progress(labels, "pixel priors" if show else None, total)):
+    for i, label in enumerate(progress_of(labels, "pixel priors" if show else None, total)):
         label = torch.as_tensor(label)
         if counts is None:
             size = tuple(label.shape)

@@ -66,6 +66,7 @@ class SegmentationModule(L.LightningModule):
         channels_last: bool = True,
     ) -> None:
         super().__init__()
+        _check_hyperparameters(lr, momentum, weight_decay, poly_power)
         self.save_hyperparameters()
         self.net = DeepLabV3Plus(
             num_classes, backbone, output_stride, backbone_weights, decoder_channels
@@ -158,3 +159,15 @@ class SegmentationModule(L.LightningModule):
         self.priors = extra.get("priors")
         self.data_config = extra.get("data")
         self.priors_info = extra.get("priors_info")
+
+
+def _check_hyperparameters(lr: float, momentum: float, weight_decay: float, power: float) -> None:
+    """Refuse values no optimiser accepts, before anything is computed (one line each)."""
+    if not lr > 0:
+        raise ValueError(f"--model.lr must be > 0, got {lr}")
+    if not 0 <= momentum < 1:
+        raise ValueError(f"--model.momentum must lie in [0, 1), got {momentum}")
+    if not weight_decay >= 0:
+        raise ValueError(f"--model.weight_decay must be >= 0, got {weight_decay}")
+    if not power >= 0:
+        raise ValueError(f"--model.poly_power must be >= 0, got {power}")
