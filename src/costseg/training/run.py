@@ -79,8 +79,7 @@ def run_training(args: Sequence[str]) -> tuple[SegmentationModule, Trainer]:
     _use_step_progress(trainer)
     logging.getLogger("lightning.pytorch.utilities.rank_zero").addFilter(_no_interrupt_note)
     model.data_config = _data_config(cli)
-    run = Path(trainer.log_dir) if trainer.log_dir else None
-    new_run = run is not None and not run.exists()
+    new_run = _first_missing(Path(trainer.log_dir)) if trainer.log_dir else None
     try:
         if ckpt_path:
             print(f"resuming from {ckpt_path}")
@@ -88,7 +87,7 @@ def run_training(args: Sequence[str]) -> tuple[SegmentationModule, Trainer]:
             model.priors = _compute_priors(model, data, trainer)
         trainer.fit(model, data, ckpt_path=ckpt_path)
     except BaseException as err:
-        _after_failure(trainer, run if new_run else None, err)
+        _after_failure(trainer, new_run, err)
     if trainer.checkpoint_callback is not None:
         print(f"checkpoints: {trainer.checkpoint_callback.dirpath}")
     return model, trainer
@@ -126,6 +125,15 @@ def _check(model: SegmentationModule, data: LightningDataModule, trainer: Traine
             f"--trainer.max_steps must be >= 1 (the optimiser steps to train), "
             f"got {trainer.max_steps}"
         )
+
+
+def _first_missing(folder: Path) -> Path | None:
+    """The outermost of ``folder`` and its parents that does not exist yet (None: it exists)."""
+    if folder.exists():
+        return None
+    while not folder.parent.exists():
+        folder = folder.parent
+    return folder
 
 
 def _after_failure(trainer: Trainer, new_run: Path | None, err: BaseException) -> NoReturn:
