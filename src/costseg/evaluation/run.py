@@ -97,9 +97,9 @@ def plan(opts: EvalOptions) -> EvalPlan:
         num_workers=int(config.get("init_args", {}).get("num_workers", 2)),
         groups=groups,
         class_ids=class_indices(opts.classes),
-        output_dir=_on_rank0(lambda: claim_output_dir(opts.output_dir, opts.overwrite, base)),
         priors=priors,
         canvas=heatmap_canvas(dataset),
+        output_dir=_on_rank0(lambda: claim_output_dir(opts.output_dir, opts.overwrite, base)),
     )
 
 
@@ -188,12 +188,12 @@ def evaluate(opts: EvalOptions) -> EvalResults:
     says where the partial outputs are."""
     planned, early = plan(opts), None
     out = planned.output_dir
-    if _rank() == 0:
-        from costseg.report.early_figures import EarlyFigures
-
-        roi = planned.priors.roi_map()
-        early = EarlyFigures(out, planned.groups[0], roi, opts.num_examples)
     try:
+        if _rank() == 0:
+            from costseg.report.early_figures import EarlyFigures
+
+            roi = planned.priors.roi_map()
+            early = EarlyFigures(out, planned.groups[0], roi, opts.num_examples)
         results = run(planned, early.after_batch if early else None)
         if early:
             from costseg.report.evaluation import write_evaluation
