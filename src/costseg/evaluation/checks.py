@@ -101,8 +101,8 @@ def needs_priors(groups: list[RuleGroup]) -> bool:
 
 def source_priors(source, opts: EvalOptions, config: dict, cache_dir: Path) -> torch.Tensor | None:
     """The priors of a costseg checkpoint, or, for another network, the dataset's training
-    labels' priors (SPEC §3, §8), computed once and cached in ``cache_dir`` (next to the
-    outputs)."""
+    labels' priors (docs/definitions.md §3, §8), computed once and cached in ``cache_dir``
+    (next to the outputs)."""
     if source.priors is not None:
         return source.priors
     from costseg.data.from_config import build_dataset

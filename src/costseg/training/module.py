@@ -44,7 +44,7 @@ class SegmentationModule(L.LightningModule):
         poly_power: exponent of the poly schedule.
         val_costs: decision rules applied in validation (names as for ``evaluate.py --cost``).
         prior_sigma: Gaussian smoothing (pixels) of the pixel-wise priors; None = the
-            SPEC's default 80 · H / 1024 for labels of height H.
+            default 80 · H / 1024 (docs/definitions.md §3) for labels of height H.
         channels_last: run the network in channels-last memory format (faster convolutions
             on CPUs and on GPUs with tensor cores).
     """
