@@ -57,6 +57,8 @@ EVALUATE_CASES = {
     ),
     "unknown RoI": (_target("person:roi9:recall>=1"), ["unknown RoI 'roi9'"]),
     "unparsable target": (_target("person:roi1:recall about 1"), ["cannot parse"]),
+    "recall above 1": (_target("person:roi1:recall>=1.5"), ["recall", "[0, 1]"]),
+    "negative fp rate": (_target("person:roi1:fp_rate<=-0.1"), ["fp_rate", "[0, 1]"]),
     "unknown metric": (_target("person:roi1:sharpness>=1"), ["unknown metric 'sharpness'"]),
     "guarantee above 1": (
         [*_target("person:roi1:recall>=0.9"), "--guarantee", "1.5"],
@@ -126,6 +128,12 @@ def test_evaluate_without_any_checkpoint(tmp_path, monkeypatch, capsys):
 
 TRAIN_CASES = {
     "negative steps": (["--trainer.max_steps=-5"], ["max_steps"]),
+    "zero steps": (["--trainer.max_steps=0"], ["max_steps", ">= 1"]),
+    "negative learning rate": (["--model.lr=-1"], ["--model.lr", "> 0"]),
+    "gpu config without gpu": (
+        ["--config=configs/cityscapes.yaml"],
+        ["--trainer.accelerator cpu", "--trainer.precision 32-true"],
+    ),
     "zero batch": (["--data.init_args.batch_size=0"], ["batch_size"]),
     "unknown backbone": (["--model.backbone=resnet7"], ["resnet7"]),
     "unknown rule": (["--model.val_costs=[selfish]"], ["unknown cost 'selfish'"]),
@@ -141,8 +149,10 @@ TRAIN_CASES = {
 def test_train_bad_option(case, tmp_path, capsys):
     args, needles = TRAIN_CASES[case]
     logs = f"--trainer.logger.init_args.save_dir={tmp_path}"
-    if case == "missing gpu" and torch.cuda.is_available():
+    if "gpu" in case and torch.cuda.is_available():
         pytest.skip("this machine has a GPU")
     # A later option overrides an earlier one; --config must come first to be read first.
     order = [*args, *TINY_TRAIN, logs] if case == "missing config" else [*TINY_TRAIN, logs, *args]
+    if case == "gpu config without gpu":  # the toy data's options are not Cityscapes'
+        order = [*args, logs]
     _one_line(train_main, order, capsys, *needles)

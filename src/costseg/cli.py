@@ -1,16 +1,22 @@
-"""Command lines: ``python train.py`` and ``python evaluate.py``. Only this module parses arguments.
+"""Command lines: ``python train.py`` and ``python evaluate.py``; only this module parses
+arguments.
 
-A user mistake ends with one line on stderr and exit status 2 (set ``COSTSEG_DEBUG=1`` for the
-traceback). Heavy libraries (torch, Lightning) are imported only once they are needed, so
-``--help`` answers at once.
+A user mistake ends with one line on stderr and exit status 2, Ctrl-C with one line and exit
+status 130 (set ``COSTSEG_DEBUG=1`` for the traceback). The options of ``evaluate.py`` are the
+fields of :class:`costseg.options.EvalOptions`; :func:`build_parser` derives the parser. Heavy
+libraries (torch, Lightning) are imported only once they are needed, so ``--help`` answers at
+once.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import os
 import sys
+import types
+import typing
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any, NoReturn
@@ -18,7 +24,6 @@ from typing import Any, NoReturn
 from costseg.options import EvalOptions
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
-COST_CHOICES = "robotistic, altruistic, egoistic, ml or a .yaml cost file"
 
 
 def fail(message: str, join: bool = False) -> NoReturn:
@@ -32,11 +37,22 @@ def fail(message: str, join: bool = False) -> NoReturn:
     sys.exit(2)
 
 
+def interrupted(message: str = "") -> NoReturn:
+    """Print one line ``interrupted[: message]`` on stderr and exit with status 130 (Ctrl-C)."""
+    print(f"interrupted{': ' + message if message else ''}", file=sys.stderr)
+    sys.exit(130)
+
+
 @contextlib.contextmanager
 def user_errors(*extra: type[BaseException]) -> Iterator[None]:
-    """Turn a user mistake (ValueError, OSError and ``extra``) into one line and exit status 2."""
+    """Turn a user mistake (ValueError, OSError and ``extra``) into one line and exit status 2,
+    and Ctrl-C into one line (the interrupt's message: where partial outputs are) and 130."""
     try:
         yield
+    except KeyboardInterrupt as err:
+        if os.environ.get("COSTSEG_DEBUG"):
+            raise
+        interrupted(str(err))
     except (ValueError, OSError, *extra) as err:
         if os.environ.get("COSTSEG_DEBUG"):
             raise
@@ -57,13 +73,14 @@ def train_main(args: Sequence[str] | None = None) -> tuple[Any, Any]:
         sys.exit(0)
     if "--help_all" in args:  # LightningCLI's own help: every option of every class (slow)
         args[args.index("--help_all")] = "--help"
-    from jsonargparse import ArgumentError
-    from lightning.fabric.utilities.exceptions import MisconfigurationException
+    with user_errors(ImportError):
+        from jsonargparse import ArgumentError
+        from lightning.fabric.utilities.exceptions import MisconfigurationException
 
-    from costseg.training.run import run_training
+        from costseg.training.run import run_training
 
-    with user_errors(ArgumentError, MisconfigurationException, ImportError):
-        return run_training(args)
+        with user_errors(ArgumentError, MisconfigurationException):
+            return run_training(args)
 
 
 def print_train_help(args: Sequence[str]) -> None:
@@ -111,140 +128,66 @@ class OneLineParser(argparse.ArgumentParser):
         fail(f"{self.prog}: {message}")
 
 
-def whole_number(minimum: int):
-    """argparse type: an integer >= ``minimum``.
+def build_parser(options: type, prog: str, description: str) -> argparse.ArgumentParser:
+    """The parser of an options dataclass (:mod:`costseg.options`): one argument per field.
 
-    >>> whole_number(1)("3"), whole_number(0).__name__
-    (3, 'integer >= 0')
+    A field's type says the rest: ``bool`` is a flag (``--no-x`` when it defaults to True),
+    ``list[...]`` takes several values, ``Literal[...]`` lists the choices.
+
+    >>> from costseg.options import EvalOptions
+    >>> p = build_parser(EvalOptions, "evaluate.py", "")
+    >>> p.parse_args(["--limit", "2", "--no-progress"]).limit
+    2
     """
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            value = None
-        if value is None or value < minimum:
-            shown = repr(text) if value is None else value
-            raise argparse.ArgumentTypeError(f"expected a whole number >= {minimum}, got {shown}")
-        return value
-
-    parse.__name__ = f"integer >= {minimum}"
-    return parse
+    parser = OneLineParser(prog=prog, description=description)
+    groups: dict[str | None, Any] = {None: parser}
+    hints = typing.get_type_hints(options)
+    for f in dataclasses.fields(options):
+        meta = dict(f.metadata)
+        title = meta.pop("group", None)
+        if title not in groups:
+            groups[title] = parser.add_argument_group(title)
+        flag = meta.pop("flag", f"--{f.name}")
+        groups[title].add_argument(flag, dest=f.name, **_argument(f, hints[f.name], meta))
+    return parser
 
 
-def step_size(text: str) -> float:
-    """argparse type: a grid step 1/n in (0, 1]."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a step such as 0.1, got {text!r}") from None
-    n = round(1 / value) if 0 < value <= 1 else 0
-    if n < 1 or abs(n * value - 1) > 1e-9:
-        raise argparse.ArgumentTypeError(f"expected a step 1/n in (0, 1], e.g. 0.1, got {text}")
-    return value
+def _argument(f: dataclasses.Field, hint: Any, meta: dict[str, Any]) -> dict[str, Any]:
+    """argparse keywords of one dataclass field."""
+    default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+    optional = typing.get_origin(hint) in (typing.Union, types.UnionType)
+    kind = [a for a in typing.get_args(hint) if a is not type(None)] if optional else [hint]
+    if hint is bool:
+        return {"action": "store_false" if default else "store_true", "help": meta["help"]}
+    meta["default"] = default
+    if default is not None:
+        shown = " ".join(default) if isinstance(default, list) else default
+        meta["help"] = f"{meta['help']} (default: {shown})"
+    if typing.get_origin(kind[0]) is list:
+        meta.setdefault("nargs", "+")
+        kind = list(typing.get_args(kind[0]))
+    if typing.get_origin(kind[0]) is typing.Literal:
+        meta["choices"] = typing.get_args(kind[0])
+    elif kind[0] in (int, float):
+        meta.setdefault("type", kind[0])
+    return meta
 
 
 def evaluate_parser() -> argparse.ArgumentParser:
-    """The options of ``evaluate.py``; defaults are those of :class:`EvalOptions`."""
-    d = EvalOptions()
-    p = OneLineParser(
-        prog="evaluate.py",
-        description="Evaluate a network under cost-based decision rules: per-class precision "
+    """The options of ``evaluate.py``: the fields of :class:`EvalOptions`."""
+    return build_parser(
+        EvalOptions,
+        "evaluate.py",
+        "Evaluate a network under cost-based decision rules: per-class precision "
         "and recall in regions of interest, FP/FN segments, mIoU; tables, figures, JSON, "
         "TensorBoard; optionally sweeps over the value-space triangle and the α path.",
     )
-    add = p.add_argument
-    add("--cost", nargs="+", default=d.cost, help=f"rules: {COST_CHOICES}")
-    src = p.add_argument_group("probability source (one of; default: newest runs/**/last.ckpt)")
-    src.add_argument("--ckpt_path", help="a costseg checkpoint")
-    src.add_argument("--network", help="costseg:PATH, vainf:PATH, hf:DIR (alias segformer:DIR)")
-    src.add_argument("--probs", help="folder of saved probabilities (<image>.npz or .pt)")
-    add("--data_root", help="Cityscapes root (needed for --network/--probs of other networks)")
-    add("--split", default=d.split, choices=("train", "val", "test"))
-    add("--classes", nargs="+", default=d.classes, help="classes of the table and segment maps")
-    add("--output_dir", help="default: a new <run>/evaluation/version_<n>")
-    add("--overwrite", action="store_true", help="allow an --output_dir that holds results")
-    add("--limit", type=whole_number(1), help="evaluate only the first N images")
-    add("--batch_size", type=whole_number(1))
-    add("--device", default=d.device, help="auto, cpu, cuda, cuda:1, ...")
-    add(
-        "--save-predictions",
-        dest="save_predictions",
-        action="store_true",
-        help="write Cityscapes label-id PNGs per image and rule",
-    )
-    add(
-        "--save-probs",
-        dest="save_probs",
-        action="store_true",
-        help="write each image's probabilities (float16 .npz) for later --probs runs",
-    )
-    add(
-        "--num_examples",
-        type=whole_number(0),
-        default=d.num_examples,
-        help="images in the mask figures",
-    )
-    add(
-        "--sweep",
-        type=step_size,
-        metavar="STEP",
-        help="also sweep the barycentric grid of this step over the three --vertices",
-    )
-    add("--vertices", nargs=3, default=d.vertices, help="the triangle's corners")
-    add(
-        "--vertex_scaling",
-        default=d.vertex_scaling,
-        choices=("none", "mean"),
-        help="'mean': rescale each vertex to unit mean off-diagonal cost before mixing",
-    )
-    add("--target", help="constraint on the sweep, e.g. 'person:roi1:recall>=0.99'")
-    add("--maximize", help="what to maximise under --target, e.g. person:roi1:precision")
-    add(
-        "--alpha_sweep",
-        type=step_size,
-        metavar="STEP",
-        help="also sweep the prior-adapted rule from Bayes (α=0) to ML (α=1)",
-    )
-    add("--alpha_cost", help="cost matrix of the α sweep (default: symmetric)")
-    cal = p.add_argument_group("calibration and guarantees (fitted on held-out images)")
-    cal.add_argument(
-        "--calibrate",
-        choices=("temperature", "vector"),
-        help="scale the logits, fitted on the first half of the split (or --calibration_split); "
-        "the second half is reported",
-    )
-    cal.add_argument(
-        "--calibration_split",
-        choices=("train", "val", "test"),
-        help="fit / certify on this split instead of the first half of --split",
-    )
-    cal.add_argument(
-        "--temperature_sweep",
-        action="store_true",
-        help="every named rule at T = 0.5 ... 2 (and the fitted T), the network run once",
-    )
-    cal.add_argument(
-        "--guarantee",
-        type=float,
-        metavar="DELTA",
-        help="choose the --sweep / --alpha_sweep point with P(risk > α) <= DELTA "
-        "(Learn-then-Test); α comes from --target",
-    )
-    cal.add_argument(
-        "--guarantee_method",
-        default=d.guarantee_method,
-        choices=("bonferroni", "fixed_sequence"),
-        help="family-wise error control (fixed_sequence tests along the grid / α order)",
-    )
-    add("--no-progress", dest="progress", action="store_false")
-    return p
 
 
 def evaluate_main(args: Sequence[str] | None = None) -> Any:
     """``python evaluate.py --cost egoistic`` (see ``--help``); returns the results."""
-    opts = EvalOptions(**vars(evaluate_parser().parse_args(args)))
     with user_errors():
+        opts = EvalOptions(**vars(evaluate_parser().parse_args(args)))
         from costseg.evaluation.run import evaluate
 
         return evaluate(opts)

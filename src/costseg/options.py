@@ -1,39 +1,159 @@
-"""The options of ``evaluate.py`` as one typed value (no heavy imports: ``--help`` stays fast)."""
+"""Every option of the command lines, declared once as typed dataclass fields.
+
+A field's type, default and ``metadata`` (help, flag, choices, value type, argument group) are
+all the command line knows: :func:`costseg.cli.build_parser` derives the parser from them, and
+the jobs receive the dataclass. :class:`SourceOptions` holds what every job that runs a network
+shares (source, rules, device, output folder); :class:`EvalOptions` adds ``evaluate.py``'s own.
+A new option is one field here. No heavy imports, so ``--help`` answers at once.
+
+>>> EvalOptions(cost=["egoistic"]).split
+'val'
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import argparse
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Literal
+
+SOURCE = "probability source (one of; default: newest runs/**/last.ckpt)"
+CALIBRATION = "calibration and guarantees (fitted on held-out images)"
+RULES = ["robotistic", "altruistic", "egoistic"]
+
+
+def whole_number(minimum: int) -> Callable[[str], int]:
+    """Value type: an integer >= ``minimum``.
+
+    >>> whole_number(1)("3"), whole_number(0).__name__
+    (3, 'integer >= 0')
+    """
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = None
+        if value is None or value < minimum:
+            shown = repr(text) if value is None else value
+            raise argparse.ArgumentTypeError(f"expected a whole number >= {minimum}, got {shown}")
+        return value
+
+    parse.__name__ = f"integer >= {minimum}"
+    return parse
+
+
+def step_size(text: str) -> float:
+    """Value type: a grid step 1/n in (0, 1].
+
+    >>> step_size("0.25")
+    0.25
+    """
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a step such as 0.1, got {text!r}") from None
+    n = round(1 / value) if 0 < value <= 1 else 0
+    if n < 1 or abs(n * value - 1) > 1e-9:
+        raise argparse.ArgumentTypeError(f"expected a step 1/n in (0, 1], e.g. 0.1, got {text}")
+    return value
+
+
+def option(default: Any = None, help: str | None = None, **metadata: Any) -> Any:
+    """A dataclass field that is also a command-line option.
+
+    Args:
+        default: the default value (a list is copied for each instance).
+        help: the line ``--help`` shows.
+        **metadata: ``flag`` (default ``--<name>``), ``type`` (a value type such as
+            :func:`whole_number`), ``nargs``, ``metavar``, ``group`` (an argument group's title).
+    """
+    metadata["help"] = help
+    if isinstance(default, list):
+        return dataclasses.field(default_factory=lambda: list(default), metadata=metadata)
+    return dataclasses.field(default=default, metadata=metadata)
 
 
 @dataclass
-class EvalOptions:
+class SourceOptions:
+    """What every job that runs a network is told: where probabilities come from, which rules,
+    on which device, and where outputs go."""
+
+    cost: list[str] = option(RULES, "rules: robotistic, altruistic, egoistic, ml or a .yaml cost")
+    ckpt_path: str | None = option(help="a costseg checkpoint", group=SOURCE)
+    network: str | None = option(
+        help="costseg:PATH, vainf:PATH, hf:DIR (alias segformer:DIR)", group=SOURCE
+    )
+    probs: str | None = option(
+        help="folder of saved probabilities (<image>.npz or .pt)", group=SOURCE
+    )
+    data_root: str | None = option(
+        help="Cityscapes root (needed for --network/--probs of other networks)"
+    )
+    split: Literal["train", "val", "test"] = option("val", "the split to run on")
+    output_dir: str | None = option(help="default: a new numbered folder <run>/<job>/version_<n>")
+    overwrite: bool = option(False, "allow an --output_dir that holds results")
+    limit: int | None = option(help="only the first N images", type=whole_number(1))
+    batch_size: int | None = option(help="images per batch", type=whole_number(1))
+    device: str = option("auto", "auto, cpu, cuda, cuda:1, ...")
+    progress: bool = option(True, "no progress lines", flag="--no-progress")
+
+
+@dataclass
+class EvalOptions(SourceOptions):
     """Everything ``evaluate.py`` can be told (see ``python evaluate.py --help``)."""
 
-    cost: list[str] = field(default_factory=lambda: ["robotistic", "altruistic", "egoistic"])
-    ckpt_path: str | None = None
-    network: str | None = None
-    probs: str | None = None
-    data_root: str | None = None
-    split: str = "val"
-    classes: list[str] = field(default_factory=lambda: ["person", "building"])
-    output_dir: str | None = None
-    overwrite: bool = False
-    limit: int | None = None
-    batch_size: int | None = None
-    device: str = "auto"
-    save_predictions: bool = False
-    save_probs: bool = False
-    num_examples: int = 3
-    sweep: float | None = None
-    vertices: list[str] = field(default_factory=lambda: ["robotistic", "altruistic", "egoistic"])
-    vertex_scaling: str = "none"
-    target: str | None = None
-    maximize: str | None = None
-    alpha_sweep: float | None = None
-    alpha_cost: str | None = None
-    calibrate: str | None = None
-    calibration_split: str | None = None
-    temperature_sweep: bool = False
-    guarantee: float | None = None
-    guarantee_method: str = "bonferroni"
-    progress: bool = True
+    classes: list[str] = option(["person", "building"], "classes of the table and segment maps")
+    save_predictions: bool = option(
+        False, "write Cityscapes label-id PNGs per image and rule", flag="--save-predictions"
+    )
+    save_probs: bool = option(
+        False,
+        "write each image's probabilities (float16 .npz) for later --probs runs",
+        flag="--save-probs",
+    )
+    num_examples: int = option(3, "images in the mask figures", type=whole_number(0))
+    sweep: float | None = option(
+        help="also sweep the barycentric grid of this step over the three --vertices",
+        type=step_size,
+        metavar="STEP",
+    )
+    vertices: list[str] = option(RULES, "the triangle's corners", nargs=3)
+    vertex_scaling: Literal["none", "mean"] = option(
+        "none", "'mean': rescale each vertex to unit mean off-diagonal cost before mixing"
+    )
+    target: str | None = option(help="constraint on the sweep, e.g. 'person:roi1:recall>=0.99'")
+    maximize: str | None = option(
+        help="what to maximise under --target, e.g. person:roi1:precision"
+    )
+    alpha_sweep: float | None = option(
+        help="also sweep the prior-adapted rule from Bayes (α=0) to ML (α=1)",
+        type=step_size,
+        metavar="STEP",
+    )
+    alpha_cost: str | None = option(help="cost matrix of the α sweep (default: symmetric)")
+    calibrate: Literal["temperature", "vector"] | None = option(
+        help="scale the logits, fitted on the first half of the split (or --calibration_split); "
+        "the second half is reported",
+        group=CALIBRATION,
+    )
+    calibration_split: Literal["train", "val", "test"] | None = option(
+        help="fit / certify on this split instead of the first half of --split", group=CALIBRATION
+    )
+    temperature_sweep: bool = option(
+        False,
+        "every named rule at T = 0.5 ... 2 (and the fitted T), the network run once",
+        group=CALIBRATION,
+    )
+    guarantee: float | None = option(
+        help="choose the --sweep / --alpha_sweep point with P(risk > α) <= DELTA "
+        "(Learn-then-Test); α comes from --target",
+        metavar="DELTA",
+        group=CALIBRATION,
+    )
+    guarantee_method: Literal["bonferroni", "fixed_sequence"] = option(
+        "bonferroni",
+        "family-wise error control (fixed_sequence tests along the grid / α order)",
+        group=CALIBRATION,
+    )

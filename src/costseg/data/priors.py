@@ -26,9 +26,9 @@ import torch
 import torch.nn.functional as F
 from scipy.ndimage import gaussian_filter
 from torch import Tensor
-from tqdm.auto import tqdm
 
 from costseg.classes import CLASS_NAMES, IGNORE_INDEX, NUM_CLASSES, ROI_CLASSES, class_indices
+from costseg.progress import progress as progress_of
 
 _FORMAT = "costseg-pixel-priors-v1"
 _HANDFUL = 10  # no progress bar for a few labels (doctests, tests)
@@ -120,7 +120,7 @@ def _count(
     bins = num_classes + 1  # the extra bin collects 255, so no masking is needed
     counts = position = ones = None
     size: tuple[int, ...] = ()
-    for i, label in enumerate(tqdm(labels, total=total, desc="pixel priors", disable=not show)):
+    for i, label in enumerate(progress_of(labels, "pixel priors" if show else None, total)):
         label = torch.as_tensor(label)
         if counts is None:
             size = tuple(label.shape)

@@ -37,7 +37,7 @@ from costseg.metrics import CalibrationError
 from costseg.metrics.scoring import GroupMetrics, score_batch
 from costseg.networks.sources import Batch, Source, batches, open_source, resolve_device
 from costseg.options import EvalOptions
-from costseg.report.outputs import BatchWriter, claim_output_dir
+from costseg.report.outputs import INCOMPLETE, BatchWriter, claim_output_dir, mark_complete
 from costseg.report.results import EvalResults, Example, GroupResult
 from costseg.rules import RuleGroup, named_group, temperature_group
 
@@ -97,9 +97,9 @@ def plan(opts: EvalOptions) -> EvalPlan:
         num_workers=int(config.get("init_args", {}).get("num_workers", 2)),
         groups=groups,
         class_ids=class_indices(opts.classes),
-        output_dir=_on_rank0(lambda: claim_output_dir(opts.output_dir, opts.overwrite, base)),
         priors=priors,
         canvas=heatmap_canvas(dataset),
+        output_dir=_on_rank0(lambda: claim_output_dir(opts.output_dir, opts.overwrite, base)),
     )
 
 
@@ -185,24 +185,35 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> 
 def evaluate(opts: EvalOptions) -> EvalResults:
     """Plan, run, and (on rank 0) write every output; returns the results.
 
-    Figures known before the loop ends are drawn on forked processes meanwhile."""
+    Figures known before the loop ends are drawn on forked processes meanwhile. The output
+    folder is marked ``INCOMPLETE`` until every file is written; an interrupt or a failed write
+    says where the partial outputs are."""
     planned, early = plan(opts), None
-    if _rank() == 0:
-        from costseg.report.early_figures import EarlyFigures
-
-        roi = planned.priors.roi_map()
-        named = named_group(planned.groups)
-        early = EarlyFigures(planned.output_dir, named, roi, opts.num_examples)
+    out = planned.output_dir
     try:
+        if _rank() == 0:
+            from costseg.report.early_figures import EarlyFigures
+
+            roi = planned.priors.roi_map()
+            early = EarlyFigures(out, named_group(planned.groups), roi, opts.num_examples)
         results = run(planned, early.after_batch if early else None)
+        if early:
+            from costseg.report.evaluation import write_evaluation
+
+            write_evaluation(results, early)
+    except (KeyboardInterrupt, OSError) as err:
+        if early:
+            early.cancel()
+        partial = f"the partial outputs in {out} are marked {INCOMPLETE}"
+        if isinstance(err, KeyboardInterrupt):
+            raise KeyboardInterrupt(partial) from None
+        raise OSError(f"{err.strerror or err}: {err.filename or ''}; {partial}") from err
     except BaseException:
         if early:
             early.cancel()
         raise
-    if early:
-        from costseg.report.evaluation import write_evaluation
-
-        write_evaluation(results, early)
+    if _rank() == 0:
+        mark_complete(out)
     return results
 
 

@@ -65,7 +65,10 @@ def parse_target(text: str, class_names: Sequence[str] = CLASS_NAMES) -> Target:
         value = float(match.group(3))
     except ValueError:
         raise ValueError(f"cannot parse the number in target {text!r}") from None
-    return Target(*parse_metric(match.group(1), class_names), match.group(2), value)
+    metric = parse_metric(match.group(1), class_names)
+    if metric.metric.endswith(("precision", "recall", "_rate")) and not 0 <= value <= 1:
+        raise ValueError(f"{metric.metric} is a rate in [0, 1]: the target {text!r} is outside")
+    return Target(*metric, match.group(2), value)
 
 
 def metric_values(

@@ -15,11 +15,11 @@ from typing import Any
 import torch
 from torch import Tensor
 from torch.utils.data import DataLoader, Dataset
-from tqdm import tqdm
 
 from costseg.checkpoints import find_checkpoint
 from costseg.classes import CLASS_NAMES
 from costseg.data.from_config import image_stems
+from costseg.progress import progress
 
 
 @dataclass
@@ -154,7 +154,7 @@ def batches(
         num_workers=num_workers,
         collate_fn=_collate_by_size,
     )
-    for group in tqdm(loader, desc, disable=desc is None):
+    for group in progress(loader, desc):
         for images, labels, chosen in group:
             images, labels = images.to(device), labels.to(device)
             stems = image_stems(dataset, chosen)

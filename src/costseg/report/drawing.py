@@ -14,6 +14,7 @@ from __future__ import annotations
 import multiprocessing
 import os
 import queue
+import signal
 import traceback
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -92,6 +93,8 @@ class Drawing:
             done = dict(_claim_and_draw(self.batches, self.folder, self.claimed))
             while len(done) < len(self.batches):
                 index, outcome = _next_report(self.reports, self.workers)
+                if isinstance(outcome, OSError):  # e.g. a full disk: the user's to fix
+                    raise outcome
                 if isinstance(outcome, str):
                     raise RuntimeError(f"drawing figures failed in a worker process:\n{outcome}")
                 done[index] = outcome
@@ -139,16 +142,20 @@ def _claim_and_draw(batches: Sequence[Batch], folder: Path, claimed):
 
 
 def _work(batches: Sequence[Batch], folder: Path, claimed, reports) -> None:
-    """A worker process: report ``(index, drawn)`` per batch, or ``(index, traceback)``."""
+    """A worker process: report ``(index, drawn)`` per batch, ``(index, OSError)`` or
+    ``(index, traceback)``. Ctrl-C is the parent's to handle: it stops the workers."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     index = -1
     try:
         for index, drawn in _claim_and_draw(batches, folder, claimed):
             reports.put((index, drawn))
+    except OSError as err:
+        reports.put((index, OSError(err.errno, err.strerror, err.filename)))
     except BaseException:
         reports.put((index, traceback.format_exc()))
 
 
-def _next_report(reports, workers: list) -> tuple[int, Drawn | str]:
+def _next_report(reports, workers: list) -> tuple[int, Drawn | OSError | str]:
     """The next report; an error report if every worker has ended with reports missing."""
     while True:
         try:

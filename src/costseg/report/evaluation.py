@@ -10,7 +10,7 @@ from __future__ import annotations
 from torch.utils.tensorboard import SummaryWriter
 
 from costseg.classes import CLASS_NAMES, ROI_NAMES
-from costseg.metrics.names import ERROR_COLUMNS, PIXEL_RATES
+from costseg.metrics.names import ERROR_COLUMNS
 from costseg.report.drawing import Batch, save_and_log_all
 from costseg.report.early_figures import EarlyFigures, example_figures, plan_figures
 from costseg.report.figures import heatmap_grid_figures
@@ -23,11 +23,9 @@ from costseg.report.tables import (
     console_table,
     paper_table,
 )
-from costseg.report.tensorboard import log_masks, log_scalars, log_table
+from costseg.report.tensorboard import log_evaluation, log_masks, log_table
 
 SUMMARY_COLUMNS = (*PAPER_COLUMNS, *ERROR_COLUMNS)
-SCALARS = (*PIXEL_RATES, *ERROR_COLUMNS)
-"""The metrics of the named rules logged to TensorBoard, per class and RoI."""
 
 
 def write_evaluation(results: EvalResults, early: EarlyFigures | None = None) -> None:
@@ -50,7 +48,7 @@ def write_evaluation(results: EvalResults, early: EarlyFigures | None = None) ->
     write_json(out / "results.json", _json(results, rows))
     with SummaryWriter(str(out)) as writer:
         log_table(writer, "evaluation/table", tables)
-        log_scalars(writer, _scalars(rows, named))
+        log_evaluation(writer, results, rows)
         for i, ex in enumerate(results.examples):
             log_masks(
                 writer,
@@ -113,15 +111,6 @@ def _json(results: EvalResults, rows: list[dict]) -> dict:
         "scaling": results.extra.get("scaling"),
         "ece": {k: float(v["ece"]) for k, v in results.extra.get("ece", {}).items()},
     }
-
-
-def _scalars(rows: list[dict], named: GroupResult) -> dict[str, float]:
-    scalars = {f"evaluation/miou/{n}": v for n, v in _miou(named).items()}
-    for r in rows:
-        base = f"evaluation/{r['class']}/roi{r['roi']}"
-        for key in SCALARS:
-            scalars[f"{base}/{key}/{r['matrix']}"] = r[key]
-    return scalars
 
 
 def _figures(results: EvalResults) -> list[tuple[str, Batch]]:

@@ -2,7 +2,8 @@
 
 Nothing is lost: without ``--output_dir`` each evaluation gets a new
 ``<base>/version_<n>``; an explicit folder that already holds files is refused unless the user
-says ``--overwrite``.
+says ``--overwrite``. A claimed folder holds the marker file ``INCOMPLETE`` until
+:func:`mark_complete` removes it, so an interrupted or failed run never looks finished.
 """
 
 from __future__ import annotations
@@ -15,6 +16,12 @@ import torch
 from PIL import Image
 
 from costseg.classes import TRAIN_ID_TO_LABEL_ID
+
+INCOMPLETE = "INCOMPLETE"
+_MARKER_TEXT = (
+    "This run did not finish (interrupted or failed): the files beside this one are partial.\n"
+    "Run it again, with --overwrite to reuse this folder.\n"
+)
 
 
 def claim_output_dir(output_dir: str | None, overwrite: bool, default_base: Path) -> Path:
@@ -33,17 +40,26 @@ def claim_output_dir(output_dir: str | None, overwrite: bool, default_base: Path
     ...     [claim_output_dir(None, False, Path(d)).name for _ in range(2)]
     ['version_0', 'version_1']
     """
-    if output_dir is None:
-        return _next_version(default_base)
-    out = Path(output_dir)
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--output_dir {out} is a file, not a folder")
+    out = _next_version(default_base) if output_dir is None else _check_folder(Path(output_dir))
     if out.is_dir() and any(out.iterdir()) and not overwrite:
+        held = "an unfinished run" if (out / INCOMPLETE).exists() else "results"
         raise ValueError(
-            f"--output_dir {out} already holds results: pass --overwrite to replace them, "
+            f"--output_dir {out} already holds {held}: pass --overwrite to replace them, "
             "or choose another folder"
         )
     _make_writable(out)
+    (out / INCOMPLETE).write_text(_MARKER_TEXT)
+    return out
+
+
+def mark_complete(folder: Path) -> None:
+    """Remove the ``INCOMPLETE`` marker: every output of the run in ``folder`` is written."""
+    (folder / INCOMPLETE).unlink(missing_ok=True)
+
+
+def _check_folder(out: Path) -> Path:
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--output_dir {out} is a file, not a folder")
     return out
 
 
@@ -93,7 +109,7 @@ class BatchWriter:
                 os.replace(tmp, folder / f"{stem}.png")
 
     def save_probs(self, stems: list[str], probs: torch.Tensor) -> None:
-        """(B, N, H, W) probabilities → ``probs/<image>.npz`` (float16, SPEC §8)."""
+        """(B, N, H, W) probabilities → ``probs/<image>.npz`` (float16, docs/definitions.md §8)."""
         from costseg.networks.probs_files import save_probs
 
         for stem, p in zip(stems, probs, strict=True):

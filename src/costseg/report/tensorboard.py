@@ -2,20 +2,37 @@
 
 Every helper takes a ``torch.utils.tensorboard.SummaryWriter``; under Lightning that is
 ``trainer.logger.experiment`` of a ``TensorBoardLogger``.
+
+An evaluation reads in TensorBoard as in its folder (:func:`log_evaluation`): its tables as
+text, its figures as images, and scalars only where a value changes along something: the
+sweeps, as curves over the grid index, α or T. One card per metric; the classes are runs
+(``<output>/tensorboard/<class>``) overlaid in it, so the number of cards does not grow with
+``--classes``.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from typing import TYPE_CHECKING
+from collections.abc import Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from matplotlib.figure import Figure
 
+from costseg.classes import CLASS_NAMES
 from costseg.report.figures import ArrayLike, masks_side_by_side
 
 if TYPE_CHECKING:
     from torch.utils.tensorboard import SummaryWriter
+
+    from costseg.report.results import EvalResults, GroupResult
+
+STEPS = """Scalars are the sweeps' curves; the step is
+* `sweep/*`, `alpha_sweep/*`: the rule's index (the row order of `sweep.csv`,
+  `alpha_sweep.csv`; k for α = k · STEP),
+* `temperature_sweep/*`: 100 · T.
+
+Each class is a run (`tensorboard/<class>`); whole-image values (`*/miou`) are in this run."""
 
 
 def log_table(writer: SummaryWriter, tag: str, markdown: str, step: int = 0) -> None:
@@ -108,3 +125,89 @@ def log_png(
     height, width, channels = shape
     image = Summary.Image(height=height, width=width, colorspace=channels, encoded_image_string=png)
     writer.file_writer.add_summary(Summary(value=[Summary.Value(tag=tag, image=image)]), step)
+
+
+def markdown_table(rows: Sequence[Mapping[str, Any]]) -> str:
+    """Dict rows as a Markdown table (numbers to 4 decimals, NaN as "nan").
+
+    >>> print(markdown_table([{"rule": "ml", "recall": 0.5}]))
+    | rule | recall |
+    |---|---|
+    | ml | 0.5000 |
+    """
+    columns = list(dict.fromkeys(k for row in rows for k in row))
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    for row in rows:
+        cells = (_cell(row.get(c, "")) for c in columns)
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _cell(value: Any) -> str:
+    return f"{value:.4f}" if isinstance(value, float) else str(value)
+
+
+def log_evaluation(writer: SummaryWriter, results: EvalResults, rows: Sequence[Mapping]) -> None:
+    """The named rules' ``rows`` as a text table, and the sweeps as curves (see the module).
+
+    Args:
+        writer: the evaluation's writer (its folder is ``results.output_dir``).
+        results: the evaluation.
+        rows: the named rules' result rows (those of ``results.csv``).
+    """
+    from torch.utils.tensorboard import SummaryWriter
+
+    log_table(writer, "evaluation/results", markdown_table(rows))
+    curves = list(_sweep_curves(results))
+    if not curves:
+        return
+    log_table(writer, "evaluation/steps", STEPS)
+    runs: dict[str, SummaryWriter] = {}
+    for tag, run, steps, values in curves:
+        if run is None:
+            target = writer
+        else:
+            if run not in runs:
+                runs[run] = SummaryWriter(str(Path(results.output_dir) / "tensorboard" / run))
+            target = runs[run]
+        for step, value in zip(steps, values, strict=True):
+            log_scalars(target, {tag: value}, step)
+    for run_writer in runs.values():
+        run_writer.close()
+
+
+Curve = tuple[str, str | None, list[int], list[float]]  # tag, run (class or None), steps, values
+
+
+def _sweep_curves(results: EvalResults) -> Iterator[Curve]:
+    for result in results.groups:
+        if result.group.output is None:
+            continue
+        prefix, steps = result.group.output, list(range(len(result.group.names)))
+        yield from _group_curves(prefix, result, results.class_ids, steps)
+        for c, cls in enumerate(results.class_ids):
+            for metric in ("fp_rate", "fn_rate"):
+                if result.segments and metric in result.segments:
+                    values = result.segments[metric][:, c, 0].tolist()
+                    yield f"{prefix}/{metric}", CLASS_NAMES[cls], steps, values
+    tempered = sorted(
+        (g for g in results.groups if g.group.temperature), key=lambda g: g.group.temperature
+    )
+    steps = [round(100 * g.group.temperature) for g in tempered]
+    for k, rule in enumerate(tempered[0].group.names if tempered else []):
+        for cls in results.class_ids:
+            for metric in ("precision", "recall"):
+                values = [g.pixels[metric][k, 1, cls].item() for g in tempered]
+                yield f"temperature_sweep/{rule}/{metric}_roi1", CLASS_NAMES[cls], steps, values
+
+
+def _group_curves(
+    prefix: str, result: GroupResult, class_ids: Sequence[int], steps: list[int]
+) -> Iterator[Curve]:
+    """mIoU, and precision and recall of each class in RoI 1 and 2, along a group's rules."""
+    yield f"{prefix}/miou", None, steps, result.pixels["miou"].tolist()
+    for cls in class_ids:
+        for roi in (1, 2):
+            for metric in ("precision", "recall"):
+                values = result.pixels[metric][:, roi, cls].tolist()
+                yield f"{prefix}/{metric}_roi{roi}", CLASS_NAMES[cls], steps, values

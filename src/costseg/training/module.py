@@ -43,7 +43,7 @@ class SegmentationModule(L.LightningModule):
         poly_power: exponent of the poly schedule.
         val_costs: decision rules applied in validation (names as for ``evaluate.py --cost``).
         prior_sigma: Gaussian smoothing (pixels) of the pixel-wise priors; None = the
-            SPEC's default 80 · H / 1024 for labels of height H.
+            default 80 · H / 1024 (docs/definitions.md §3) for labels of height H.
         channels_last: run the network in channels-last memory format (faster convolutions
             on CPUs and on GPUs with tensor cores).
     """
@@ -65,6 +65,7 @@ class SegmentationModule(L.LightningModule):
         channels_last: bool = True,
     ) -> None:
         super().__init__()
+        _check_hyperparameters(lr, momentum, weight_decay, poly_power)
         self.save_hyperparameters()
         self.net = DeepLabV3Plus(
             num_classes, backbone, output_stride, backbone_weights, decoder_channels
@@ -157,3 +158,15 @@ class SegmentationModule(L.LightningModule):
         self.priors = extra.get("priors")
         self.data_config = extra.get("data")
         self.priors_info = extra.get("priors_info")
+
+
+def _check_hyperparameters(lr: float, momentum: float, weight_decay: float, power: float) -> None:
+    """Refuse values no optimiser accepts, before anything is computed (one line each)."""
+    if not lr > 0:
+        raise ValueError(f"--model.lr must be > 0, got {lr}")
+    if not 0 <= momentum < 1:
+        raise ValueError(f"--model.momentum must lie in [0, 1), got {momentum}")
+    if not weight_decay >= 0:
+        raise ValueError(f"--model.weight_decay must be >= 0, got {weight_decay}")
+    if not power >= 0:
+        raise ValueError(f"--model.poly_power must be >= 0, got {power}")

@@ -7,19 +7,23 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import shutil
 import sys
 import warnings
 from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import torch
+from lightning.fabric.utilities.exceptions import MisconfigurationException
 from lightning.pytorch import LightningDataModule, Trainer
+from lightning.pytorch.callbacks import RichProgressBar, TQDMProgressBar
 from lightning.pytorch.cli import LightningCLI
 
 from costseg.checkpoints import check_classes, find_checkpoint
 from costseg.data.priors import default_sigma, pixel_priors, roi_map, save_priors
 from costseg.training.module import SegmentationModule
+from costseg.training.progress import StepProgress
 
 
 class TrainCLI(LightningCLI):
@@ -59,9 +63,39 @@ def _held_messages() -> Iterator[None]:
 
 
 def run_training(args: Sequence[str]) -> tuple[SegmentationModule, Trainer]:
-    """Parse ``args`` (a config and overrides), compute priors or resume, and fit."""
+    """Parse and check ``args`` (a config and overrides), compute priors or resume, and fit.
+
+    A run that fails or is interrupted before its first step leaves no run folder; an
+    interrupted one says where its ``last.ckpt`` is (KeyboardInterrupt with that message)."""
     with _held_messages():
-        cli = TrainCLI(
+        cli = _parse(args)
+        model, data, trainer = cli.model, cli.datamodule, cli.trainer
+        _check(model, data, trainer)
+        ckpt_path = cli.config.get("ckpt_path")
+        if ckpt_path:
+            ckpt_path = str(find_checkpoint(ckpt_path))
+            check_classes(ckpt_path, data.class_names)
+    _warn_slow_bf16(trainer)
+    _use_step_progress(trainer)
+    logging.getLogger("lightning.pytorch.utilities.rank_zero").addFilter(_no_interrupt_note)
+    model.data_config = _data_config(cli)
+    new_run = _first_missing(Path(trainer.log_dir)) if trainer.log_dir else None
+    try:
+        if ckpt_path:
+            print(f"resuming from {ckpt_path}")
+        else:
+            model.priors = _compute_priors(model, data, trainer)
+        trainer.fit(model, data, ckpt_path=ckpt_path)
+    except BaseException as err:
+        _after_failure(trainer, new_run, err)
+    if trainer.checkpoint_callback is not None:
+        print(f"checkpoints: {trainer.checkpoint_callback.dirpath}")
+    return model, trainer
+
+
+def _parse(args: Sequence[str]) -> TrainCLI:
+    try:
+        return TrainCLI(
             SegmentationModule,
             LightningDataModule,
             subclass_mode_data=True,
@@ -70,26 +104,72 @@ def run_training(args: Sequence[str]) -> tuple[SegmentationModule, Trainer]:
             save_config_kwargs={"overwrite": True},
             parser_kwargs={"exit_on_error": False},
         )
-        model, data, trainer = cli.model, cli.datamodule, cli.trainer
-        if model.hparams.num_classes != data.num_classes:
-            raise ValueError(
-                f"model.num_classes is {model.hparams.num_classes} but the dataset has "
-                f"{data.num_classes} classes"
-            )
-        ckpt_path = cli.config.get("ckpt_path")
-        if ckpt_path:
-            ckpt_path = str(find_checkpoint(ckpt_path))
-            check_classes(ckpt_path, data.class_names)
-    _warn_slow_bf16(trainer)
-    model.data_config = _data_config(cli)
-    if ckpt_path:
-        print(f"resuming from {ckpt_path}")
-    else:
-        model.priors = _compute_priors(model, data, trainer)
-    trainer.fit(model, data, ckpt_path=ckpt_path)
-    if trainer.checkpoint_callback is not None:
-        print(f"checkpoints: {trainer.checkpoint_callback.dirpath}")
-    return model, trainer
+    except MisconfigurationException as err:
+        if "gpu backend" not in str(err).lower():
+            raise
+        raise ValueError(
+            "this config trains on a GPU (trainer.accelerator: gpu) and none is found; on the "
+            "CPU add --trainer.accelerator cpu --trainer.precision 32-true (slow)"
+        ) from err
+
+
+def _check(model: SegmentationModule, data: LightningDataModule, trainer: Trainer) -> None:
+    """Options that Lightning accepts but that cannot train: refused before any priors."""
+    if model.hparams.num_classes != data.num_classes:
+        raise ValueError(
+            f"model.num_classes is {model.hparams.num_classes} but the dataset has "
+            f"{data.num_classes} classes"
+        )
+    if trainer.max_steps < 1 and not trainer.fast_dev_run:
+        raise ValueError(
+            f"--trainer.max_steps must be >= 1 (the optimiser steps to train), "
+            f"got {trainer.max_steps}"
+        )
+
+
+def _first_missing(folder: Path) -> Path | None:
+    """The outermost of ``folder`` and its parents that does not exist yet (None: it exists)."""
+    if folder.exists():
+        return None
+    while not folder.parent.exists():
+        folder = folder.parent
+    return folder
+
+
+def _after_failure(trainer: Trainer, new_run: Path | None, err: BaseException) -> NoReturn:
+    """Remove a run folder that holds no training yet; re-raise ``err`` (an interrupt, which
+    Lightning turns into exit status 1, as KeyboardInterrupt saying where last.ckpt is)."""
+    started = trainer.global_step > 0
+    if new_run is not None and not started and trainer.is_global_zero:
+        shutil.rmtree(new_run, ignore_errors=True)
+    interrupted = isinstance(err, KeyboardInterrupt) or (
+        isinstance(err, SystemExit) and trainer.interrupted
+    )
+    if not interrupted:
+        raise err
+    last = _newest_last(trainer)
+    if last is None:
+        raise KeyboardInterrupt("no checkpoint was written") from None
+    raise KeyboardInterrupt(f"resume with --ckpt_path {last}") from None
+
+
+def _no_interrupt_note(record: logging.LogRecord) -> bool:
+    """Drop Lightning's note on Ctrl-C: the one line printed is the CLI's."""
+    return "Detected KeyboardInterrupt" not in record.getMessage()
+
+
+def _newest_last(trainer: Trainer) -> Path | None:
+    callback = trainer.checkpoint_callback
+    dirpath = getattr(callback, "dirpath", None)
+    last = Path(dirpath) / "last.ckpt" if dirpath else None
+    return last if last is not None and last.is_file() else None
+
+
+def _use_step_progress(trainer: Trainer) -> None:
+    """Lightning's default progress bar → :class:`StepProgress` (steps; lines in a log file)."""
+    for i, callback in enumerate(trainer.callbacks):
+        if type(callback) in (TQDMProgressBar, RichProgressBar):
+            trainer.callbacks[i] = StepProgress()
 
 
 def _warn_slow_bf16(trainer: Trainer) -> None:

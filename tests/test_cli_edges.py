@@ -1,0 +1,178 @@
+"""The command lines' rough edges: options declared once, TensorBoard cards, Ctrl-C, a full disk,
+runs that fail before training, one last.ckpt, progress in a log file."""
+
+import dataclasses
+import errno
+import io
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from conftest import TINY_TRAIN
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from costseg.checkpoints import find_checkpoint
+from costseg.cli import evaluate_main, evaluate_parser, train_main
+from costseg.options import EvalOptions
+from costseg.progress import Progress
+from costseg.report.outputs import INCOMPLETE
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+
+
+@pytest.fixture(scope="module")
+def ckpt(tiny_run):
+    return str(find_checkpoint(None, runs_dir=tiny_run[2]))
+
+
+def _scalar_tags(folder: Path) -> dict[str, int]:
+    """Scalar tag → points, over every event file under ``folder`` (a card per tag)."""
+    tags: dict[str, int] = {}
+    for run in {p.parent for p in folder.rglob("events.out.tfevents.*")}:
+        events = EventAccumulator(str(run), size_guidance={"scalars": 0})
+        events.Reload()
+        for tag in events.Tags()["scalars"]:
+            tags[tag] = tags.get(tag, 0) + len(events.Scalars(tag))
+    return tags
+
+
+def test_every_option_is_declared_once_and_shown_in_help():
+    parser = evaluate_parser()
+    assert vars(parser.parse_args([])) == dataclasses.asdict(EvalOptions())
+    text = parser.format_help()
+    for field in dataclasses.fields(EvalOptions):
+        flag = field.metadata.get("flag", f"--{field.name}")
+        assert flag in text and field.metadata["help"], field.name
+    command = "import sys; from costseg.cli import evaluate_parser; evaluate_parser().format_help()"
+    command += "; print(sorted({'torch', 'lightning'} & set(sys.modules)))"
+    out = subprocess.run([sys.executable, "-c", command], env=ENV, capture_output=True, text=True)
+    assert out.stdout.strip() == "[]", out.stderr  # --help imports nothing heavy
+
+
+def test_one_evaluation_writes_few_scalar_cards(ckpt, tmp_path):
+    out = tmp_path / "out"
+    args = ["--ckpt_path", ckpt, "--cost", "robotistic", "altruistic", "egoistic", "ml"]
+    args += ["--sweep", "0.5", "--alpha_sweep", "0.5", "--limit", "2", "--num_examples", "1"]
+    evaluate_main([*args, "--output_dir", str(out), "--no-progress"])
+    tags = _scalar_tags(out)
+    assert len(tags) <= 30, sorted(tags)
+    assert not {"epoch", "hp_metric"} & set(tags)
+    assert tags["sweep/miou"] == 6 and tags["alpha_sweep/miou"] == 3  # curves, not points
+    assert not (out / INCOMPLETE).exists()
+
+
+def test_training_writes_no_constant_cards_and_one_last_checkpoint(tiny_run):
+    _, trainer, _ = tiny_run
+    run = Path(trainer.log_dir)
+    assert not {"epoch", "hp_metric"} & set(_scalar_tags(run))
+    assert sorted(p.name for p in (run / "checkpoints").glob("last*.ckpt")) == ["last.ckpt"]
+
+
+def test_a_run_that_fails_before_training_leaves_no_folder(tmp_path, monkeypatch, capsys):
+    from costseg.training.module import SegmentationModule
+
+    def broken(self):
+        raise ValueError("no optimiser today")
+
+    monkeypatch.setattr(SegmentationModule, "configure_optimizers", broken)
+    with pytest.raises(SystemExit) as exit_info:
+        train_main([*TINY_TRAIN, f"--trainer.logger.init_args.save_dir={tmp_path}"])
+    assert exit_info.value.code == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1] == "error: no optimiser today"
+    assert not list(tmp_path.rglob("*")), list(tmp_path.rglob("*"))
+
+
+def test_a_full_disk_is_one_line_and_the_folder_stays_incomplete(
+    ckpt, tmp_path, monkeypatch, capsys
+):
+    import costseg.report.files as files
+
+    write = files._atomic_write
+
+    def full(path, data):
+        if str(path).endswith(".png"):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+        return write(path, data)
+
+    monkeypatch.setattr(files, "_atomic_write", full)  # drawing processes fork: they see it too
+    out = tmp_path / "out"
+    args = ["--ckpt_path", ckpt, "--cost", "robotistic", "--limit", "1", "--output_dir", str(out)]
+    with pytest.raises(SystemExit) as exit_info:
+        evaluate_main([*args, "--no-progress"])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "No space left on device" in err[0] and INCOMPLETE in err[0], err
+    assert (out / INCOMPLETE).is_file()
+
+
+def _interrupt_when(job: subprocess.Popen, ready, seconds: float = 240) -> tuple[str, str]:
+    """SIGINT to the job's process group (as Ctrl-C in a terminal) once ``ready()``."""
+    deadline = time.monotonic() + seconds
+    while not ready():
+        assert job.poll() is None and time.monotonic() < deadline, job.communicate()
+        time.sleep(0.05)
+    os.killpg(job.pid, signal.SIGINT)
+    return job.communicate(timeout=120)
+
+
+def test_ctrl_c_during_evaluation(ckpt, tmp_path):
+    out = tmp_path / "out"
+    command = [sys.executable, str(ROOT / "evaluate.py"), "--ckpt_path", ckpt, "--no-progress"]
+    command += ["--sweep", "0.05", "--output_dir", str(out)]
+    job = subprocess.Popen(command, env=ENV, start_new_session=True, text=True,
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
+    output, err = _interrupt_when(job, (out / "figures").exists)  # drawing while scoring
+    assert job.returncode == 130, (output, err)
+    assert err.strip().splitlines() == [
+        f"interrupted: the partial outputs in {out} are marked {INCOMPLETE}"
+    ]
+    assert (out / INCOMPLETE).is_file() and not (out / "results.json").exists()
+    # A later run does not take the unfinished folder for results, nor overwrite it silently.
+    with pytest.raises(SystemExit):
+        evaluate_main(["--ckpt_path", ckpt, "--output_dir", str(out), "--no-progress"])
+
+
+def test_ctrl_c_during_training(tmp_path):
+    run = tmp_path / "toy" / "version_0"
+    command = [sys.executable, str(ROOT / "train.py"), *TINY_TRAIN, "--trainer.max_steps=100000"]
+    command += [f"--trainer.logger.init_args.save_dir={tmp_path}"]
+    job = subprocess.Popen(command, env=ENV, start_new_session=True, text=True,
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
+    output, err = _interrupt_when(job, lambda: any(run.glob("events.out.tfevents.*")))
+    assert job.returncode == 130, (output, err)
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
+    assert err.strip().splitlines()[-1].startswith("interrupted: "), err
+
+
+def test_progress_in_a_log_file_is_a_line_every_five_percent():
+    log = io.StringIO()  # not a terminal
+    with Progress(1000, "train", every=5, file=log) as bar:
+        for step in range(1000):
+            bar.update(postfix={"loss": 1 / (step + 1)})
+    lines = log.getvalue().splitlines()
+    assert len(lines) == 20 and lines[-1].startswith("train: 1000/1000 (100%)"), lines[:3]
+
+
+def test_training_progress_counts_steps():
+    from lightning.pytorch import Trainer
+
+    from costseg.training.progress import StepProgress
+    from costseg.training.run import _use_step_progress
+
+    trainer = Trainer(max_steps=10, logger=False, enable_checkpointing=False)
+    _use_step_progress(trainer)
+    assert isinstance(trainer.progress_bar_callback, StepProgress)
+
+
+def test_result_json_is_written_once_complete(ckpt, tmp_path):
+    out = tmp_path / "out"
+    args = ["--ckpt_path", ckpt, "--cost", "robotistic", "--limit", "1", "--num_examples", "0"]
+    evaluate_main([*args, "--output_dir", str(out), "--no-progress"])
+    assert json.loads((out / "results.json").read_text())["images"] == 1
+    assert not (out / INCOMPLETE).exists()
