@@ -26,7 +26,7 @@ CHAIN = [
     {"scoring"},
     {"module"},
     {"sources", "calibration_set", "plan_checks", "report"},
-    {"evaluation", "callbacks", "training"},
+    {"evaluation", "callbacks", "training", "prediction"},
     {"cli"},
 ]
 NO_LIGHTNING = {
@@ -50,6 +50,7 @@ NO_LIGHTNING = {
     "evaluation",
     "networks",
     "probs_files",
+    "prediction",
 }
 NO_MODEL = {
     "costs",

@@ -15,7 +15,7 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
-from costseg.options import EvalOptions
+from costseg.options import EvalOptions, PredictOptions
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 COST_CHOICES = "robotistic, altruistic, egoistic, ml or a .yaml cost file"
@@ -237,6 +237,9 @@ def evaluate_parser() -> argparse.ArgumentParser:
         choices=("bonferroni", "fixed_sequence"),
         help="family-wise error control (fixed_sequence tests along the grid / α order)",
     )
+    add(
+        "--explorer", action="store_true", help="also write explorer.html (docs/definitions.md §11)"
+    )
     add("--no-progress", dest="progress", action="store_false")
     return p
 
@@ -248,3 +251,42 @@ def evaluate_main(args: Sequence[str] | None = None) -> Any:
         from costseg.evaluation import evaluate
 
         return evaluate(opts)
+
+
+def predict_parser() -> argparse.ArgumentParser:
+    """The options of ``predict.py``; defaults are those of :class:`PredictOptions`."""
+    d = PredictOptions()
+    p = OneLineParser(
+        prog="predict.py",
+        description="Apply cost-based decision rules to your "
+        "own images or videos (no labels): panels, label and colour PNGs, counts.",
+    )
+    add = p.add_argument
+    add("--input", required=True, help="an image, a folder of images, or a video (needs PyAV)")
+    add("--cost", nargs="+", default=d.cost, help=f"rules: {COST_CHOICES}")
+    add("--ckpt_path", help="a costseg checkpoint (default: newest runs/**/last.ckpt)")
+    add("--network", help="costseg:PATH, vainf:PATH, hf:DIR (alias segformer:DIR)")
+    add("--output_dir", help="a new or empty folder (default: a new <run>/prediction/version_<n>)")
+    add("--device", default=d.device, help="auto, cpu, cuda, cuda:1, ...")
+    probs_help = "write each image's probabilities (float16 .npz, for evaluate.py --probs)"
+    add("--save-probs", "--save_probs", dest="save_probs", action="store_true", help=probs_help)
+    add("--explorer", action="store_true", help="also write explorer.html of the first images")
+    examples_help = "images (or frames) in the explorer"
+    add("--num_examples", type=whole_number(1), default=d.num_examples, help=examples_help)
+    add("--vertices", nargs=3, default=d.vertices, help="the explorer triangle's corners")
+    add("--vertex_scaling", default=d.vertex_scaling, choices=("none", "mean"))
+    add("--no-progress", dest="progress", action="store_false")
+    return p
+
+
+def predict_main(args: Sequence[str] | None = None) -> Path:
+    """``python predict.py --input photo.jpg`` (see ``--help``); returns the output folder."""
+    opts = PredictOptions(**vars(predict_parser().parse_args(args)))
+    try:
+        with user_errors():
+            from costseg.prediction import predict
+
+            return predict(opts)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        sys.exit(130)

@@ -37,3 +37,22 @@ class EvalOptions:
     guarantee: float | None = None
     guarantee_method: str = "bonferroni"
     progress: bool = True
+    explorer: bool = False
+
+
+@dataclass
+class PredictOptions:
+    """Everything ``predict.py`` can be told (see ``python predict.py --help``)."""
+
+    input: str = ""
+    cost: list[str] = field(default_factory=lambda: ["robotistic", "altruistic", "egoistic"])
+    ckpt_path: str | None = None
+    network: str | None = None
+    output_dir: str | None = None
+    device: str = "auto"
+    save_probs: bool = False
+    explorer: bool = False
+    num_examples: int = 3
+    vertices: list[str] = field(default_factory=lambda: ["robotistic", "altruistic", "egoistic"])
+    vertex_scaling: str = "none"
+    progress: bool = True
