@@ -11,6 +11,7 @@ from PIL import Image, ImageDraw, ImageFont
 from costseg.classes import CLASS_NAMES, PALETTE, colorize
 
 MAX_TILE_WIDTH = 512
+MIN_TILE_WIDTH = 192  # room for the titles
 TITLE = 16  # pixels above each tile
 SWATCH = 14
 ALPHA = 0.55  # weight of the class colour in an overlay
@@ -33,7 +34,7 @@ def differences(image: np.ndarray, labels: np.ndarray, argmax: np.ndarray) -> np
 
 
 def _tile_size(height: int, width: int) -> tuple[int, int]:
-    scale = min(1.0, MAX_TILE_WIDTH / width)
+    scale = min(MAX_TILE_WIDTH / width, max(1.0, MIN_TILE_WIDTH / width))
     return max(1, round(height * scale)), max(1, round(width * scale))
 
 
@@ -75,11 +76,11 @@ def panel(
     tiles = [("image", small)] + [
         (name, overlay(small, m)) for name, m in zip(rule_names, small_maps, strict=True)
     ]
+    differ = [100 * float(np.count_nonzero(m != argmax)) / argmax.size for m in maps]
     tiles += [(None, None)] + [
-        (f"{name} ≠ argmax: {100 * float(np.mean(m != small_argmax)):.1f} %",
-         differences(small, m, small_argmax))
-        for name, m in zip(rule_names, small_maps, strict=True)
-    ]  # fmt: skip
+        (f"{name}: {d:.1f} % not argmax", differences(small, m, small_argmax))
+        for name, m, d in zip(rule_names, small_maps, differ, strict=True)
+    ]
     for i, (title, tile) in enumerate(tiles):
         if tile is None:
             continue

@@ -46,17 +46,23 @@
     }
     return s;
   }
-  function decide(q, hw, s, out) {
-    for (let p = 0, base = 0; p < hw; p++, base += N) {
-      let best = 0, low = Infinity;
-      for (let r = 0; r < N; r++) {
-        let acc = 0;
-        const row = r * N;
-        for (let k = 0; k < N; k++) acc += s[row + k] * q[base + k];
-        if (acc < low) { low = acc; best = r; }
+  // One pass per pixel, specialised to the matrix: its entries as literals (String() of a
+  // float64 is its shortest exact form), the pixel's q in locals, terms with a zero entry left
+  // out (adding 0 * q = 0 changes no sum), each term rounded apart (JS never fuses a * b + c).
+  function compile(s) {
+    const lines = ["for (let p = 0, b = 0; p < hw; p++, b += N) {"];
+    for (let k = 0; k < N; k++) lines.push(`const q${k} = q[b + ${k}];`);
+    lines.push("let acc, low, best = 0;");
+    for (let r = 0; r < N; r++) {
+      lines.push("acc = 0;");
+      for (let k = 0; k < N; k++) {
+        const c = s[r * N + k];
+        if (c !== 0) lines.push(`acc += (${String(c)}) * q${k};`);
       }
-      out[p] = best;
+      lines.push(r === 0 ? "low = acc;" : `if (acc < low) { low = acc; best = ${r}; }`);
     }
+    lines.push("out[p] = best;", "}");
+    return new Function("q", "hw", "out", "N", lines.join("\n"));
   }
   function argmax(q, hw) {
     const out = new Uint8Array(hw);
@@ -118,16 +124,15 @@
       truth: ex.labels && bytes(ex.labels), rois: ex.roi && bytes(ex.roi) };
   });
   const PALETTE = DATA.palette;
-  function paint(canvas, ex, colour) {
+  const RGBA = new Uint32Array(256);  // class → RGBA as one little-endian word; 255: grey
+  RGBA.fill(0xffc8c8c8);
+  PALETTE.forEach(([r, g, b], c) => { RGBA[c] = 0xff000000 | (b << 16) | (g << 8) | r; });
+  function paint(canvas, ex, classes) {
     const ctx = canvas.getContext("2d"), img = ctx.createImageData(ex.width, ex.height);
-    for (let p = 0; p < ex.hw; p++) {
-      const c = colour(p);
-      img.data[4 * p] = c[0]; img.data[4 * p + 1] = c[1]; img.data[4 * p + 2] = c[2];
-      img.data[4 * p + 3] = 255;
-    }
+    const words = new Uint32Array(img.data.buffer);
+    for (let p = 0; p < ex.hw; p++) words[p] = RGBA[classes[p]];
     ctx.putImageData(img, 0, 0);
   }
-  const GREY = [[200, 200, 200]];
   function buildExamples() {
     const root = $("examples");
     for (const ex of examples) {
@@ -153,8 +158,10 @@
     }
   }
   function drawMasks(ex) {
-    paint(ex.canvases[1], ex, (p) => PALETTE[ex.labels[p]]);
-    paint(ex.canvases[2], ex, (p) => ex.labels[p] === ex.top[p] ? GREY[0] : PALETTE[ex.labels[p]]);
+    paint(ex.canvases[1], ex, ex.labels);
+    const differ = ex.differ || (ex.differ = new Uint8Array(ex.hw));
+    for (let p = 0; p < ex.hw; p++) differ[p] = ex.labels[p] === ex.top[p] ? 255 : ex.labels[p];
+    paint(ex.canvases[2], ex, differ);
   }
 
   // ---- state ----
@@ -169,8 +176,8 @@
   function recompute(w) {
     const t0 = performance.now();
     W = w; M = mixed(w);
-    const s = shifted(M);
-    for (const ex of examples) { decide(ex.q, ex.hw, s, ex.labels); drawMasks(ex); }
+    const decide = compile(shifted(M));
+    for (const ex of examples) { decide(ex.q, ex.hw, ex.labels, N); drawMasks(ex); }
     const ms = performance.now() - t0;
     drawTriangle();
     showPoint();
@@ -187,7 +194,7 @@
   }
 
   // ---- the triangle: vertex 0 bottom left, 1 bottom right, 2 top (as report.ternary) ----
-  const TRI = { x0: 40, y0: 370, side: 360 };
+  const TRI = { x0: 55, y0: 370, side: 330 };
   const toXY = (w) => { const s = w[0] + w[1] + w[2];
     return [TRI.x0 + TRI.side * (w[1] + 0.5 * w[2]) / s, TRI.y0 - TRI.side * SQ3 * w[2] / s]; };
   function toWeights(x, y) {
@@ -261,7 +268,10 @@
     DATA.vertexNames.forEach((name, i) => { const [x, y] = corners[i];
       ctx.fillText(name, x - (i === 1 ? 60 : i === 2 ? 25 : 10), y + (i === 2 ? -6 : 16)); });
     if (sweep) for (const w of sweep.weights) mark(ctx, w, "rgba(0,0,0,0.25)", 1.2);
-    for (const p of DATA.named) mark(ctx, p.w, "#fff", 5, p.label);
+    for (const p of DATA.named) {
+      const vertex = p.w.findIndex((v) => v === 1);
+      mark(ctx, p.w, "#fff", 5, DATA.vertexNames[vertex] === p.label ? "" : p.label);
+    }
     for (const p of DATA.targets) mark(ctx, p.w, "#2a7", 4);
     for (const p of DATA.certified) mark(ctx, p.w, "#d22", 6, p.label);
     mark(ctx, W, "rgba(255,200,0,0.9)", 7);
@@ -381,5 +391,9 @@
     return best && best.slice();
   }
   setup();
-  recompute(parseHash() || [1, 0, 0]);
+  const first = parseHash() || [1, 0, 0];
+  recompute(first);
+  // "&clicks=n": n more recomputations at the same point, as n clicks would (benchmarks)
+  const clicks = /[#&]clicks=(\d+)/.exec(location.hash);
+  for (let i = 0; clicks && i < +clicks[1]; i++) recompute(first);
 })();
