@@ -43,9 +43,10 @@ def browser(page: Path, fragment: str, *extra: str) -> str:
     return out.stdout
 
 
-def page_state(page: Path, weights: str) -> dict:
-    """The JSON of the page's ``costseg-state`` element at ``#w=weights``."""
-    found = re.search(r'<pre id="costseg-state"[^>]*>(.*?)</pre>', browser(page, f"w={weights}"))
+def page_state(page: Path, weights: str, dom: str | None = None) -> dict:
+    """The JSON of the page's ``costseg-state`` element at ``#w=weights`` (from ``dom``)."""
+    dom = dom or browser(page, f"w={weights}")
+    found = re.search(r'<pre id="costseg-state"[^>]*>(.*?)</pre>', dom)
     assert found, "the page holds no costseg-state element"
     return json.loads(html.unescape(found.group(1)))
 
@@ -136,3 +137,29 @@ def test_screenshot_shows_the_triangle_and_the_masks(page, tmp_path):
     triangle, masks = image[80:420, 40:420], image[80:400, 470:1300]
     assert colours(triangle) > 8 and triangle.std() > 20  # the heatmap and the marks
     assert colours(masks) > 8 and masks.std() > 20
+
+
+@needs_chromium
+def test_evaluate_explorer_holds_the_sweep_and_reference_masks(tiny_run, tmp_path):
+    from costseg.checkpoints import find_checkpoint
+    from costseg.cli import evaluate_main
+
+    out = tmp_path / "evaluation"
+    ckpt = find_checkpoint(None, runs_dir=tiny_run[2])
+    evaluate_main(["--ckpt_path", str(ckpt), "--output_dir", str(out), "--sweep", "0.5",
+                   "--limit", "2", "--num_examples", "2", "--explorer", "--no-progress",
+                   "--target", "road:roi0:recall>=0.0", "--maximize", "road:roi0:recall",
+                   "--classes", "road"])  # fmt: skip
+    page = out / "explorer.html"
+    text = page.read_text()
+    assert '"sweep":{"weights":[[1.0,0.0,0.0]' in text and '"targets":[{"label"' in text
+    probs = embedded_probs(page)
+    assert len(probs) == 2
+    shown = {"0.5,0.5,0": "swept metrics", "0.3,0.3,0.4": "over the 2 embedded examples"}
+    for weights, metrics in shown.items():  # a grid point, and between grid points
+        dom = browser(page, f"w={weights}")
+        assert metrics in dom
+        state = page_state(page, weights, dom)
+        for example in state["examples"]:
+            p = probs[example["name"]]
+            assert example["labels_sha256"] == reference_sha(p, state["w"]), example["name"]

@@ -110,7 +110,7 @@ def write_evaluation_explorer(results: EvalResults) -> None:
         vertices = vertex_matrices(opts["vertices"], opts["vertex_scaling"])
     named = named_points(results.groups[0].group.rules, vertices, opts["vertex_scaling"])
     notes = [
-        f"source: {results.source}",
+        f"source: {results.source.get('network') or results.source}",
         f"probabilities: {results.probabilities}; the examples' masks are decided on these "
         "probabilities rounded to float16",
     ]
