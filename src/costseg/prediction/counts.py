@@ -27,7 +27,7 @@ def label_counts(labels: np.ndarray, roi: np.ndarray | None) -> tuple[np.ndarray
 
     >>> p, s = label_counts(np.array([[0, 0, 1], [1, 0, 0]]), None)
     >>> p[:2, 0].tolist(), s[:2, 0].tolist()
-    ([4, 2], [1, 1])
+    ([4, 2], [1, 2])
     """
     n, rois = len(CLASS_NAMES), 1 if roi is None else NUM_ROIS + 1
     pixels = np.zeros((n, rois), dtype=np.int64)

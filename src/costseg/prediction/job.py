@@ -105,7 +105,12 @@ def decide_image(plan: PredictPlan, image: np.ndarray) -> tuple[torch.Tensor, np
 
 def predict(opts: PredictOptions) -> Path:
     """Run ``predict.py``; returns the output folder."""
-    job = plan(opts)
+    return run(plan(opts))
+
+
+def run(job: PredictPlan) -> Path:
+    """One pass over the planned images or frames; returns the output folder."""
+    opts = job.options
     writer = PredictionWriter(job.output_dir, job.rule_names, opts.save_probs)
     k = len(job.rule_names)
     argmax = next((i for i, r in enumerate(job.rules) if _is_argmax(r)), k)
