@@ -100,7 +100,9 @@ def main() -> None:
     parser.add_argument("--images", type=int, default=3)
     parser.add_argument("--explorer", type=Path, help="an explorer.html to time in Chromium")
     args = parser.parse_args()
-    net = ImageNetwork(DeepLabV3Plus(num_classes=19, backbone="resnet18", decoder_channels=128), channels_last=True)
+    net = ImageNetwork(
+        DeepLabV3Plus(num_classes=19, backbone="resnet18", decoder_channels=128), channels_last=True
+    )
     print(f"torch threads: {torch.get_num_threads()}")
     print(f"{'size':>12} {'predict s/img':>14} {'forward s/img':>14} {'ratio':>6}")
     for size, images in (((1024, 2048), args.images), ((128, 256), 10 * args.images)):

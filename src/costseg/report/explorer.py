@@ -3,11 +3,12 @@
 
 The page holds the three vertex matrices, the examples' float16 probabilities (base64 of their
 raw little-endian bytes, class-major as ``--save-probs`` writes them) and, after a sweep, its
-metrics at every grid point. Its script (``explorer.js``, inlined at write time) recomputes
-the masks of any point of the triangle with the reference's arithmetic in float64: the mixed
-matrix ``(w_0 C_0 + w_1 C_1) + w_2 C_2`` (the operation order of ``costs.mix_costs``), the
-column shift ``C - max_k' C[k', ·]``, ``Σ_k`` in ascending order, ties to the lowest class; so
-its labels equal ``decide_reference`` on the embedded probabilities, pixel for pixel.
+metrics at every grid point. Its scripts (``explorer_rule.js``, ``explorer.js``; inlined at write
+time) recompute the masks of any point of the triangle with the reference's arithmetic in
+float64: the mixed matrix ``(w_0 C_0 + w_1 C_1) + w_2 C_2`` (the operation order of
+``costs.mix_costs``), the column shift ``C - max_k' C[k', ·]``, ``Σ_k`` in ascending order, ties
+to the lowest class; so its labels equal ``decide_reference`` on the embedded probabilities,
+pixel for pixel.
 """
 
 from __future__ import annotations
@@ -196,6 +197,8 @@ def write_explorer(
     text = text.replace("</", "<\\/")
     folder = resources.files("costseg.report")
     html = (folder / "explorer.html").read_text(encoding="utf-8")
-    script = (folder / "explorer.js").read_text(encoding="utf-8")
+    script = "\n".join(
+        (folder / name).read_text(encoding="utf-8") for name in ("explorer_rule.js", "explorer.js")
+    )
     page = html.replace("/*COSTSEG_DATA*/", text).replace("/*COSTSEG_SCRIPT*/", script)
     return write_text(path, page)
