@@ -13,11 +13,11 @@ CHAIN = [
     {"rules", "calibration"},
     {"data", "metrics", "models", "networks"},
     {"report"},
-    {"evaluation", "training"},
+    {"evaluation", "prediction", "training"},
     {"cli"},
 ]
 NO_LIGHTNING = {"costs", "decision", "rules", "calibration", "metrics", "networks", "report",
-                "evaluation", "threads"}  # fmt: skip
+                "evaluation", "prediction", "threads"}  # fmt: skip
 NO_MODEL = {"costs", "decision", "rules", "calibration", "metrics", "report"}
 
 

@@ -21,7 +21,7 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
-from costseg.options import EvalOptions
+from costseg.options import EvalOptions, PredictOptions
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 
@@ -134,7 +134,7 @@ def build_parser(options: type, prog: str, description: str) -> argparse.Argumen
     A field's type says the rest: ``bool`` is a flag (``--no-x`` when it defaults to True),
     ``list[...]`` takes several values, ``Literal[...]`` lists the choices.
 
-    >>> from costseg.options import EvalOptions
+    >>> from costseg.options import EvalOptions, PredictOptions
     >>> p = build_parser(EvalOptions, "evaluate.py", "")
     >>> p.parse_args(["--limit", "2", "--no-progress"]).limit
     2
@@ -191,3 +191,22 @@ def evaluate_main(args: Sequence[str] | None = None) -> Any:
         from costseg.evaluation.run import evaluate
 
         return evaluate(opts)
+
+
+def predict_parser() -> argparse.ArgumentParser:
+    """The options of ``predict.py``: the fields of :class:`PredictOptions`."""
+    return build_parser(
+        PredictOptions,
+        "predict.py",
+        "Apply cost-based decision rules to your own images or videos (no labels): panels, "
+        "label and colour PNGs, counts; optionally the explorer page.",
+    )
+
+
+def predict_main(args: Sequence[str] | None = None) -> Path:
+    """``python predict.py --input photo.jpg`` (see ``--help``); returns the output folder."""
+    with user_errors():
+        opts = PredictOptions(**vars(predict_parser().parse_args(args)))
+        from costseg.prediction import predict
+
+        return predict(opts)

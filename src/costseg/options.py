@@ -2,8 +2,9 @@
 
 A field's type, default and ``metadata`` (help, flag, choices, value type, argument group) are
 all the command line knows: :func:`costseg.cli.build_parser` derives the parser from them, and
-the jobs receive the dataclass. :class:`SourceOptions` holds what every job that runs a network
-shares (source, rules, device, output folder); :class:`EvalOptions` adds ``evaluate.py``'s own.
+the jobs receive the dataclass. :class:`NetworkOptions` holds what every job that runs a network
+shares (source, rules, device, output folder, examples), :class:`SourceOptions` adds a dataset,
+:class:`EvalOptions` and :class:`PredictOptions` add each command's own.
 A new option is one field here. No heavy imports, so ``--help`` answers at once.
 
 >>> EvalOptions(cost=["egoistic"]).split
@@ -76,15 +77,37 @@ def option(default: Any = None, help: str | None = None, **metadata: Any) -> Any
 
 
 @dataclass
-class SourceOptions:
+class NetworkOptions:
     """What every job that runs a network is told: where probabilities come from, which rules,
-    on which device, and where outputs go."""
+    on which device, where outputs go, and which examples the figures and the explorer show."""
 
     cost: list[str] = option(RULES, "rules: robotistic, altruistic, egoistic, ml or a .yaml cost")
     ckpt_path: str | None = option(help="a costseg checkpoint", group=SOURCE)
     network: str | None = option(
         help="costseg:PATH, vainf:PATH, hf:DIR (alias segformer:DIR)", group=SOURCE
     )
+    output_dir: str | None = option(help="default: a new numbered folder <run>/<job>/version_<n>")
+    device: str = option("auto", "auto, cpu, cuda, cuda:1, ...")
+    save_probs: bool = option(
+        False,
+        "write each image's probabilities (float16 .npz) for later --probs runs",
+        flag="--save-probs",
+    )
+    num_examples: int = option(
+        3, "images in the mask figures and the explorer", type=whole_number(0)
+    )
+    vertices: list[str] = option(RULES, "the triangle's corners", nargs=3)
+    vertex_scaling: Literal["none", "mean"] = option(
+        "none", "'mean': rescale each vertex to unit mean off-diagonal cost before mixing"
+    )
+    explorer: bool = option(False, "also write explorer.html (docs/definitions.md §11)")
+    progress: bool = option(True, "no progress lines", flag="--no-progress")
+
+
+@dataclass
+class SourceOptions(NetworkOptions):
+    """A network's job on a labelled dataset, or saved probabilities in place of the network."""
+
     probs: str | None = option(
         help="folder of saved probabilities (<image>.npz or .pt)", group=SOURCE
     )
@@ -92,12 +115,9 @@ class SourceOptions:
         help="Cityscapes root (needed for --network/--probs of other networks)"
     )
     split: Literal["train", "val", "test"] = option("val", "the split to run on")
-    output_dir: str | None = option(help="default: a new numbered folder <run>/<job>/version_<n>")
     overwrite: bool = option(False, "allow an --output_dir that holds results")
     limit: int | None = option(help="only the first N images", type=whole_number(1))
     batch_size: int | None = option(help="images per batch", type=whole_number(1))
-    device: str = option("auto", "auto, cpu, cuda, cuda:1, ...")
-    progress: bool = option(True, "no progress lines", flag="--no-progress")
 
 
 @dataclass
@@ -108,20 +128,10 @@ class EvalOptions(SourceOptions):
     save_predictions: bool = option(
         False, "write Cityscapes label-id PNGs per image and rule", flag="--save-predictions"
     )
-    save_probs: bool = option(
-        False,
-        "write each image's probabilities (float16 .npz) for later --probs runs",
-        flag="--save-probs",
-    )
-    num_examples: int = option(3, "images in the mask figures", type=whole_number(0))
     sweep: float | None = option(
         help="also sweep the barycentric grid of this step over the three --vertices",
         type=step_size,
         metavar="STEP",
-    )
-    vertices: list[str] = option(RULES, "the triangle's corners", nargs=3)
-    vertex_scaling: Literal["none", "mean"] = option(
-        "none", "'mean': rescale each vertex to unit mean off-diagonal cost before mixing"
     )
     target: str | None = option(help="constraint on the sweep, e.g. 'person:roi1:recall>=0.99'")
     maximize: str | None = option(
@@ -157,3 +167,10 @@ class EvalOptions(SourceOptions):
         "family-wise error control (fixed_sequence tests along the grid / α order)",
         group=CALIBRATION,
     )
+
+
+@dataclass
+class PredictOptions(NetworkOptions):
+    """Everything ``predict.py`` can be told (see ``python predict.py --help``)."""
+
+    input: str = option(help="an image, a folder of images, or a video (needs PyAV)", required=True)

@@ -164,7 +164,9 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> 
                 for g, m in zip(plan.groups, metrics, strict=True)
             ]
             writer.save_predictions(batch.stems, preds[named])
-            _keep_examples(examples, opts.num_examples, batch, preds[named])
+            _keep_examples(
+                examples, opts.num_examples, batch, preds[named], opts.explorer and probs
+            )
             if after_batch:
                 after_batch(examples)
     extra["ece"] = {k: m.compute() for k, m in ece.items()}
@@ -257,9 +259,12 @@ def _describe_probabilities(plan: EvalPlan, scaling: Scaling) -> str:
     return text + ("; rounded to float16 as saved" if plan.options.save_probs else "")
 
 
-def _keep_examples(examples: list, limit: int, batch: Batch, preds: torch.Tensor) -> None:
+def _keep_examples(examples: list, limit: int, batch: Batch, preds: torch.Tensor, probs) -> None:
+    """The first ``limit`` images; with ``probs`` (the explorer's), their float16 probabilities."""
     for i in range(min(len(batch.images), limit - len(examples))):
-        examples.append(Example(batch.images[i].cpu(), batch.labels[i].cpu(), preds[i].cpu()))
+        kept = None if probs is False else probs[i].to("cpu", torch.float16)
+        image, label = batch.images[i].cpu(), batch.labels[i].cpu()
+        examples.append(Example(image, label, preds[i].cpu(), batch.stems[i], kept))
 
 
 def _split_calibration(opts: EvalOptions, config: dict, dataset: Dataset, count: int):

@@ -62,6 +62,10 @@ def write_evaluation(results: EvalResults, early: EarlyFigures | None = None) ->
             batches.append(("evaluation", example_figures(named.group.names, results.examples)))
         batches += write_sweeps(results) + _figures(results) + write_calibration(results)
         save_and_log_all(writer, batches, out / "figures", early)
+    if results.options.get("explorer"):
+        from costseg.report.explorer_points import write_evaluation_explorer
+
+        write_evaluation_explorer(results)
     print(f"results written to {out}")
 
 

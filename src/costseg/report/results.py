@@ -64,11 +64,14 @@ class GroupResult:
 
 @dataclass
 class Example:
-    """One image of the mask figures: (3, H, W) uint8, (H, W) labels, (K, H, W) named-rule maps."""
+    """One image of the mask figures: (3, H, W) uint8, (H, W) labels, (K, H, W) named-rule maps;
+    for the explorer page its name and (N, H, W) float16 probabilities."""
 
     image: torch.Tensor
     label: torch.Tensor
     preds: torch.Tensor
+    name: str = ""
+    probs: torch.Tensor | None = None
 
 
 @dataclass

@@ -1,0 +1,45 @@
+"""Per image, rule and class: pixels and 8-connected segments, per RoI where priors exist.
+
+A segment belongs to the RoI holding most of its pixels (ties: the lowest id), as in the
+segment metrics (docs/definitions.md §4); RoI 0 is the whole image.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from costseg.classes import CLASS_NAMES, ROI_NAMES
+from costseg.metrics.functional import label_segments, roi_totals
+
+NUM_ROIS = len(ROI_NAMES) - 1
+
+
+def label_counts(labels: np.ndarray, roi: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels and segments of every class in one label map.
+
+    Args:
+        labels: (H, W) train ids.
+        roi: (H, W) RoI ids 1..4, or None (then only the whole image, RoI 0).
+
+    Returns:
+        pixels, segments: (N, R) int64 with R = 5 RoIs (0 = whole image), or (N, 1) without
+        ``roi``.
+
+    >>> p, s = label_counts(np.array([[0, 0, 1], [1, 0, 0]]), None)
+    >>> p[:2, 0].tolist(), s[:2, 0].tolist()
+    ([4, 2], [1, 2])
+    """
+    n, rois = len(CLASS_NAMES), 1 if roi is None else NUM_ROIS + 1
+    pixels = np.zeros((n, rois), dtype=np.int64)
+    segments = np.zeros((n, rois), dtype=np.int64)
+    flat = labels.ravel().astype(np.int64)
+    if roi is None:
+        pixels[:, 0] = np.bincount(flat, minlength=256)[:n]
+    else:
+        joint = np.bincount(flat * rois + roi.ravel(), minlength=256 * rois)[: n * rois]
+        pixels[:] = joint.reshape(n, rois)
+        pixels[:, 0] = pixels[:, 1:].sum(1)
+    for c in np.flatnonzero(pixels[:, 0]):
+        found = label_segments(labels == c, roi, NUM_ROIS)
+        segments[c] = roi_totals(found.owner[1:], NUM_ROIS)[:rois]
+    return pixels, segments

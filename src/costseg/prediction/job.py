@@ -1,0 +1,177 @@
+"""The ``predict.py`` job: check the inputs, open the source, then one pass over the images or
+frames: network once → probabilities → every rule (one call) → files (docs/definitions.md §10).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from costseg.classes import CLASS_NAMES
+from costseg.data.prior_maps import PriorMaps
+from costseg.decision import decide
+from costseg.networks.sources import Source, open_source, resolve_device
+from costseg.options import PredictOptions
+from costseg.prediction.inputs import Inputs, find_inputs, read_image, video_frames
+from costseg.prediction.outputs import PredictionWriter
+from costseg.prediction.progress import Progress
+from costseg.report.explorer import ExplorerExample, embedded
+from costseg.report.outputs import claim_output_dir
+from costseg.rules import Rule, adapted_priors, parse_rules, vertex_matrices
+
+
+@dataclass
+class PredictPlan:
+    """What one prediction will do, decided before the first image."""
+
+    options: PredictOptions
+    inputs: Inputs
+    device: torch.device
+    source: Source
+    rules: list[Rule]  # the --cost rules, then argmax when none of them is it
+    output_dir: Path
+    priors: PriorMaps
+    examples: list[ExplorerExample] = field(default_factory=list)
+
+    @property
+    def rule_names(self) -> list[str]:
+        """The --cost rules' names."""
+        return [r.name for r in self.rules[: len(self.options.cost)]]
+
+
+def plan(opts: PredictOptions) -> PredictPlan:
+    """Check options and inputs (before the network loads), open the source, claim the folder."""
+    rules = parse_rules(opts.cost)
+    if opts.explorer:
+        vertex_matrices(opts.vertices, opts.vertex_scaling)
+    inputs = find_inputs(opts.input)
+    if opts.ckpt_path is not None and opts.network is not None:
+        raise ValueError("give at most one of --ckpt_path and --network")
+    device = resolve_device(opts.device)
+    claimed = claim_output_dir(opts.output_dir, False, Path()) if opts.output_dir else None
+    source = open_source(opts.ckpt_path, opts.network, None, device)
+    if any(r.priors_alpha for r in rules) and source.priors is None:
+        raise ValueError("ml needs pixel-wise priors, and this source has none")
+    argmax = next((k for k, r in enumerate(rules) if _is_argmax(r)), None)
+    if argmax is None:
+        rules.append(Rule("argmax", None))
+    return PredictPlan(
+        options=opts,
+        inputs=inputs,
+        device=device,
+        source=source,
+        rules=rules,
+        output_dir=claimed or claim_output_dir(None, False, _default_base(source)),
+        priors=PriorMaps(source.priors, CLASS_NAMES, device),
+    )
+
+
+def _is_argmax(rule: Rule) -> bool:
+    if rule.priors_alpha:
+        return False
+    cost = rule.cost
+    return cost is None or bool((cost == cost[0, 1] * (1 - torch.eye(len(cost)))).all())
+
+
+def _default_base(source: Source) -> Path:
+    if source.run_dir is not None:
+        return source.run_dir / "prediction"
+    name = str(next(iter(source.description.values()))).split(":")[-1].rstrip("/")
+    return Path("predict") / (Path(name).stem or "network")
+
+
+def decide_image(plan: PredictPlan, image: np.ndarray) -> tuple[torch.Tensor, np.ndarray, object]:
+    """The network once, then every rule.
+
+    Args:
+        image: (H, W, 3) uint8 RGB.
+
+    Returns:
+        probs (N, H, W) float32 (rounded to float16 with ``--save-probs``, so that the saved
+        file reproduces the labels), maps (K + 1, H, W) uint8 train ids (the rules, then
+        argmax), roi (H, W) int64 numpy or None.
+    """
+    x = torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1)[None].to(plan.device)
+    with torch.inference_mode():
+        probs = plan.source.scores(x, [""]).softmax(1)
+        if plan.options.save_probs:
+            probs = probs.half().float()
+        priors, roi = plan.priors.at(image.shape[:2])
+        maps = torch.stack([_decide(probs, rule, priors) for rule in plan.rules])
+    return probs[0], maps.to(torch.uint8).cpu().numpy(), None if roi is None else roi.cpu().numpy()
+
+
+def _decide(probs: torch.Tensor, rule: Rule, priors: torch.Tensor | None) -> torch.Tensor:
+    """(H, W) decisions of one rule for a (1, N, H, W) image. A few named rules are decided one
+    by one: at a photo's size ``decide`` per rule takes a fraction of ``decide_mixtures`` with
+    identity weights (scripts/bench_predict.py)."""
+    if rule.priors_alpha:
+        if priors is None:
+            raise ValueError(f"rule {rule.name!r} needs pixel-wise priors")
+        return decide(probs, rule.cost, adapted_priors(priors, rule.priors_alpha))[0]
+    return decide(probs, rule.cost)[0]
+
+
+def predict(opts: PredictOptions) -> Path:
+    """Run ``predict.py``; returns the output folder."""
+    return run(plan(opts))
+
+
+def run(job: PredictPlan) -> Path:
+    """One pass over the planned images or frames; returns the output folder."""
+    opts = job.options
+    writer = PredictionWriter(job.output_dir, job.rule_names, opts.save_probs)
+    k = len(job.rule_names)
+    argmax = next((i for i, r in enumerate(job.rules) if _is_argmax(r)), k)
+    video = job.inputs.video
+    if video is None:
+        with Progress("images", len(job.inputs.images), opts.progress) as progress:
+            for path in job.inputs.images:
+                image = read_image(path)
+                probs, maps, roi = decide_image(job, image)
+                writer.image(path.stem, image, maps[:k], maps[argmax], roi, probs)
+                _keep_example(job, path.stem, image, probs)
+                progress.update()
+    else:
+        writer.open_video(video.path.stem, video.rate)
+        try:
+            with Progress("frames", video.frames, opts.progress) as progress:
+                for i, image in enumerate(video_frames(video.path)):
+                    probs, maps, roi = decide_image(job, image)
+                    stem = f"{video.path.stem}_{i:06d}"
+                    writer.frame(stem, image, maps[:k], maps[argmax], roi, probs)
+                    _keep_example(job, stem, image, probs)
+                    progress.update()
+        except BaseException:
+            writer.close_videos(abandon=True)
+            raise
+        writer.close_videos()
+    if opts.explorer:
+        _write_explorer(job)
+    writer.finish({"source": job.source.description, "input": str(opts.input)})
+    print(f"predictions written to {job.output_dir}")
+    return job.output_dir
+
+
+def _keep_example(job: PredictPlan, stem: str, image: np.ndarray, probs: torch.Tensor) -> None:
+    if job.options.explorer and len(job.examples) < job.options.num_examples:
+        job.examples.append(embedded(stem, image, probs))
+
+
+def _write_explorer(job: PredictPlan) -> None:
+    from costseg.report.explorer import write_explorer
+    from costseg.report.explorer_points import named_points
+
+    opts = job.options
+    vertices = vertex_matrices(opts.vertices, opts.vertex_scaling)
+    write_explorer(
+        job.output_dir / "explorer.html",
+        job.examples,
+        vertices,
+        opts.vertices,
+        named=named_points(job.rules[: len(opts.cost)], vertices, opts.vertex_scaling),
+        notes=[f"source: {job.source.description.get('network', '')}", "no labels: no metrics"],
+    )

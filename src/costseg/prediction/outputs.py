@@ -1,0 +1,126 @@
+"""The files of a prediction (docs/usage.md): per image ``panels/<stem>.png``,
+``labels/<rule>/<stem>.png`` (Cityscapes label ids), ``color/<rule>/<stem>.png``, optionally
+``probs/<stem>.npz``; per video ``<stem>_panels.mp4`` and ``<stem>_<rule>.mp4``; at the end
+``counts.csv`` and ``counts.json``, written last, so a folder holding them is complete.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+from collections.abc import Iterator, Sequence
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+import torch
+from PIL import Image
+
+from costseg.classes import CLASS_NAMES, ROI_NAMES, TRAIN_ID_TO_LABEL_ID, colorize
+from costseg.prediction.counts import label_counts
+from costseg.prediction.panels import overlay, panel
+from costseg.prediction.video import VideoWriter
+from costseg.report.files import write_csv, write_json
+
+COUNT_COLUMNS = ("image", "rule", "class", "roi", "pixels", "segments")
+
+
+def write_png(path: Path, array: np.ndarray) -> None:
+    """An (H, W) or (H, W, 3) uint8 array as PNG, via a temporary file and a rename."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    buffer = io.BytesIO()
+    Image.fromarray(array).save(buffer, format="PNG", compress_level=1)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_bytes(buffer.getvalue())
+    os.replace(tmp, path)
+
+
+class PredictionWriter:
+    """Writes each image's (or frame's) outputs and gathers the counts.
+
+    Args:
+        output_dir: the prediction folder.
+        rule_names: the K rules, in the order of the label maps.
+        save_probs: also write ``probs/<stem>.npz`` (float16).
+    """
+
+    def __init__(self, output_dir: Path, rule_names: Sequence[str], save_probs: bool) -> None:
+        self.output_dir, self.rule_names, self.save_probs = output_dir, list(rule_names), save_probs
+        self.counts: dict[str, np.ndarray] = {}  # stem → (K, 2, N, R) pixels and segments
+        self.videos: list[VideoWriter] = []
+
+    def image(
+        self, stem: str, image: np.ndarray, maps: np.ndarray, argmax: np.ndarray, roi, probs
+    ) -> None:
+        """Files of one image: ``maps`` (K, H, W) train ids, ``argmax`` (H, W), ``roi`` (H, W)
+        or None, ``probs`` (N, H, W) tensor (saved with ``save_probs``)."""
+        out = self.output_dir
+        for name, labels in zip(self.rule_names, maps, strict=True):
+            write_png(out / "labels" / name / f"{stem}.png", TRAIN_ID_TO_LABEL_ID[labels])
+            write_png(out / "color" / name / f"{stem}.png", colorize(labels))
+        write_png(out / "panels" / f"{stem}.png", panel(image, self.rule_names, maps, argmax))
+        self.count(stem, maps, roi, probs)
+
+    def count(self, stem: str, maps: np.ndarray, roi, probs: torch.Tensor) -> None:
+        """Count one image's pixels and segments; write its probabilities with ``save_probs``."""
+        self.counts[stem] = np.stack([np.stack(label_counts(m, roi)) for m in maps])
+        if self.save_probs:
+            from costseg.networks.probs_files import save_probs
+
+            save_probs(self.output_dir / "probs" / f"{stem}.npz", probs)
+
+    def open_video(self, stem: str, rate: Fraction) -> None:
+        """Start ``<stem>_panels.mp4`` and ``<stem>_<rule>.mp4``."""
+        names = [f"{stem}_panels", *(f"{stem}_{n}" for n in self.rule_names)]
+        self.videos = [VideoWriter(self.output_dir / f"{n}.mp4", rate) for n in names]
+
+    def frame(self, stem: str, image: np.ndarray, maps, argmax, roi, probs) -> None:
+        """One video frame: a panel frame, one overlay frame per rule, and its counts."""
+        self.videos[0].write(panel(image, self.rule_names, maps, argmax))
+        for video, labels in zip(self.videos[1:], maps, strict=True):
+            video.write(overlay(image, labels))
+        self.count(stem, maps, roi, probs)
+
+    def close_videos(self, abandon: bool = False) -> None:
+        """Finish (or, after an error, drop) the open videos."""
+        for video in self.videos:
+            video.abandon() if abandon else video.close()
+        self.videos = []
+
+    def finish(self, description: dict) -> None:
+        """Write ``counts.csv`` and ``counts.json`` (last: they mark a complete folder)."""
+        write_csv(self.output_dir / "counts.csv", self._rows(), COUNT_COLUMNS)
+        first = next(iter(self.counts.values()), None)
+        rois = list(ROI_NAMES[: first.shape[-1]]) if first is not None else ["image"]
+        write_json(
+            self.output_dir / "counts.json",
+            {
+                **description,
+                "layout": "images[stem][rule] = {pixels, segments}: [class][roi]; segments "
+                "8-connected, each in the RoI holding most of its pixels",
+                "rules": self.rule_names,
+                "classes": list(CLASS_NAMES),
+                "rois": rois,
+                "images": {
+                    stem: {
+                        name: {"pixels": c[k, 0].tolist(), "segments": c[k, 1].tolist()}
+                        for k, name in enumerate(self.rule_names)
+                    }
+                    for stem, c in self.counts.items()
+                },
+            },
+        )
+
+    def _rows(self) -> Iterator[dict]:
+        for stem, counts in self.counts.items():
+            for k, name in enumerate(self.rule_names):
+                for c, cls in enumerate(CLASS_NAMES):
+                    for r in range(counts.shape[-1]):
+                        yield dict(
+                            zip(
+                                COUNT_COLUMNS,
+                                (stem, name, cls, ROI_NAMES[r], counts[k, 0, c, r],
+                                 counts[k, 1, c, r]),
+                                strict=True,
+                            )
+                        )  # fmt: skip

@@ -1,0 +1,101 @@
+"""One picture per image: the image, each rule's overlay with a class-colour legend, and where
+each rule differs from argmax. Drawn with numpy and PIL (fast enough for every video frame)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from PIL import Image, ImageDraw, ImageFont
+
+from costseg.classes import CLASS_NAMES, PALETTE, colorize
+
+MAX_TILE_WIDTH = 512
+MIN_TILE_WIDTH = 192  # room for the titles
+TITLE = 16  # pixels above each tile
+SWATCH = 14
+ALPHA = 0.55  # weight of the class colour in an overlay
+
+
+def overlay(image: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """(H, W, 3) uint8: the image blended with the label map's class colours."""
+    mixed = (1 - ALPHA) * image.astype(np.float32) + ALPHA * colorize(labels).astype(np.float32)
+    return mixed.round().astype(np.uint8)
+
+
+def differences(image: np.ndarray, labels: np.ndarray, argmax: np.ndarray) -> np.ndarray:
+    """(H, W, 3) uint8: the image greyed and darkened; where ``labels`` differ from ``argmax``,
+    the rule's class colour."""
+    grey = image.astype(np.float32) @ np.float32([0.299, 0.587, 0.114])
+    out = np.repeat((0.35 * grey).round().astype(np.uint8)[..., None], 3, axis=2)
+    differ = labels != argmax
+    out[differ] = PALETTE[labels[differ]]
+    return out
+
+
+def _tile_size(height: int, width: int) -> tuple[int, int]:
+    scale = min(MAX_TILE_WIDTH / width, max(1.0, MIN_TILE_WIDTH / width))
+    return max(1, round(height * scale)), max(1, round(width * scale))
+
+
+def _resized(array: np.ndarray, size: tuple[int, int], nearest: bool) -> np.ndarray:
+    if array.shape[:2] == size:
+        return array
+    method = Image.Resampling.NEAREST if nearest else Image.Resampling.BILINEAR
+    return np.asarray(Image.fromarray(array).resize((size[1], size[0]), method))
+
+
+def panel(
+    image: np.ndarray, rule_names: Sequence[str], maps: np.ndarray, argmax: np.ndarray
+) -> np.ndarray:
+    """The panel of one image.
+
+    Args:
+        image: (H, W, 3) uint8 RGB.
+        rule_names: the K rules.
+        maps: (K, H, W) train ids of the rules.
+        argmax: (H, W) train ids of argmax (the robotistic rule).
+
+    Returns:
+        (h, w, 3) uint8 RGB, h and w even (video encoders need that): a top row with the image
+        and the K overlays, a bottom row with the K difference views, and a legend of the
+        classes present.
+    """
+    h, w = _tile_size(*image.shape[:2])
+    small = _resized(image, (h, w), nearest=False)
+    k = len(rule_names)
+    small_maps = [_resized(m.astype(np.uint8), (h, w), nearest=True) for m in maps]
+    small_argmax = _resized(argmax.astype(np.uint8), (h, w), nearest=True)
+    present = np.flatnonzero(np.bincount(np.concatenate([m.ravel() for m in small_maps]),
+                                         minlength=256)[: len(CLASS_NAMES)])  # fmt: skip
+    width = (k + 1) * w + (k + 1) * w % 2
+    legend_rows = -(-len(present) // max(1, (width - 4) // 120))
+    height = 2 * (h + TITLE) + legend_rows * (SWATCH + 4) + 4
+    canvas = Image.new("RGB", (width, height + height % 2), (255, 255, 255))
+    draw, font = ImageDraw.Draw(canvas), ImageFont.load_default()
+    tiles = [("image", small)] + [
+        (name, overlay(small, m)) for name, m in zip(rule_names, small_maps, strict=True)
+    ]
+    differ = [100 * float(np.count_nonzero(m != argmax)) / argmax.size for m in maps]
+    tiles += [(None, None)] + [
+        (f"{name}: {d:.1f} % not argmax", differences(small, m, small_argmax))
+        for name, m, d in zip(rule_names, small_maps, differ, strict=True)
+    ]
+    for i, (title, tile) in enumerate(tiles):
+        if tile is None:
+            continue
+        x, y = (i % (k + 1)) * w, (i // (k + 1)) * (h + TITLE)
+        draw.text((x + 3, y + 2), title, fill=(0, 0, 0), font=font)
+        canvas.paste(Image.fromarray(tile), (x, y + TITLE))
+    _legend(draw, font, present, 2 * (h + TITLE) + 2, canvas.width)
+    return np.asarray(canvas)
+
+
+def _legend(draw: ImageDraw.ImageDraw, font, classes: np.ndarray, top: int, width: int) -> None:
+    x, y = 4, top
+    for c in classes:
+        if x + 120 > width and x > 4:
+            x, y = 4, y + SWATCH + 4
+        draw.rectangle((x, y, x + SWATCH, y + SWATCH), fill=tuple(int(v) for v in PALETTE[c]))
+        draw.text((x + SWATCH + 4, y + 1), CLASS_NAMES[c], fill=(0, 0, 0), font=font)
+        x += 120

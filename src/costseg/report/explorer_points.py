@@ -1,0 +1,128 @@
+"""What the explorer page shows of an evaluation: its examples, the sweep's metrics, and the
+named, target and certified points of the triangle (docs/definitions.md §11)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+
+from costseg.classes import CLASS_NAMES
+from costseg.costs import rescale, symmetric_cost
+from costseg.metrics.selection import choose
+from costseg.report.explorer import ExplorerExample, Marks, SweepData, embedded, write_explorer
+from costseg.report.results import EvalResults, GroupResult
+from costseg.rules import Rule, vertex_matrices
+
+ROIS = (0, 1, 2, 3, 4)
+
+
+def named_points(
+    rules: Sequence[Rule], vertices: torch.Tensor, scaling: str = "none"
+) -> list[tuple[str, list[float]]]:
+    """The named rules that are vertices of the triangle, with their weights.
+
+    >>> from costseg.rules import parse_rules
+    >>> V = vertex_matrices(["robotistic", "altruistic", "egoistic"])
+    >>> named_points(parse_rules(["egoistic", "ml"]), V)
+    [('egoistic', [0.0, 0.0, 1.0])]
+    """
+    points = []
+    for rule in rules:
+        if rule.priors_alpha:
+            continue
+        cost = symmetric_cost(vertices.shape[-1]) if rule.cost is None else rule.cost
+        cost = rescale(cost) if scaling == "mean" else cost
+        for v in range(len(vertices)):
+            if torch.equal(cost.to(vertices), vertices[v]):
+                points.append((rule.name, [float(i == v) for i in range(len(vertices))]))
+                break
+    return points
+
+
+def sweep_data(grid: GroupResult, class_ids: Sequence[int]) -> SweepData:
+    """The grid's pixel metrics (RoI 0-4) and segment rates of the ``--classes``."""
+    metrics: dict[str, dict[str, dict[str, list[float]]]] = {}
+    for metric in ("precision", "recall"):
+        values = grid.pixels[metric]  # (K, R, N)
+        metrics[metric] = {
+            CLASS_NAMES[c]: {str(r): values[:, r, c].tolist() for r in ROIS} for c in class_ids
+        }
+    for metric in ("fp_rate", "fn_rate"):
+        if metric in grid.segments:
+            values = grid.segments[metric]  # (K, C, R)
+            metrics[metric] = {
+                CLASS_NAMES[cls]: {str(r): values[:, c, r].tolist() for r in ROIS}
+                for c, cls in enumerate(class_ids)
+            }
+    return SweepData(grid.group.weights.tolist(), metrics, grid.group.note)
+
+
+def _marks(results: EvalResults, grid: GroupResult | None) -> Marks:
+    marks, opts = Marks(), results.options
+    if grid is not None and opts.get("target") and opts.get("maximize"):
+        choice = choose(grid.pixels, grid.segments, opts["target"], opts["maximize"],
+                        results.class_ids)  # fmt: skip
+        weights = grid.group.weights.tolist()
+        marks.targets = [(opts["target"], weights[k]) for k in choice.points]
+    cert = results.extra.get("certificate")
+    if cert is not None and cert.chosen is not None and cert.group.weights is not None:
+        w = cert.group.weights[cert.chosen].tolist()
+        marks.certified = [(f"certified ({cert.target})", w)]
+    return marks
+
+
+def _roi_at(roi: torch.Tensor | None, shape: tuple[int, int]) -> np.ndarray | None:
+    """The RoI map at another label size (nearest location)."""
+    if roi is None:
+        return None
+    rows = (np.arange(shape[0]) * roi.shape[0] // shape[0])[:, None]
+    cols = (np.arange(shape[1]) * roi.shape[1] // shape[1])[None, :]
+    return roi.numpy()[rows, cols]
+
+
+def evaluation_examples(results: EvalResults) -> list[ExplorerExample]:
+    """The evaluation's examples that kept their probabilities, as the page embeds them."""
+    out = []
+    for i, ex in enumerate(results.examples):
+        if ex.probs is None:
+            continue
+        label = ex.label.numpy()
+        out.append(
+            embedded(
+                ex.name or f"example_{i}",
+                ex.image.permute(1, 2, 0).numpy(),
+                ex.probs,
+                label.astype(np.uint8),
+                _roi_at(results.roi, label.shape),
+            )
+        )
+    return out
+
+
+def write_evaluation_explorer(results: EvalResults) -> None:
+    """``explorer.html`` of an evaluation (``evaluate.py --explorer``)."""
+    opts = results.options
+    grid = next((g for g in results.groups if g.group.weights is not None), None)
+    if grid is not None:
+        vertices = grid.group.vertices
+    else:
+        vertices = vertex_matrices(opts["vertices"], opts["vertex_scaling"])
+    named = named_points(results.named.group.rules, vertices, opts["vertex_scaling"])
+    notes = [
+        f"source: {results.source.get('network') or results.source}",
+        f"probabilities: {results.probabilities}; the examples' masks are decided on these "
+        "probabilities rounded to float16",
+    ]
+    write_explorer(
+        results.output_dir / "explorer.html",
+        evaluation_examples(results),
+        vertices,
+        opts["vertices"],
+        named=named,
+        sweep=None if grid is None else sweep_data(grid, results.class_ids),
+        marks=_marks(results, grid),
+        notes=notes,
+    )
+    print(f"explorer: {results.output_dir / 'explorer.html'}")

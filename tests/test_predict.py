@@ -1,0 +1,145 @@
+"""predict.py on a user's own images and videos: labels equal the float64 reference on the
+saved probabilities, videos keep their frame count and rate, and bad inputs end in one line."""
+
+from __future__ import annotations
+
+import csv
+import json
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+from reference_decisions import decide_reference
+from scipy import ndimage
+
+from costseg.classes import LABEL_ID_TO_TRAIN_ID, class_index
+from costseg.cli import predict_main
+from costseg.costs import load_cost
+from costseg.data.priors import resize_priors
+from costseg.networks import load_costseg_checkpoint
+
+RULES = ["robotistic", "altruistic", "egoistic", "ml"]
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tiny_run) -> Path:
+    return next(Path(tiny_run[2]).glob("**/last.ckpt"))
+
+
+def _picture(h: int, w: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    base = np.linspace(0, 255, w, dtype=np.float32)[None, :, None] * np.ones((h, 1, 3))
+    return (base + rng.normal(0, 30, (h, w, 3))).clip(0, 255).astype(np.uint8)
+
+
+@pytest.fixture
+def images(tmp_path) -> Path:
+    """Two PNGs of different sizes and a JPEG stored sideways (EXIF orientation 6)."""
+    folder = tmp_path / "images"
+    folder.mkdir()
+    Image.fromarray(_picture(48, 80, 0)).save(folder / "wide.png")
+    Image.fromarray(_picture(37, 53, 1)).convert("L").save(folder / "odd.png")
+    exif = Image.Exif()
+    exif[0x0112] = 6  # rotate 90° clockwise to view
+    Image.fromarray(_picture(40, 64, 2)).save(folder / "photo.jpg", exif=exif, quality=90)
+    return folder
+
+
+def test_labels_equal_the_reference_on_the_saved_probabilities(checkpoint, images, tmp_path):
+    out = tmp_path / "out"
+    predict_main(["--input", str(images), "--ckpt_path", str(checkpoint), "--output_dir",
+                  str(out), "--save-probs", "--cost", *RULES, "--no-progress"])  # fmt: skip
+    priors = load_costseg_checkpoint(checkpoint).priors
+    sizes = {"wide": (48, 80), "odd": (37, 53), "photo": (64, 40)}  # the JPEG turned upright
+    rows = list(csv.DictReader((out / "counts.csv").open()))
+    for stem, size in sizes.items():
+        probs = torch.from_numpy(np.load(out / "probs" / f"{stem}.npz")["probs"])
+        assert probs.dtype == torch.float16 and tuple(probs.shape) == (19, *size)
+        assert (out / "panels" / f"{stem}.png").is_file()
+        for rule in RULES:
+            cost, pi = (
+                (None, resize_priors(priors, size)) if rule == "ml" else (load_cost(rule), None)
+            )
+            expected = decide_reference(probs[None].float(), cost, pi)[0].numpy()
+            ids = np.asarray(Image.open(out / "labels" / rule / f"{stem}.png"))
+            np.testing.assert_array_equal(LABEL_ID_TO_TRAIN_ID[ids], expected, f"{stem} {rule}")
+            color = np.asarray(Image.open(out / "color" / rule / f"{stem}.png"))
+            assert color.shape == (*size, 3)
+            mine = {r["class"]: r for r in rows if r["image"] == stem and r["rule"] == rule
+                    and r["roi"] == "image"}  # fmt: skip
+            for cls in ("building", "sky", "person"):
+                mask = expected == class_index(cls)
+                segments = ndimage.label(mask, structure=np.ones((3, 3)))[1]
+                assert int(mine[cls]["pixels"]) == mask.sum()
+                assert int(mine[cls]["segments"]) == segments
+    counts = json.loads((out / "counts.json").read_text())
+    assert counts["rois"] == ["image", "street", "sidewalk", "building", "sky"]
+
+
+def _write_video(path: Path, frames: int, rate: int) -> None:
+    import av
+
+    with av.open(str(path), "w") as container:
+        stream = container.add_stream("mpeg4", rate=rate)
+        stream.width, stream.height, stream.pix_fmt = 64, 48, "yuv420p"
+        for i in range(frames):
+            frame = av.VideoFrame.from_ndarray(_picture(48, 64, i), format="rgb24")
+            container.mux(stream.encode(frame))
+        container.mux(stream.encode(None))
+
+
+def _frames_and_rate(path: Path) -> tuple[int, Fraction]:
+    import av
+
+    with av.open(str(path)) as container:
+        stream = container.streams.video[0]
+        return sum(1 for _ in container.decode(stream)), Fraction(stream.average_rate)
+
+
+def test_a_video_gives_videos_of_the_same_frame_count_and_rate(checkpoint, tmp_path, capsys):
+    pytest.importorskip("av")
+    video, out = tmp_path / "clip.mp4", tmp_path / "out"
+    _write_video(video, 6, 12)
+    predict_main(["--input", str(video), "--ckpt_path", str(checkpoint), "--output_dir", str(out)])
+    assert "predict: 6/6 frames (100 %)" in capsys.readouterr().err  # progress without a terminal
+    for name in ("clip_panels", "clip_robotistic", "clip_altruistic", "clip_egoistic"):
+        assert _frames_and_rate(out / f"{name}.mp4") == (6, Fraction(12)), name
+    assert len(json.loads((out / "counts.json").read_text())["images"]) == 6
+
+
+def _bad(tmp_path: Path, kind: str) -> Path:
+    if kind == "text.png":
+        (path := tmp_path / "notes.png").write_text("not an image")
+    elif kind == "corrupt.mp4":
+        (path := tmp_path / "broken.mp4").write_bytes(b"\x00\x00\x00\x18ftypmp42" + bytes(300))
+    elif kind == "empty folder":
+        (path := tmp_path / "empty").mkdir()
+    else:
+        path = tmp_path / "missing.jpg"
+    return path
+
+
+@pytest.mark.parametrize("kind", ["text.png", "corrupt.mp4", "empty folder", "missing"])
+def test_bad_inputs_end_in_one_line_before_the_network_loads(tmp_path, capsys, kind):
+    path = _bad(tmp_path, kind)
+    with pytest.raises(SystemExit) as exit_:  # a checkpoint that does not exist is never read
+        predict_main(["--input", str(path), "--ckpt_path", str(tmp_path / "none.ckpt")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exit_.value.code == 2 and len(err) == 1, err
+    assert err[0].startswith("error: ") and str(path) in err[0], err
+
+
+def test_ctrl_c_ends_in_one_line_and_status_130(tmp_path, capsys, monkeypatch):
+    import costseg.prediction
+
+    def interrupted(opts):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(costseg.prediction, "predict", interrupted)
+    with pytest.raises(SystemExit) as exit_:
+        predict_main(["--input", str(tmp_path)])
+    assert exit_.value.code == 130
+    assert capsys.readouterr().err.strip().splitlines() == ["interrupted"]
