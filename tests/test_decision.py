@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from costseg.costs import barycentric_grid, load_cost, mix_costs, symmetric_cost
 from costseg.decision import decide, decide_mixtures
-from costseg.label_maps import empty_labels
+from costseg.decision.label_maps import empty_labels
 
 VERTICES = torch.stack([load_cost(n) for n in ("robotistic", "altruistic", "egoistic")])
 LOW_PRECISION = [torch.float32, torch.float16, torch.bfloat16]

@@ -24,7 +24,7 @@ import torch
 from costseg.classes import CLASS_NAMES
 from costseg.costs import PRESETS, barycentric_grid, load_cost, rescale, symmetric_cost
 from costseg.decision import decide, decide_mixtures
-from costseg.label_maps import empty_labels
+from costseg.decision.label_maps import empty_labels
 
 RULE_NAMES = (*PRESETS, "ml")
 Decider = Callable[[torch.Tensor, torch.Tensor | None], torch.Tensor]
