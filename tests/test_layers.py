@@ -5,21 +5,10 @@ import ast
 from pathlib import Path
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "costseg"
-DECISION_KERNELS = {  # decision.py's fast paths
-    "decision_blocks",
-    "decision_candidates",
-    "decision_certified",
-    "decision_groups",
-    "decision_mixing",
-    "decision_numba",
-    "decision_sparse",
-    "decision_triton",
-}
 # Lower layers first; a module may import its own layer or lower ones.
 CHAIN = [
-    {"classes", "checkpoints", "options", "label_maps", "threads"},
+    {"classes", "checkpoints", "options", "threads"},
     {"costs"},
-    DECISION_KERNELS,
     {"decision"},
     {"rules", "selection", "calibration", "calibration_sample", "guarantee"},
     {"data", "metrics", "models", "networks", "probs_files", "results"},
@@ -30,11 +19,9 @@ CHAIN = [
     {"cli"},
 ]
 NO_LIGHTNING = {
-    "label_maps",
     "threads",
     "costs",
     "decision",
-    *DECISION_KERNELS,
     "rules",
     "selection",
     "calibration",
@@ -54,7 +41,6 @@ NO_LIGHTNING = {
 NO_MODEL = {
     "costs",
     "decision",
-    "decision_certified",
     "rules",
     "selection",
     "metrics",
@@ -65,17 +51,22 @@ NO_MODEL = {
 
 
 def _imports() -> dict[str, set[str]]:
-    """costseg module → the costseg (and lightning) modules it imports, anywhere in its code."""
+    """costseg module → the costseg (and lightning) modules it imports, anywhere in its code
+    (``from package import module``: the module, not the package)."""
+    paths = {
+        ".".join(p.relative_to(SRC.parent).with_suffix("").parts).removesuffix(".__init__"): p
+        for p in SRC.rglob("*.py")
+    }
     found = {}
-    for path in SRC.rglob("*.py"):
-        name = ".".join(path.relative_to(SRC.parent).with_suffix("").parts)
+    for name, path in paths.items():
         names = set()
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.ImportFrom) and node.module:
-                names.add(node.module)
+                modules = {f"{node.module}.{a.name}" for a in node.names} & paths.keys()
+                names.update(modules or {node.module})
             elif isinstance(node, ast.Import):
                 names.update(a.name for a in node.names)
-        found[name.removesuffix(".__init__")] = names
+        found[name] = names
     return found
 
 
@@ -134,6 +125,21 @@ def test_files_stay_short():
     long = {str(p.relative_to(SRC)): n for p in SRC.rglob("*.py")
             if (n := len(p.read_text().splitlines())) > 300}  # fmt: skip
     assert not long, long
+
+
+def test_decision_imports_no_private_names_and_has_no_fallback_imports():
+    """DESIGN.md: no private name (``_x``) imported from another module; no ``try: import``."""
+    problems = []
+    for path in (SRC / "decision").rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("costseg"):
+                private = [a.name for a in node.names if a.name.startswith("_")]
+                problems += [f"{path.relative_to(SRC)} imports {n}" for n in private]
+            if isinstance(node, ast.Try) and any(
+                isinstance(s, (ast.Import, ast.ImportFrom)) for s in node.body
+            ):
+                problems.append(f"{path.relative_to(SRC)}:{node.lineno} try-imports")
+    assert not problems, problems
 
 
 def test_evaluation_imports_no_lightning_at_run_time():
