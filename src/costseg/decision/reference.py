@@ -38,11 +38,7 @@ def decide_reference(
     b, n, h, w = probs.shape
     cost = symmetric_cost(n) if cost is None else cost
     shifted = shift(cost.detach().to(probs.device, torch.float64))
-    q = probs.detach().double()
-    if priors is not None:
-        priors = torch.as_tensor(priors).to(q.device, torch.float64)
-        q = q / (priors.view(n, 1, 1) if priors.ndim == 1 else priors)
-    return reference_labels(q.permute(0, 2, 3, 1).reshape(-1, n), shifted[None]).view(b, h, w)
+    return reference_labels(_q(probs, priors), shifted[None]).view(b, h, w)
 
 
 def decide_mixtures_reference(
@@ -53,8 +49,25 @@ def decide_mixtures_reference(
 ) -> torch.Tensor:
     """(B, K, H, W) int64: :func:`decide_reference` on each mixed matrix ``mix_costs(vertices,
     weights)[k]`` (:func:`costseg.costs.mix_costs`), what ``decide_mixtures`` equals."""
+    b, _, h, w = probs.shape
     matrices = mix_costs(vertices.detach(), weights.detach())
-    return torch.stack([decide_reference(probs, c, priors) for c in matrices], 1)
+    shifted = shift(matrices.to(probs.device, torch.float64))[:, None]  # (K, 1, N, N)
+    q = _q(probs, priors)
+    step = max(1, (1 << 24) // q.numel())  # mixtures at once: (step, B·H·W, N) float64 costs
+    labels = torch.cat(
+        [reference_labels(q, shifted[k : k + step]) for k in range(0, len(shifted), step)]
+    )
+    return labels.view(-1, b, h, w).transpose(0, 1)
+
+
+def _q(probs: torch.Tensor, priors) -> torch.Tensor:
+    """(B·H·W, N) float64 ``p / π``."""
+    n = probs.shape[1]
+    q = probs.detach().double()
+    if priors is not None:
+        priors = torch.as_tensor(priors).to(q.device, torch.float64)
+        q = q / (priors.view(n, 1, 1) if priors.ndim == 1 else priors)
+    return q.permute(0, 2, 3, 1).reshape(-1, n)
 
 
 def shift(costs: torch.Tensor) -> torch.Tensor:
@@ -64,9 +77,9 @@ def shift(costs: torch.Tensor) -> torch.Tensor:
 
 
 def reference_labels(q: torch.Tensor, shifted: torch.Tensor) -> torch.Tensor:
-    """The reference's sums and argmin: (R, N) float64 q and (R or 1, N, N) shifted matrices
-    → (R,) int64 labels."""
-    costs = torch.zeros(q.shape[0], shifted.shape[1], dtype=torch.float64, device=q.device)
+    """The reference's sums and argmin: (R, N) float64 q and (..., R or 1, N, N) shifted matrices
+    → (..., R) int64 labels."""
+    costs = torch.zeros((), dtype=torch.float64, device=q.device)
     for k in range(q.shape[1]):  # ascending k, product and sum each rounded once
-        costs = costs + shifted[:, :, k] * q[:, k, None]
-    return costs.min(1).indices  # the first minimum: ties to the lowest index
+        costs = costs + shifted[..., k] * q[:, k, None]  # broadcasts to (..., R, N)
+    return costs.min(-1).indices  # the first minimum: ties to the lowest index
