@@ -14,7 +14,6 @@ rounds that time both sides back to back (a machine whose speed drifts moves bot
 from __future__ import annotations
 
 import argparse
-import os
 import statistics
 import time
 from collections.abc import Callable
@@ -83,11 +82,9 @@ def bench(device: str, shape: tuple[int, int, int, int], repeats: int) -> None:
     fine = barycentric_grid(0.05)
     t_fine = best_time(lambda: decide_mixtures(probs, VERTICES, fine), 1, sync)
     t_ops = t_decide_ops = None
-    if device == "cpu":  # the same without numba's kernels: matmuls, _top, _Mixer
-        os.environ["COSTSEG_NO_NUMBA"] = "1"
-        t_decide_ops = best_time(lambda: decide(probs, VERTICES[2]), repeats, sync)
-        t_ops = best_time(lambda: decide_mixtures(probs, VERTICES, grid), 1, sync)
-        del os.environ["COSTSEG_NO_NUMBA"]
+    if device == "cpu":  # the same without numba's kernels: the "torch" path
+        t_decide_ops = best_time(lambda: decide(probs, VERTICES[2], path="torch"), repeats, sync)
+        t_ops = best_time(lambda: decide_mixtures(probs, VERTICES, grid, path="torch"), 1, sync)
     threads = f", {torch.get_num_threads()} threads" if device == "cpu" else ""
     print(f"{device}{threads}, probabilities {tuple(shape)} float32:")
     print(f"  p.sum() (one read pass)        {1e3 * t_sum:8.3f} ms")

@@ -4,7 +4,7 @@
 
 On the bench's (1, 19, 1024, 2048) float32 probabilities (``scripts/bench_decision.py``): one
 read pass and ``torch.argmax``, then ``decide`` (egoistic) and ``decide_mixtures`` (66 points)
-for each (pixels per program, warps) pair of ``decision_triton.CONFIG``'s candidates; the kernel
+for each (pixels per program, warps) pair of ``triton_kernel.CONFIG``'s candidates; the kernel
 alone summing in float64 and in float32 (with the pairs each leaves open); and ``decide`` on an
 8 x 8 image, whose time is the per-call overhead. Needs a CUDA GPU.
 """
@@ -14,10 +14,11 @@ from __future__ import annotations
 import torch
 from bench_decision import VERTICES, best_time, probabilities
 
-from costseg import decision_triton
 from costseg.costs import barycentric_grid
-from costseg.decision import _fast, decide, decide_mixtures
-from costseg.decision_certified import U64
+from costseg.decision import decide, decide_mixtures
+from costseg.decision.certificate import reference_eps
+from costseg.decision.certified import prepare
+from costseg.decision.gpu import triton_kernel
 
 # (one matrix, mixtures): pixels per program and warps
 CANDIDATES = [((128, 4), (64, 2)), ((256, 2), (128, 4)), ((256, 4), (128, 8)), ((512, 4), (32, 1))]
@@ -28,22 +29,22 @@ def main() -> None:
     grid = barycentric_grid(0.1)
     print(f"p.sum() {1e3 * best_time(lambda: p.sum(), 20, sync):.4f} ms, "
           f"argmax {1e3 * best_time(lambda: p.argmax(1), 20, sync):.4f} ms")  # fmt: skip
-    default = decision_triton.CONFIG
+    default = triton_kernel.CONFIG
     for config in CANDIDATES:
-        decision_triton.CONFIG = list(config)
+        triton_kernel.CONFIG = list(config)
         one = best_time(lambda: decide(p, VERTICES[2]), 20, sync)
         many = best_time(lambda: decide_mixtures(p, VERTICES, grid), 5, sync)
         print(f"decide {config[0]}: {1e3 * one:.4f} ms   mixtures {config[1]}: {1e3 * many:.3f} ms")
-    decision_triton.CONFIG = default
+    triton_kernel.CONFIG = default
     probs = p.view(19, -1)
     for name, vertices, weights in (
         ("decide", VERTICES[2:3], torch.ones(1, 1)),
         ("mixtures", VERTICES, grid),
     ):
-        fast = _fast(vertices.double(), p, None, (19 + 8) * U64)
+        fast = prepare(vertices.double(), p, None, reference_eps(19, mixtures=True))
         labels = torch.empty(len(weights), probs.shape[1], dtype=torch.uint8, device="cuda")
         for float64 in (True, False):
-            rule = decision_triton.rule(fast.folded, weights, fast.eps, p.device, float64)
+            rule = triton_kernel.rule(fast.folded, weights, fast.eps, p.device, float64)
             seconds = best_time(lambda r=rule, out=labels: r(probs, out), 10, sync)
             opened = rule(probs, labels)
             count = 0 if opened is None else int(opened.sum())

@@ -1,24 +1,28 @@
-"""Cases for the Triton kernel of the decision layer, run by tests/test_decision_triton.py.
+"""Cases for the Triton kernel of the decision layer, run by tests/test_triton_kernel.py.
 
 Run as a script under Triton's interpreter (``TRITON_INTERPRET=1``: the kernel on the CPU) or,
 with ``--device cuda``, on a GPU. Each case compares ``decide`` / ``decide_mixtures`` on the
-chosen device with the float64 reference of tests/test_decision.py; the last checks that the
+chosen device with ``decide_reference``; the last checks that the
 kernel itself certifies most pixels (so the re-checks are not doing all the work).
 """
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
 import torch
 
 sys.path.insert(0, str(Path(__file__).parent))
-from test_decision import VERTICES, near_ties, reference, smooth
+from decision_inputs import VERTICES, near_ties, smooth
 
-from costseg import decision_triton
 from costseg.costs import barycentric_grid, mix_costs
 from costseg.decision import decide, decide_mixtures
-from costseg.decision_certified import U64, _Fast
+from costseg.decision import decide_reference as reference
+from costseg.decision.certificate import reference_eps
+from costseg.decision.certified import CertifiedCosts
+from costseg.decision.dispatch import ENV
+from costseg.decision.gpu import triton_kernel
 
 
 def check(device: str, every_case: bool = True) -> None:
@@ -49,9 +53,9 @@ def check(device: str, every_case: bool = True) -> None:
     got = decide_mixtures(probs.to(device), VERTICES, weights).long().cpu()
     assert torch.equal(got, torch.stack([reference(probs, c) for c in matrices], 1))
     probs = smooth((1, 19, 16, 16), 5)
-    fast = _Fast(VERTICES[2:3].double(), probs.to(device), None, 23 * U64)
+    fast = CertifiedCosts(VERTICES[2:3].double(), probs.to(device), None, reference_eps(19, False))
     labels = torch.empty(1, 256, dtype=torch.long, device=device)
-    rule = decision_triton.rule(fast.folded, torch.ones(1, 1), fast.eps, device)
+    rule = triton_kernel.rule(fast.folded, torch.ones(1, 1), fast.eps, device)
     opened = rule(fast.probs[0], labels)
     assert opened is None or opened.float().mean() < 0.01, opened.float().mean()
     print("all cases equal the float64 reference")
@@ -61,8 +65,9 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser()
     parser.add_argument("--device", default="cpu")
     device = parser.parse_args().device
+    os.environ[ENV] = "triton"  # every decision by the kernel (and its re-checks)
     check(device)
     # Smaller blocks, full ones and more of them: more blocks take the kernel's shortcut (every
     # vertex agrees, all pixels certified), the others mix; both must equal the reference.
-    decision_triton.CONFIG = [(16, 1), (64, 1)]
+    triton_kernel.CONFIG = [(16, 1), (64, 1)]
     check(device, every_case=False)

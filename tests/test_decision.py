@@ -1,172 +1,76 @@
-"""The decision layer against float64 references, on random and adversarial inputs.
+"""decide and decide_mixtures, on every CPU path (forced), against decide_reference.
 
-The reference (module docstring of ``costseg.decision``): ``Cs = C - C.max(0)`` in float64,
-``q = p / π`` in float64, costs summed over k in ascending order, argmin with ties to the lowest
-index. The fast paths (float32 costs, certified gaps, float64 re-checks) must equal it on every
-pixel, so the inputs below aim at the places where float32 cannot decide: exact ties, ties
-within a few float32 ulps, low-precision probabilities and costs spanning 0.1 to 1000.
+The inputs aim at the places where float32 cannot decide: exact ties, ties within a few float32
+ulps, low-precision probabilities and costs spanning 0.1 to 1000 (tests/decision_inputs.py).
 """
-
-from fractions import Fraction
 
 import pytest
 import torch
+from decision_inputs import (
+    CPU_PATHS,
+    LOW_PRECISION,
+    VERTICES,
+    ml_cost,
+    near_ties,
+    probabilities,
+    smooth,
+)
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from costseg.costs import barycentric_grid, load_cost, mix_costs, symmetric_cost
-from costseg.decision import decide, decide_mixtures
-from costseg.label_maps import empty_labels
-
-VERTICES = torch.stack([load_cost(n) for n in ("robotistic", "altruistic", "egoistic")])
-LOW_PRECISION = [torch.float32, torch.float16, torch.bfloat16]
-
-
-def reference(probs, cost, priors=None):
-    """The float64 reference, vectorised over pixels (same operations in the same order)."""
-    b, n, h, w = probs.shape
-    cost = symmetric_cost(n) if cost is None else cost.double()
-    shifted = cost - cost.amax(0)
-    q = probs.double().permute(1, 0, 2, 3).reshape(n, b, h * w)
-    if priors is not None:
-        q = q / priors.double().reshape(n, 1, -1)
-    q = q.reshape(n, -1)
-    costs = torch.zeros(n, q.shape[1], dtype=torch.float64)
-    for k in range(n):
-        costs = costs + shifted[:, k : k + 1] * q[k]
-    first = (costs == costs.amin(0)).double().argmax(0)  # first minimum
-    return first.view(b, h, w)
+from costseg.decision import (
+    decide,
+    decide_mixtures,
+    decide_mixtures_reference,
+    decide_reference,
+)
+from costseg.decision.dispatch import ENV
+from costseg.decision.label_maps import empty_labels
 
 
-def python_reference(p, cost):
-    """The reference for one pixel in plain Python floats."""
-    n = len(p)
-    shifted = [[cost[j][k] - max(cost[i][k] for i in range(n)) for k in range(n)] for j in range(n)]
-    costs = []
-    for j in range(n):
-        total = 0.0
-        for k in range(n):
-            total = total + shifted[j][k] * p[k]
-        costs.append(total)
-    return min(range(n), key=lambda j: (costs[j], j))
-
-
-def ml_cost(priors, lam=1.0):
-    """Maximum-likelihood matrix ``C[k̂, k] = λ / π(k)`` for global priors."""
-    priors = torch.as_tensor(priors, dtype=torch.float64)
-    return (lam / priors).expand(len(priors), -1).clone().fill_diagonal_(0.0)
-
-
-@pytest.fixture(params=["compiled", "tensor operations"])
-def mixer(request, monkeypatch):
-    """Both CPU paths of decide_mixtures: numba's kernel, and _Mixer (which CUDA falls back to)."""
-    if request.param == "tensor operations":
-        monkeypatch.setenv("COSTSEG_NO_NUMBA", "1")
+@pytest.fixture(params=CPU_PATHS)
+def forced(request, monkeypatch):
+    """Each CPU path, forced for every decide and decide_mixtures call of the test."""
+    monkeypatch.setenv(ENV, request.param)
     return request.param
 
 
-def smooth(shape, seed, scale=6.0):
-    """Softmax of smooth random logits (the benchmark's recipe): unsure near borders."""
-    gen = torch.Generator().manual_seed(seed)
-    b, n, h, w = shape
-    coarse = torch.randn(b, n, max(1, h // 8), max(1, w // 8), generator=gen) * scale
-    logits = torch.nn.functional.interpolate(coarse, size=(h, w), mode="bilinear")
-    return logits.softmax(1)
-
-
-def near_ties(cost, count, seed):
-    """(1, N, H, W) float32 probabilities whose two best costs lie within a few float32 ulps.
-
-    For random classes a, b the expected costs tie exactly (in float64) at ``p0 + t (e_a - e_b)``;
-    rounding that to float32 and stepping p_a by -3 .. 3 ulps gives costs a hair apart.
-    """
-    gen = torch.Generator().manual_seed(seed)
-    n = cost.shape[0]
-    pixels = []
-    while len(pixels) < count:
-        a, b = torch.randperm(n, generator=gen)[:2].tolist()
-        p0 = torch.rand(n, generator=gen, dtype=torch.float64) ** 8
-        p0[a] += 1.0
-        p0[b] += 1.0
-        p0 /= p0.sum()
-        e = torch.zeros(n, dtype=torch.float64)
-        e[a], e[b] = 1.0, -1.0
-        c0, slope = cost @ p0, cost @ e
-        if slope[a] == slope[b]:
-            continue
-        tie = p0 + (c0[b] - c0[a]) / (slope[a] - slope[b]) * e
-        if (tie < 0).any() or (cost @ tie).argsort()[:2].sort().values.tolist() != sorted([a, b]):
-            continue
-        p = tie.float()
-        for step in range(-3, 4):
-            q = p.clone()
-            for _ in range(abs(step)):
-                q[a] = torch.nextafter(q[a], torch.tensor(2.0 if step > 0 else 0.0))
-            pixels.append(q)
-    return torch.stack(pixels, 1).view(1, n, 1, -1)  # groups of 7 consecutive pixels
-
-
-@st.composite
-def probabilities(draw, max_classes=6):
-    """Random probabilities with many exact ties: values drawn from a few levels."""
-    n = draw(st.integers(2, max_classes))
-    b, h, w = draw(st.integers(1, 2)), draw(st.integers(1, 4)), draw(st.integers(1, 4))
-    levels = draw(st.lists(st.sampled_from([0.0, 0.1, 0.25, 0.5, 1.0, 3.0]), min_size=1))
-    raw = draw(st.lists(st.sampled_from(levels), min_size=b * n * h * w, max_size=b * n * h * w))
-    raw = torch.tensor(raw, dtype=torch.float32).view(b, n, h, w) + 1e-3
-    dtype = draw(st.sampled_from(LOW_PRECISION))
-    return (raw / raw.sum(1, keepdim=True)).to(dtype)
-
-
+@pytest.mark.parametrize("path", CPU_PATHS)
 @settings(max_examples=200, deadline=None)
 @given(probabilities(), st.floats(0.01, 100))
-def test_symmetric_rule_is_argmax_including_ties(probs, lam):
+def test_symmetric_rule_is_argmax_including_ties(path, probs, lam):
     cost = lam * symmetric_cost(probs.shape[1])
-    assert torch.equal(decide(probs, cost), probs.argmax(1))
-    assert torch.equal(decide(probs, None), probs.argmax(1))
+    assert torch.equal(decide(probs, cost, path=path), probs.argmax(1))
+    assert torch.equal(decide(probs, None, path=path), probs.argmax(1))
 
 
+@pytest.mark.parametrize("path", CPU_PATHS)
 @settings(max_examples=100, deadline=None)
 @given(probabilities(), st.floats(1e-3, 1e3), st.integers(0, 2**31))
-def test_scale_invariance(probs, mu, seed):
+def test_scale_invariance(path, probs, mu, seed):
     n = probs.shape[1]
     gen = torch.Generator().manual_seed(seed)
     cost = (torch.rand(n, n, generator=gen) + 0.1) * (1 - torch.eye(n))
-    assert torch.equal(decide(probs, mu * cost), decide(probs, cost))
+    assert torch.equal(decide(probs, mu * cost, path=path), decide(probs, cost, path=path))
 
 
+@pytest.mark.parametrize("path", CPU_PATHS)
 @settings(max_examples=100, deadline=None)
 @given(probabilities(), st.integers(0, 2**31), st.booleans())
-def test_random_costs_and_priors_match_the_reference(probs, seed, pixelwise):
+def test_random_costs_and_priors_match_the_reference(path, probs, seed, pixelwise):
     _, n, h, w = probs.shape
     gen = torch.Generator().manual_seed(seed)
     cost = torch.randint(1, 5, (n, n), generator=gen).double() * (1 - torch.eye(n))
-    assert torch.equal(decide(probs, cost), reference(probs, cost))
+    assert torch.equal(decide(probs, cost, path=path), decide_reference(probs, cost))
     priors = torch.randint(1, 4, (n, h, w) if pixelwise else (n,), generator=gen) / 4
-    assert torch.equal(decide(probs, cost, priors), reference(probs, cost, priors))
-
-
-@settings(max_examples=100, deadline=None)
-@given(probabilities(max_classes=4), st.integers(0, 2**31))
-def test_reference_is_exact_arithmetic_on_exact_inputs(probs, seed):
-    """Integer costs and probabilities of few levels: float64 sums are exact, ties included."""
-    probs = probs.float()
-    n = probs.shape[1]
-    gen = torch.Generator().manual_seed(seed)
-    cost = torch.randint(1, 5, (n, n), generator=gen).double() * (1 - torch.eye(n))
-    pixels = probs.permute(0, 2, 3, 1).reshape(-1, n)
-    decided = decide(probs, cost).flatten()
-    for p, label in zip(pixels.tolist(), decided.tolist(), strict=True):
-        exact = [
-            sum(Fraction(cost[j, k].item()) * Fraction(p[k]) for k in range(n)) for j in range(n)
-        ]
-        assert label == min(range(n), key=lambda j: (exact[j], j))
-        assert label == python_reference(p, cost.tolist())
+    got = decide(probs, cost, priors, path=path)
+    assert torch.equal(got, decide_reference(probs, cost, priors))
 
 
 @pytest.mark.parametrize("dtype", LOW_PRECISION)
 @pytest.mark.parametrize("name", ["altruistic", "egoistic"])
-def test_paper_matrices_match_the_reference(name, dtype):
+def test_paper_matrices_match_the_reference(name, dtype, forced):
     cost = load_cost(name)
     sharp = smooth((2, 19, 48, 64), 0, scale=12).to(dtype)
     flat = smooth((1, 19, 48, 64), 1, scale=1).to(dtype)
@@ -174,40 +78,41 @@ def test_paper_matrices_match_the_reference(name, dtype):
     logits = torch.randn(2, 19, 64, 80, generator=gen) * torch.rand(2, 1, 64, 80, generator=gen)
     mixed = (logits * 8).softmax(1).to(dtype)  # bfloat16: many exact float64 ties
     for probs in (sharp, flat, mixed):
-        assert torch.equal(decide(probs, cost), reference(probs, cost))
+        assert torch.equal(decide(probs, cost), decide_reference(probs, cost))
     priors = torch.rand(19, 48, 64, generator=torch.Generator().manual_seed(2)) + 1e-5
-    assert torch.equal(decide(flat, cost, priors), reference(flat, cost, priors))
-    assert torch.equal(decide(flat, cost, priors[:, 0, 0]), reference(flat, cost, priors[:, 0, 0]))
+    assert torch.equal(decide(flat, cost, priors), decide_reference(flat, cost, priors))
+    pri = priors[:, 0, 0]
+    assert torch.equal(decide(flat, cost, pri), decide_reference(flat, cost, pri))
 
 
 @pytest.mark.parametrize("name", ["robotistic", "altruistic", "egoistic"])
-def test_near_ties_within_float32_ulps(name):
+def test_near_ties_within_float32_ulps(name, forced):
     cost = load_cost(name)
     probs = near_ties(cost, 1500, seed=3)
-    expected = reference(probs, cost)
+    expected = decide_reference(probs, cost)
     assert torch.equal(decide(probs, cost), expected)
     # The construction does produce decisions that flip within a few ulps.
     assert (expected.view(-1, 7) != expected.view(-1, 7)[:, :1]).any()
 
 
 @pytest.mark.parametrize("n", [2, 3])
-def test_few_classes_near_ties(n, mixer):
+def test_few_classes_near_ties(n, forced):
     """Few classes: few index bits, so the rounding bound itself must catch the near ties."""
     gen = torch.Generator().manual_seed(n)
     for _ in range(20):
         cost = (torch.rand(n, n, generator=gen, dtype=torch.float64) * 3 + 0.1).fill_diagonal_(0)
         probs = near_ties(cost, 140, seed=int(torch.randint(1 << 30, (1,), generator=gen)))
-        assert torch.equal(decide(probs, cost), reference(probs, cost))
+        assert torch.equal(decide(probs, cost), decide_reference(probs, cost))
         vertices = (torch.rand(3, n, n, generator=gen, dtype=torch.float64) * 3 + 0.1).clone()
         for v in vertices:
             v.fill_diagonal_(0)
         weights = barycentric_grid(0.1)
         probs = near_ties(mix_costs(vertices, weights)[30], 140, seed=n)
-        loop = torch.stack([decide(probs, c) for c in mix_costs(vertices, weights)], 1)
+        loop = decide_mixtures_reference(probs, vertices, weights)
         assert torch.equal(decide_mixtures(probs, vertices, weights).long(), loop)
 
 
-def test_costs_spanning_fourteen_orders_of_magnitude(mixer):
+def test_costs_spanning_fourteen_orders_of_magnitude(forced):
     """Two tiny costs near a tie next to huge columns: the float64 reference's own rounding
     (relative to the huge shifted costs) decides there, and the fast path must follow it."""
     gen = torch.Generator().manual_seed(12)
@@ -215,14 +120,14 @@ def test_costs_spanning_fourteen_orders_of_magnitude(mixer):
     q0 = torch.rand(20000, generator=gen, dtype=torch.float64) * 1e-3 + 1e-3
     q1 = q0 * 7 / 3 * (1 + (torch.rand(20000, generator=gen, dtype=torch.float64) - 0.5) * 2e-3)
     probs = torch.stack([q0, q1, 1 - q0 - q1]).float().view(1, 3, 100, 200)
-    assert torch.equal(decide(probs, cost), reference(probs, cost))
+    assert torch.equal(decide(probs, cost), decide_reference(probs, cost))
     weights = barycentric_grid(0.25)
     vertices = torch.stack([cost, cost.T.contiguous(), symmetric_cost(3)])
-    loop = torch.stack([decide(probs, c) for c in mix_costs(vertices, weights)], 1)
+    loop = decide_mixtures_reference(probs, vertices, weights)
     assert torch.equal(decide_mixtures(probs, vertices, weights).long(), loop)
 
 
-def test_exact_ties():
+def test_exact_ties(forced):
     uniform = torch.full((1, 19, 2, 2), 1 / 19)
     assert (decide(uniform, None) == 0).all()
     # Wall (3) and fence (4) are both "static": with p_wall = p_fence their costs tie in exact
@@ -231,16 +136,16 @@ def test_exact_ties():
     probs[0, [3, 4], 0, :] = 0.4
     probs[0, [0, 11, 13], 0, [0, 1, 2]] = 0.2
     for cost in VERTICES:
-        assert torch.equal(decide(probs, cost), reference(probs, cost))
+        assert torch.equal(decide(probs, cost), decide_reference(probs, cost))
     assert (decide(probs, VERTICES[0]) == 3).all()
     for dtype in (torch.float16, torch.bfloat16):
         ties = uniform.to(dtype)
         for cost in VERTICES:
-            assert torch.equal(decide(ties, cost), reference(ties, cost))
+            assert torch.equal(decide(ties, cost), decide_reference(ties, cost))
 
 
 @pytest.mark.parametrize("pixelwise", [False, True])
-def test_ml_is_argmax_of_p_over_prior(pixelwise):
+def test_ml_is_argmax_of_p_over_prior(pixelwise, forced):
     gen = torch.Generator().manual_seed(1)
     probs = torch.rand(2, 19, 16, 24, generator=gen).softmax(1)
     shape = (19, 16, 24) if pixelwise else (19,)
@@ -253,28 +158,28 @@ def test_ml_is_argmax_of_p_over_prior(pixelwise):
         assert torch.equal(decide(probs, ml_cost(priors)), expected)
 
 
-def test_prior_adapted_rule_matches_the_reference():
+def test_prior_adapted_rule_matches_the_reference(forced):
     probs = smooth((1, 19, 20, 30), 4, scale=3)
     priors = torch.rand(19, 20, 30, generator=torch.Generator().manual_seed(5)) + 0.05
     adapted = 0.6 + 0.4 * priors / priors.sum(0)
     cost = VERTICES[1]
-    assert torch.equal(decide(probs, cost, adapted), reference(probs, cost, adapted))
+    assert torch.equal(decide(probs, cost, adapted), decide_reference(probs, cost, adapted))
 
 
-def test_chunks_larger_than_one_and_batch_order():
+def test_chunks_larger_than_one_and_batch_order(forced):
     probs = smooth((3, 19, 200, 210), 6)  # more than one CPU chunk per image
     assert torch.equal(decide(probs, None), probs.argmax(1))
     expected = torch.stack([decide(probs[i : i + 1], VERTICES[2])[0] for i in range(3)])
     assert torch.equal(decide(probs, VERTICES[2]), expected)
-    assert torch.equal(expected, reference(probs, VERTICES[2]))
+    assert torch.equal(expected, decide_reference(probs, VERTICES[2]))
 
 
 def loop_of_decides(probs, weights, priors=None):
-    return torch.stack([decide(probs, c, priors) for c in mix_costs(VERTICES, weights)], 1)
+    return decide_mixtures_reference(probs, VERTICES, weights, priors)
 
 
 @pytest.mark.parametrize("step", [0.1, 0.05])
-def test_mixtures_equal_decide_on_each_mixed_matrix(step, mixer):
+def test_mixtures_equal_decide_on_each_mixed_matrix(step, forced):
     weights = barycentric_grid(step)
     probs = torch.cat([smooth((1, 19, 40, 48), 7), smooth((1, 19, 40, 48), 8, scale=1)])
     assert torch.equal(
@@ -286,7 +191,7 @@ def test_mixtures_equal_decide_on_each_mixed_matrix(step, mixer):
 
 
 @pytest.mark.parametrize("dtype", LOW_PRECISION)
-def test_mixtures_on_ties_and_low_precision(dtype, mixer):
+def test_mixtures_on_ties_and_low_precision(dtype, forced):
     weights = barycentric_grid(0.1)
     probs = torch.cat([smooth((1, 19, 24, 24), 9, scale=2), torch.full((1, 19, 24, 24), 1 / 19)])
     probs = probs.to(dtype)
@@ -295,7 +200,7 @@ def test_mixtures_on_ties_and_low_precision(dtype, mixer):
     )
 
 
-def test_mixtures_near_ties_of_a_mixed_matrix(mixer):
+def test_mixtures_near_ties_of_a_mixed_matrix(forced):
     weights = barycentric_grid(0.1)
     for k in (12, 40):  # ties constructed on one grid point's matrix
         probs = near_ties(mix_costs(VERTICES, weights)[k], 700, seed=k)
@@ -303,7 +208,7 @@ def test_mixtures_near_ties_of_a_mixed_matrix(mixer):
         assert torch.equal(mixed, loop_of_decides(probs, weights))
 
 
-def test_mixtures_on_non_finite_probabilities(mixer):
+def test_mixtures_on_non_finite_probabilities(forced):
     probs = smooth((1, 19, 12, 12), 11)
     probs[0, 3, 0, :4] = torch.tensor([float("nan"), float("inf"), 0.0, 0.0])
     probs[0, :, 1, 0] = float("inf")
@@ -313,7 +218,7 @@ def test_mixtures_on_non_finite_probabilities(mixer):
     )
 
 
-def test_mixture_vertices_are_the_single_rules(mixer):
+def test_mixture_vertices_are_the_single_rules(forced):
     probs = torch.cat([torch.full((1, 19, 3, 3), 1 / 19), smooth((1, 19, 3, 3), 10)])
     labels = decide_mixtures(probs, VERTICES, torch.eye(3, dtype=torch.float64))
     for v in range(3):

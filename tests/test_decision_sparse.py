@@ -1,37 +1,38 @@
-"""The compiled single-rule kernel (``costseg.decision_sparse``) against the float64 reference.
+"""The compiled single-rule kernel (``costseg.decision.cpu.sparse_rule``, path ``numba``)
+against the float64 reference.
 
-``decide`` runs it for CPU images of ``COMPILED_MIN_PIXELS`` pixels and more; here that limit
-is 0, so every image goes through it, including sizes that are not whole blocks of pixels.
+``decide`` chooses it for CPU images of ``COMPILED_MIN_PIXELS`` pixels and more; here it is
+forced for every image, including sizes that are not whole blocks of pixels. (The property-based
+tests of tests/test_decision.py run through it too.)
 """
 
 import numpy as np
 import pytest
-import test_decision
 import torch
-from test_decision import LOW_PRECISION, VERTICES, near_ties, reference, smooth
+from decision_inputs import LOW_PRECISION, VERTICES, near_ties, smooth
 
-from costseg import decision
 from costseg.costs import load_cost
-from costseg.decision import decide
-from costseg.decision_certified import U64, _Fast
-from costseg.decision_groups import shared_rows
-from costseg.decision_sparse import BLOCK, SparseRule
+from costseg.decision import decide_reference
+from costseg.decision.api import decide
+from costseg.decision.certificate import reference_eps
+from costseg.decision.certified import CertifiedCosts
+from costseg.decision.cpu.row_groups import shared_rows
+from costseg.decision.cpu.sparse_kernel import BLOCK
+from costseg.decision.cpu.sparse_rule import SparseRule
+from costseg.decision.dispatch import ENV
+from costseg.decision.reference import shift
+
+reference = decide_reference
 
 
 @pytest.fixture(autouse=True)
 def compiled(monkeypatch):
-    monkeypatch.setattr(decision, "COMPILED_MIN_PIXELS", 0)
-    monkeypatch.delenv("COSTSEG_NO_NUMBA", raising=False)
+    monkeypatch.setenv(ENV, "numba")
 
 
 def tensor_path(probs, cost, priors=None):
-    """``decide`` on matmuls and ``_top`` (the path for small images)."""
-    limit = decision.COMPILED_MIN_PIXELS
-    decision.COMPILED_MIN_PIXELS = 1 << 62
-    try:
-        return decide(probs, cost, priors)
-    finally:
-        decision.COMPILED_MIN_PIXELS = limit
+    """``decide`` on matmuls and ``certified.top``."""
+    return decide(probs, cost, priors, path="torch")
 
 
 def test_the_kernel_decides_and_certifies_most_pixels(monkeypatch):
@@ -43,7 +44,8 @@ def test_the_kernel_decides_and_certifies_most_pixels(monkeypatch):
     assert calls
     for cost in VERTICES:
         cost = cost.double()[None]
-        rule = SparseRule(_Fast(cost, probs, None, 23 * U64), cost, decision._shift(cost))
+        fast = CertifiedCosts(cost, probs, None, reference_eps(19, mixtures=False))
+        rule = SparseRule(fast, cost, shift(cost))
         labels = torch.empty(64 * 80, dtype=torch.long)
         assert not len(rule.chunk(probs[0].view(19, -1), labels))  # open: the reference here
         assert torch.equal(labels, reference(probs, cost[0]).view(-1))
@@ -156,11 +158,3 @@ def test_sizes_around_a_block(shape):
     for cost in VERTICES:
         assert torch.equal(decide(probs, cost), reference(probs, cost))
     assert torch.equal(decide(probs, None), probs.argmax(1))
-
-
-def test_property_tests_of_the_decision_layer():
-    """test_decision's property-based tests (exact ties, scale invariance, random matrices and
-    priors against the reference), here through the kernel."""
-    test_decision.test_symmetric_rule_is_argmax_including_ties()
-    test_decision.test_scale_invariance()
-    test_decision.test_random_costs_and_priors_match_the_reference()

@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from reference_decisions import decide_reference
 
 from costseg.costs import barycentric_grid, mix_costs
+from costseg.decision import decide_reference
 from costseg.report.explorer import Marks, SweepData, embedded, write_explorer
 from costseg.rules import vertex_matrices
 

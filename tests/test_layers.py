@@ -22,24 +22,28 @@ NO_MODEL = {"costs", "decision", "rules", "calibration", "metrics", "report"}
 
 
 def _imports() -> dict[str, set[str]]:
-    """costseg module → the costseg (and lightning) modules it imports, anywhere in its code."""
+    """costseg module → the costseg (and lightning) modules it imports, anywhere in its code
+    (``from package import module``: the module, not the package)."""
+    paths = {
+        ".".join(p.relative_to(SRC.parent).with_suffix("").parts).removesuffix(".__init__"): p
+        for p in SRC.rglob("*.py")
+    }
     found = {}
-    for path in SRC.rglob("*.py"):
-        name = ".".join(path.relative_to(SRC.parent).with_suffix("").parts)
+    for name, path in paths.items():
         names = set()
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.ImportFrom) and node.module:
-                names.add(node.module)
+                modules = {f"{node.module}.{a.name}" for a in node.names} & paths.keys()
+                names.update(modules or {node.module})
             elif isinstance(node, ast.Import):
                 names.update(a.name for a in node.names)
-        found[name.removesuffix(".__init__")] = names
+        found[name] = names
     return found
 
 
 def _top(module: str) -> str:
     parts = module.split(".")
-    top = parts[1] if len(parts) > 1 else parts[0]
-    return "decision" if top.startswith("decision") or top == "label_maps" else top  # MERGE-TODO
+    return parts[1] if len(parts) > 1 else parts[0]
 
 
 def _layer(name: str) -> int:
@@ -92,6 +96,21 @@ def test_files_stay_short():
     long = {str(p.relative_to(SRC)): n for p in SRC.rglob("*.py")
             if (n := len(p.read_text().splitlines())) > 300}  # fmt: skip
     assert not long, long
+
+
+def test_decision_imports_no_private_names_and_has_no_fallback_imports():
+    """DESIGN.md: no private name (``_x``) imported from another module; no ``try: import``."""
+    problems = []
+    for path in (SRC / "decision").rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("costseg"):
+                private = [a.name for a in node.names if a.name.startswith("_")]
+                problems += [f"{path.relative_to(SRC)} imports {n}" for n in private]
+            if isinstance(node, ast.Try) and any(
+                isinstance(s, (ast.Import, ast.ImportFrom)) for s in node.body
+            ):
+                problems.append(f"{path.relative_to(SRC)}:{node.lineno} try-imports")
+    assert not problems, problems
 
 
 def test_evaluation_imports_no_lightning_at_run_time():

@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 import torch
 from PIL import Image
-from reference_decisions import decide_reference
 from scipy import ndimage
 
 from costseg.classes import LABEL_ID_TO_TRAIN_ID, class_index
 from costseg.cli import predict_main
 from costseg.costs import load_cost
 from costseg.data.priors import resize_priors
+from costseg.decision import decide_reference
 from costseg.networks import load_costseg_checkpoint
 
 RULES = ["robotistic", "altruistic", "egoistic", "ml"]

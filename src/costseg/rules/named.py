@@ -21,7 +21,7 @@ import torch
 from costseg.classes import CLASS_NAMES
 from costseg.costs import PRESETS, load_cost, symmetric_cost
 from costseg.decision import decide, decide_mixtures
-from costseg.label_maps import empty_labels
+from costseg.decision.label_maps import empty_labels
 from costseg.rules.base import Rule, RuleGroup, adapted_priors
 
 RULE_NAMES = (*PRESETS, "ml")

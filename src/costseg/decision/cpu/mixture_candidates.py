@@ -1,6 +1,6 @@
 """Which classes can win a pixel's mixtures, for the compiled mixture kernel
-(:mod:`costseg.decision_mixing`): each vertex's certified winner, then the classes that no
-winner beats in every vertex by a certain margin (``_Mixer._candidates``, in float32).
+(:mod:`.mixture_kernel`): each vertex's certified winner, then the classes that no winner beats
+in every vertex by a certain margin (``tensor_ops.Mixer.candidates``, in float32).
 
 Mixed costs are linear in the weights (w >= 0): a class whose costs lie above one winner's in
 every vertex lies above it at every mixture, so it is never decided (strictly above, by the
@@ -12,10 +12,9 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from costseg.decision_blocks import JIT, U, keep
-
-UNDERFLOW = 2.0**-60  # a runner-up below it: never certified
-VERTICES = 3  # at most (a sweep's triangle); fewer are padded with zero weights and costs
+from costseg.decision.certificate import FLOOR32
+from costseg.decision.cpu import VERTICES
+from costseg.decision.cpu.block_steps import JIT, U, keep
 
 
 @numba.njit(**JIT)
@@ -41,7 +40,7 @@ def vertex_winners(costs, size, v_count, v_delta, v_floor, best, second, arg, ag
         for i in range(size):
             low, runner, t = best[v, i], second[v, i], costs[v, n, i]
             gap = (runner - low > v_delta * runner) & (arg[v, i] == arg[0, i])
-            sure = gap & (runner >= v_floor * t + np.float32(UNDERFLOW))
+            sure = gap & (runner >= v_floor * t + np.float32(FLOOR32))
             agree[i] = sure if v == 0 else agree[i] & sure
             finite[i] = (t < np.inf) if v == 0 else finite[i] & (t < np.inf)
 

@@ -1,13 +1,13 @@
-"""The compiled kernel behind :class:`costseg.decision_numba.NumbaMixer`: K mixtures of V vertex
-cost maps, decided block by block of pixels, each step vectorised over a block's pixels.
+"""The compiled kernel behind :class:`.mixer.NumbaMixer`: K mixtures of V vertex cost maps,
+decided block by block of pixels, each step vectorised over a block's pixels.
 
-The method is :class:`costseg.decision_certified._Mixer`'s, step for step, on the vertices'
-float32 costs (``_Fast.costs``: class-major, T last), computed for each block of pixels in
-cache (:func:`costseg.decision_blocks.block_products`) instead of over the whole image:
+The method is :class:`costseg.decision.tensor_ops.Mixer`'s, step for step, on the vertices'
+float32 costs (``CertifiedCosts.costs``: class-major, T last), computed for each block of pixels
+in cache (:func:`.block_steps.block_products`) instead of over the whole image:
 
-1. each vertex's argmin and runner-up, certified as in ``_top`` (gap and floor);
+1. each vertex's argmin and runner-up, certified as in ``certified.top`` (gap and floor);
 2. where every vertex picks the same class with a certified gap, every mixture picks it;
-3. elsewhere the candidates (:mod:`costseg.decision_candidates`): classes that no vertex
+3. elsewhere the candidates (:mod:`.mixture_candidates`): classes that no vertex
    winner beats in every vertex by a certain margin; a single candidate decides every
    mixture;
 4. else, per mixture, the candidates' mixed costs ``Σ_v w_kv x_v``, their argmin (the lowest
@@ -19,7 +19,7 @@ cache (:func:`costseg.decision_blocks.block_products`) instead of over the whole
    two slots each.
 
 Pairs left open (and every pair of a pixel whose ``T`` is not finite) get the float64 re-check
-(:func:`costseg.decision_blocks.recheck`) on the pixel's float64 costs where q is exact; those
+(:func:`.block_steps.recheck`) on the pixel's float64 costs where q is exact; those
 it leaves open, and all of them where q is not exact, are returned. Compiled on first use and
 cached beside this file.
 """
@@ -29,8 +29,10 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from costseg.decision_blocks import JIT, U, block_products, keep, recheck, trailing_zeros
-from costseg.decision_candidates import UNDERFLOW, VERTICES, candidates, vertex_winners
+from costseg.decision.certificate import FLOOR32
+from costseg.decision.cpu import VERTICES
+from costseg.decision.cpu.block_steps import JIT, U, block_products, keep, recheck, trailing_zeros
+from costseg.decision.cpu.mixture_candidates import candidates, vertex_winners
 
 BLOCK = 512  # pixels decided together: their vertex costs stay in cache
 SLOTS = 4  # candidates mixed side by side for every pixel of a block
@@ -65,7 +67,7 @@ def _mix_slots(xs, ts, cls, size, weights, params, mixed, kept, labels, s, opene
                 c = cls[at]  # loaded either way: a conditional load does not vectorise
                 best, second, label = keep(y, c, best, second, label)
             gap_ok = second - best > m_delta * second
-            sure = np.uint8(gap_ok & (second >= floor * ts[i] + np.float32(UNDERFLOW)))
+            sure = np.uint8(gap_ok & (second >= floor * ts[i] + np.float32(FLOOR32)))
             flag = (np.uint8(1) - sure) & mixed[i] | kept[i]  # never both mixed and kept
             labels[k, s + i], opened[k, i] = label, flag
     for k in range(U(labels.shape[0])):  # apart: fewer stores in the pass above
@@ -98,7 +100,7 @@ def _mix_passes(xs, ts, cls, slots, size, weights, params, labels, at, opened, t
         for i in range(size):
             sec = second[i]
             gap_ok = sec - best[i] > m_delta * sec
-            flag = np.uint8(1) - np.uint8(gap_ok & (sec >= floor * ts[i] + np.float32(UNDERFLOW)))
+            flag = np.uint8(1) - np.uint8(gap_ok & (sec >= floor * ts[i] + np.float32(FLOOR32)))
             opened[k, i] = flag
             touched[i] |= flag
         for i in range(size):  # apart: a scattered store would keep the pass above scalar
@@ -158,14 +160,14 @@ def decide_chunk(
 
     Args:
         q: (N, P) float32 ``p / π`` of the chunk's pixels.
-        weight: (R, N') float32 ``_Fast.weight``, zero-padded (see ``block_products``):
+        weight: (R, N') float32 ``CertifiedCosts.weight``, zero-padded (see ``block_products``):
             the v_count vertices' costs, class-major, T last, computed block by block in cache.
         weight64: (N, V (N + 1)) float64 the same, transposed, for the float64 re-check where
             q is exact; no columns where it is not (pairs left open are then all returned).
         weights: (VERTICES, K) float32 mixture weights (zeros below the V vertices);
             weights64: (K, V) float64.
         params: float64 [vertex Δ, vertex floor, the candidates' three coefficients
-            (``_candidates``), mixture Δ, mixture floor] (rounded up for the float32 tests),
+            (``Mixer.candidates``), mixture Δ, mixture floor] (rounded up for the float32 tests),
             the re-check's g and eps (``certify64``).
         labels: (K, H·W) the image's labels, any integer type, written.
 

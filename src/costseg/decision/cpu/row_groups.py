@@ -1,4 +1,4 @@
-"""How :mod:`costseg.decision_sparse` sums a matrix's rows: rows grouped by shared entries, the
+"""How :mod:`.sparse_kernel` sums a matrix's rows: rows grouped by shared entries, the
 supports' sums of q for the certificate, and the kernel's program of passes."""
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ def shared_rows(sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def program(sums: torch.Tensor, shared: torch.Tensor, own: torch.Tensor, group) -> tuple:
-    """``_decide_blocks``' program (see there) for (S, N) sums of q (Σ_k q_k, then the
+    """``decide_blocks``' program (see there) for (S, N) sums of q (Σ_k q_k, then the
     supports'), (G, N) groups' shared entries, (N, N) rows' own entries."""
     n, first_shared, first_own = len(own), len(sums), len(sums) + len(shared)
     matrix = torch.cat([sums, shared, own])

@@ -1,6 +1,6 @@
-"""Compiled steps over a block of pixels for the CPU's decision kernels
-(:mod:`costseg.decision_sparse`, :mod:`costseg.decision_mixing`): the best two of a run of
-costs, the vertex costs of a block, the float64 re-check of the pairs a block left open."""
+"""Compiled steps over a block of pixels for the CPU's kernels (:mod:`.sparse_kernel`,
+:mod:`.mixture_kernel`): the best two of a run of costs, the vertex costs of a block, the float64
+re-check of the pairs a block left open."""
 
 from __future__ import annotations
 
@@ -8,6 +8,8 @@ import numba
 import numpy as np
 from llvmlite import ir
 from numba.extending import intrinsic
+
+from costseg.decision.certificate import FLOOR64, GAP_SHRINK, TEST_MARGIN
 
 JIT = dict(nogil=True, cache=True, boundscheck=False, error_model="numpy")
 U = np.uint64  # indices: unsigned ones need no wrap-around of negative values, so 2-D indexing
@@ -38,7 +40,7 @@ def keep(y, c, low, high, label):
 @numba.njit(inline="always", **JIT)
 def certify64(costs, weights, k, g, eps, mixed):
     """Mixture k's decision at one pixel from its float64 vertex costs (V, N + 1), T last, and
-    whether it is unsure: ``_top64``'s certificate on the mixed costs (``mixed``: (N + 1,)
+    whether it is unsure: ``certificate.certified64`` on the mixed costs (``mixed``: (N + 1,)
     scratch), ``g = γ / (1 - γ)`` of their rounding, the reference within ``eps T`` (NaN or
     infinite T: unsure)."""
     v_count, n = costs.shape[0], costs.shape[1] - 1
@@ -54,8 +56,8 @@ def certify64(costs, weights, k, g, eps, mixed):
             lo, hi, arg = y, lo, c
         elif y < hi:
             hi = y
-    need = 1.25 * (g * (lo + hi) + 2 * eps * (1 + g) * total) + 2.0**-900
-    return arg, not (total < np.inf and (hi - lo) * (1 - 4 * 2.0**-53) > need)
+    need = TEST_MARGIN * (g * (lo + hi) + 2 * eps * (1 + g) * total) + FLOOR64
+    return arg, not (total < np.inf and (hi - lo) * GAP_SHRINK > need)
 
 
 @numba.njit(**JIT)
@@ -100,8 +102,8 @@ def recheck(
 def block_products(q, s, size, weight, out):
     """``out[:, :size] = weight @ q[:, s : s + size]``: float32 (R, N) weights, R and N multiples
     of four (zero padding), four rows and four terms per pass (any order of summation is within
-    ``_Fast.gamma``'s dot product; multiply-adds fused, NaN and inf kept). Indices are unsigned
-    (see ``U``)."""
+    the dot product of ``CertifiedCosts.gamma``; multiply-adds fused, NaN and inf kept). Indices
+    are unsigned (see ``U``)."""
     last, s = U(q.shape[0] - 1), U(s)
     for r in range(U(0), U(weight.shape[0]), U(4)):
         r1, r2, r3 = r + U(1), r + U(2), r + U(3)

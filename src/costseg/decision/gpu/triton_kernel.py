@@ -1,9 +1,9 @@
-"""Stage 1 of :mod:`costseg.decision` on a GPU: one Triton kernel, one read of the probabilities.
+"""Stage 1 of the decision layer on a GPU: one Triton kernel, one read of the probabilities.
 
 Each program takes a block of pixels, sums the cost rows of V vertex matrices (N costs and the
-bound T, ``_Fast``'s nonnegative weights, global priors folded in) in registers, then for each
-of K mixtures ``Σ_v w_kv x_v`` (``decide``: K = V = 1, w = 1) finds the argmin ``a``, the
-runner-up ``x_b`` and ``_top64``'s certificate ``x_b - x_a - g (x_a + x_b) > 2 eps T (1 + g)``
+bound T, ``CertifiedCosts``' nonnegative weights, global priors folded in) in registers, then
+for each of K mixtures ``Σ_v w_kv x_v`` (``decide``: K = V = 1, w = 1) finds the argmin ``a``,
+the runner-up ``x_b`` and the certificate ``x_b - x_a - g (x_a + x_b) > 2 eps T (1 + g)``
 (``g = γ / (1 - γ)``, with its margins; the test in float64, T finite). It writes one label and
 one open flag per pixel and mixture, and counts the open pairs; no cost map reaches memory.
 
@@ -12,7 +12,7 @@ Where every vertex's winner is the same and certified with the mixtures' margins
 of a block, each mixture's certificate holds too (it is linear in the vertex costs, the weights
 are nonnegative), and the block writes that winner for all K without mixing. Costs are summed in
 float64 (``FLOAT64``, the default: only true near ties stay open) or float32. The open pairs go
-to the float64 stages of :mod:`costseg.decision`.
+to the float64 stages (``CertifiedCosts.settle``).
 """
 
 from __future__ import annotations
@@ -23,7 +23,10 @@ import torch
 import triton
 import triton.language as tl
 
-U32, U64 = 2.0**-24, 2.0**-53
+from costseg.decision import certificate as cert
+
+# the float64 certificate's own rounding (constexpr: a kernel reads no other globals)
+MARGIN, SHRINK = tl.constexpr(cert.TEST_MARGIN), tl.constexpr(cert.GAP_SHRINK)
 # (pixels per program, warps) for one vertex and for several (more costs per pixel in registers;
 # small blocks take the every-vertex-agrees shortcut more often): the fastest measured on an H200
 CONFIG = [(256, 2), (32, 1)]
@@ -50,10 +53,10 @@ def _best_two(costs_a, costs_b, RA: tl.constexpr, RB: tl.constexpr, N: tl.conste
 
 @triton.jit
 def _certified(best, second, total, g, slack, tiny):
-    """``_top64``'s certificate in float64 (1.25 and 2**-51 cover its own roundings)."""
+    """``certificate.certified64`` in float64."""
     lo, hi, t = best.to(tl.float64), second.to(tl.float64), total.to(tl.float64)
-    need = 1.25 * (g * (lo + hi) + slack * t) + tiny
-    return ((hi - lo) * (1 - 2.0**-51) > need) & (t < float("inf"))
+    need = MARGIN * (g * (lo + hi) + slack * t) + tiny
+    return ((hi - lo) * SHRINK > need) & (t < float("inf"))
 
 
 @triton.jit
@@ -150,7 +153,7 @@ class Rule:
 
     def __init__(self, weight: torch.Tensor, mix: torch.Tensor, eps: float, float64: bool, device):
         (v, rows, n), k = weight.shape, len(mix)
-        dtype, u = (torch.float64, U64) if float64 else (torch.float32, U32)
+        dtype, u = (torch.float64, cert.U64) if float64 else (torch.float32, cert.U32)
         vp = triton.next_power_of_2(v)
         ra = triton.next_power_of_2(rows + 1) // 2  # the largest power of 2 <= rows
         rb = triton.next_power_of_2(max(1, rows - ra))
@@ -158,14 +161,11 @@ class Rule:
         padded[:v, :rows] = weight
         mixing = mix.new_zeros(k, vp, dtype=dtype)
         mixing[:, :v] = mix
-        # Nonnegative sums of N terms per vertex cost, then V per mixture, in the compute dtype;
-        # the weights' float64 construction (4 U64, as in _Fast) and rounding to it (ρ), one
-        # rounding of q (exact from float16/bfloat16/float32) and of the mixture weights.
+        # ρ: the weights' rounding to the compute dtype (q is exact from float16/bfloat16/float32)
         rho = ((padded[:v, :rows].double() - weight).abs() / weight).nan_to_num(0).max().item()
-        dot = (n + v) * u / (1 - (n + v) * u)
-        gamma = (1 + rho + 4 * U64) * (1 + u) ** 2 * (1 + dot) - 1
+        gamma = cert.kernel_gamma(rho, n, v, u)
         g = gamma / (1 - gamma)
-        tiny = 2.0**-900 if float64 else 2.0**-60  # far above the sums' underflow
+        tiny = cert.FLOOR64 if float64 else cert.FLOOR32  # far above the sums' underflow
         params = [g, 2 * eps * (1 + g), tiny, tiny / mix.sum(1).min().item()]
         self.scalars = torch.tensor(params, dtype=torch.float64).to(device)
         self.weight = padded.permute(2, 0, 1).contiguous().to(device)
@@ -192,9 +192,10 @@ def _cached(weight: bytes, shape: tuple, mix: bytes, k: int, eps: float, float64
 
 
 def rule(weight: torch.Tensor, mix: torch.Tensor, eps: float, device, float64: bool = True) -> Rule:
-    """The prepared kernel for (V, N + 1, N) float64 nonnegative rows and T (``_Fast.folded``:
-    priors folded, scaled; on the CPU) and (K, V) float64 mixture weights >= 0 (``[[1.0]]`` for
-    one matrix), cached per matrix, weights and device: preparing it copies to the GPU."""
+    """The prepared kernel for (V, N + 1, N) float64 nonnegative rows and T
+    (``CertifiedCosts.folded``: priors folded, scaled; on the CPU) and (K, V) float64 mixture
+    weights >= 0 (``[[1.0]]`` for one matrix), cached per matrix, weights and device: preparing
+    it copies to the GPU."""
     weight, mix = weight.detach().double().contiguous(), mix.detach().double().cpu().contiguous()
     key = (weight.numpy().tobytes(), tuple(weight.shape), mix.numpy().tobytes(), len(mix))
     return _cached(*key, eps, float64, torch.device(device))

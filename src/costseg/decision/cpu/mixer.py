@@ -1,8 +1,8 @@
 """Mixtures decided on the CPU's cores in compiled passes (numba).
 
-The same method as :class:`costseg.decision_certified._Mixer`, which runs it as a sequence of
-tensor operations over a chunk, each a pass over memory. Here :func:`costseg.decision_mixing.
-decide_chunk` decides a chunk's K mixtures block by block of pixels, computing the vertex
+The same method as :class:`costseg.decision.tensor_ops.Mixer`, which runs it as a sequence of
+tensor operations over a chunk, each a pass over memory. Here :func:`.mixture_kernel.decide_chunk`
+decides a chunk's K mixtures block by block of pixels, computing the vertex
 costs in cache (a float32 image without pixel-wise priors is one chunk, read where it lies);
 the pairs left open (and every pair of a pixel whose ``T`` is not finite) go to the float64
 re-check (stage 2): in the kernel, while the pixel is in cache, where its q is exactly p; else
@@ -16,9 +16,12 @@ import numba
 import numpy as np
 import torch
 
-from costseg.decision_blocks import certify64
-from costseg.decision_certified import TINY, U32, U64, _Fast, _reference
-from costseg.decision_mixing import VERTICES, decide_chunk
+from costseg.decision import certificate as cert
+from costseg.decision.certified import CertifiedCosts
+from costseg.decision.cpu import VERTICES
+from costseg.decision.cpu.block_steps import certify64
+from costseg.decision.cpu.mixture_kernel import decide_chunk
+from costseg.decision.reference import reference_labels
 from costseg.threads import in_pieces
 
 
@@ -37,7 +40,7 @@ def _settle_pairs(costs, weights, grid, pixel, g, eps, labels, unsure, start, st
         labels[r], unsure[r] = certify64(costs[pixel[r]], weights, grid[r], g, eps, mixed)
 
 
-CHUNK = 1 << 17  # pixels per chunk: fewer, longer kernel calls than _Fast's default
+CHUNK = 1 << 17  # pixels per chunk: fewer, longer kernel calls than CPU_CHUNK
 PIECES = 16  # per thread: a pixel's mixing costs more the more classes contest it, so finer
 # pieces keep the threads busy to the end (4: one thread idled 25-65 ms of ~270 at the end)
 
@@ -46,50 +49,34 @@ class NumbaMixer:
     """Decisions of K mixtures, chunk by chunk, on the CPU's cores (see the module docstring).
 
     Args:
-        fast: the vertices' ``_Fast`` (matrices, rounding ``γ`` of their costs, ``eps``).
+        fast: the vertices' ``CertifiedCosts`` (matrices, rounding ``γ`` of their costs, ``eps``).
         weights: (K, V) mixture weights.
-        mix_gamma: the rounding of the mixed costs (``_Mixer.gamma``).
+        mix_gamma: the rounding of the mixed costs (``Mixer.gamma``).
     """
 
     def __init__(
-        self, fast: _Fast, weights: torch.Tensor, mix_gamma: float, shifted: torch.Tensor
+        self, fast: CertifiedCosts, weights: torch.Tensor, mix_gamma: float, shifted: torch.Tensor
     ) -> None:
         k, v = weights.shape
         self.fast, self.weights = fast, np.zeros((VERTICES, k), np.float32)  # zeros: padding
         self.weights[:v] = weights.t().float().numpy()
         self.weights64, self.shifted = weights.double().contiguous().numpy(), shifted
-        rows, n = fast.weight.shape  # zero-padded for decision_blocks.block_products
+        rows, n = fast.weight.shape  # zero-padded for block_products
         self.weight = np.zeros((-(-rows // 4) * 4, -(-n // 4) * 4), np.float32)
         self.weight[:rows, :n] = fast.weight.cpu().numpy()
-        self.step = chunk_step(fast, CHUNK)
+        self.step = fast.probs.shape[2] if fast.read_as_is else CHUNK
         # The float64 re-check, in the kernel where its q is p exactly (float32 probabilities
         # read as they are; global priors folded into the weights as for float32: one rounding
-        # of the matrix, one of the division, as q's in _Fast.gamma64); no columns otherwise.
+        # of the matrix, one of the division, as q's in CertifiedCosts.gamma64); else no
+        # columns.
         self.exact64 = np.zeros((n, 0))  # transposed: (N, V (N + 1))
-        if _read_as_is(fast):
+        if fast.read_as_is:
             weight64, priors = fast.weight64.cpu(), fast.priors
             weight64 = weight64 if priors is None else weight64 / priors.double().cpu()
             self.exact64 = weight64.t().contiguous().numpy()
-        gamma64 = (1 + fast.gamma64) * (1 + v * U64 / (1 - v * U64)) - 1  # V more terms >= 0
-        # The kernel's own rounding: _Fast.gamma counts a dot product of length N (any order);
-        # block_products adds each cost's terms four per pass, at most three roundings each,
-        # then one per later pass: at most 2 + ceil(N / 4) roundings per term.
-        depth, dot = 2 + -(-n // 4), n * U32 / (1 - n * U32)
-        shorter = (1 + depth * U32 / (1 - depth * U32)) / (1 + dot)
-        gamma, mix_gamma = (1 + fast.gamma) * shorter - 1, (1 + mix_gamma) * shorter - 1
-        eps, rounding = fast.eps, 1 + 2.0**-20  # the float tests' rounding
-        slack = 2 * gamma / (1 - gamma) * 1.01  # as _Mixer._candidates
-        candidates = np.array([1 + slack, 4 * eps, TINY]) / (1 - slack) * rounding
-        self.params = np.array(
-            [
-                2.5 * gamma / (1 - gamma) * rounding,
-                10 * eps / gamma * rounding,
-                *_up32(candidates),  # float32, rounded up: x_a's, T's and the constant's
-                2.5 * mix_gamma / (1 - mix_gamma) * rounding,
-                10 * eps / mix_gamma * rounding,
-                gamma64 / (1 - gamma64),  # the float64 re-check's g and eps (certify64)
-                eps,
-            ]
+        # block_products' depth of rounding; the float tests' (see the certificate)
+        self.params = cert.mixture_kernel_params(
+            fast.gamma, fast.gamma64, mix_gamma, fast.eps, n, v
         )
 
     def chunk(self, q: torch.Tensor, labels: torch.Tensor, column: int) -> torch.Tensor:
@@ -107,7 +94,7 @@ class NumbaMixer:
         """Labels (R,) of the pairs left open: stage 2 here, stage 3 (the reference) in torch.
 
         Args:
-            q: (U, N) float64 ``p / π`` of the pixels (``_Fast.exact_q``).
+            q: (U, N) float64 ``p / π`` of the pixels (``CertifiedCosts.exact_q``).
             grid, pixel: (R,) each pair's mixture and row of ``q``.
         """
         fast = self.fast
@@ -118,23 +105,5 @@ class NumbaMixer:
         labels, unsure = torch.from_numpy(labels), torch.from_numpy(unsure).nonzero()[:, 0]
         if len(unsure):
             matrices = self.shifted[grid[unsure]]
-            labels[unsure] = _reference(q[pixel[unsure]], matrices)
+            labels[unsure] = reference_labels(q[pixel[unsure]], matrices)
         return labels
-
-
-def chunk_step(fast: _Fast, chunk: int) -> int:
-    """Pixels per chunk for the compiled kernels: a float32 image without pixel-wise priors is
-    read where it lies, whole; others are converted to float32 q ``chunk`` pixels at a time."""
-    return fast.probs.shape[2] if _read_as_is(fast) else chunk
-
-
-def _read_as_is(fast: _Fast) -> bool:
-    """A float32 image without pixel-wise priors: the kernels read its q where it lies, and q
-    is exactly p."""
-    return fast.probs.dtype == torch.float32 and fast.pixel_priors is None
-
-
-def _up32(values: np.ndarray) -> np.ndarray:
-    """float64 → the float32 values at or above them (as float64)."""
-    single = values.astype(np.float32)
-    return np.where(single < values, np.nextafter(single, np.float32(np.inf)), single).astype(float)

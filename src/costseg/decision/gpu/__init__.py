@@ -1,0 +1,1 @@
+"""The GPU's kernel (Triton), behind the ``triton`` path (:mod:`.triton_path`)."""

@@ -1,0 +1,85 @@
+"""The decision rule itself, in plain float64 torch: the definition every fast path equals.
+
+See docs/definitions.md §1. :func:`decide_reference` is slow and simple on purpose; the fast
+paths behind :func:`costseg.decision.decide` give its decision on every pixel, bit for bit.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from costseg.costs import mix_costs, symmetric_cost
+
+
+def decide_reference(
+    probs: torch.Tensor, cost: torch.Tensor | None = None, priors: torch.Tensor | None = None
+) -> torch.Tensor:
+    """The cost-based decision of every pixel, by definition (docs/definitions.md §1).
+
+    ``d(x) = argmin_k' Σ_k S[k', k] · q_k`` with ``S = C - max_j C[j, ·]`` (each column shifted
+    by its largest entry: the same decisions, and the symmetric matrix becomes ``-λI``, so the
+    robotistic rule is argmax, ties included) and ``q = p / π``. In float64: S, q (one division),
+    the sum over k in ascending order (one rounded product and one rounded sum at a time), the
+    argmin with ties to the lowest class index.
+
+    Args:
+        probs: (B, N, H, W) class probabilities >= 0, any float type and device.
+        cost: (N, N) cost matrix (rows: predicted class, columns: true class); None: symmetric.
+        priors: None, (N,) global or (N, H, W) pixel-wise priors π > 0.
+
+    Returns:
+        (B, H, W) int64 class indices.
+
+    >>> p = torch.tensor([0.5, 0.3, 0.2]).view(1, 3, 1, 1)
+    >>> C = torch.tensor([[0.0, 10, 1], [1, 0, 1], [1, 1, 0]])
+    >>> decide_reference(p).item(), decide_reference(p, C).item()
+    (0, 1)
+    """
+    b, n, h, w = probs.shape
+    cost = symmetric_cost(n) if cost is None else cost
+    shifted = shift(cost.detach().to(probs.device, torch.float64))
+    return reference_labels(_q(probs, priors), shifted[None]).view(b, h, w)
+
+
+def decide_mixtures_reference(
+    probs: torch.Tensor,
+    vertices: torch.Tensor,
+    weights: torch.Tensor,
+    priors: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """(B, K, H, W) int64: :func:`decide_reference` on each mixed matrix ``mix_costs(vertices,
+    weights)[k]`` (:func:`costseg.costs.mix_costs`), what ``decide_mixtures`` equals."""
+    b, _, h, w = probs.shape
+    matrices = mix_costs(vertices.detach(), weights.detach())
+    shifted = shift(matrices.to(probs.device, torch.float64))[:, None]  # (K, 1, N, N)
+    q = _q(probs, priors)
+    step = max(1, (1 << 24) // q.numel())  # mixtures at once: (step, B·H·W, N) float64 costs
+    labels = torch.cat(
+        [reference_labels(q, shifted[k : k + step]) for k in range(0, len(shifted), step)]
+    )
+    return labels.view(-1, b, h, w).transpose(0, 1)
+
+
+def _q(probs: torch.Tensor, priors) -> torch.Tensor:
+    """(B·H·W, N) float64 ``p / π``."""
+    n = probs.shape[1]
+    q = probs.detach().double()
+    if priors is not None:
+        priors = torch.as_tensor(priors).to(q.device, torch.float64)
+        q = q / (priors.view(n, 1, 1) if priors.ndim == 1 else priors)
+    return q.permute(0, 2, 3, 1).reshape(-1, n)
+
+
+def shift(costs: torch.Tensor) -> torch.Tensor:
+    """(..., N, N) matrices minus their columns' largest entries (a column constant changes every
+    row's cost alike, hence no decision)."""
+    return costs - costs.amax(dim=-2, keepdim=True)
+
+
+def reference_labels(q: torch.Tensor, shifted: torch.Tensor) -> torch.Tensor:
+    """The reference's sums and argmin: (R, N) float64 q and (..., R or 1, N, N) shifted matrices
+    → (..., R) int64 labels."""
+    costs = torch.zeros((), dtype=torch.float64, device=q.device)
+    for k in range(q.shape[1]):  # ascending k, product and sum each rounded once
+        costs = costs + shifted[..., k] * q[:, k, None]  # broadcasts to (..., R, N)
+    return costs.min(-1).indices  # the first minimum: ties to the lowest index
