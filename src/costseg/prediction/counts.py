@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from costseg.classes import CLASS_NAMES, ROI_NAMES
-from costseg.metrics.functional import label_segments, roi_totals
+from costseg.metrics.functional.segments import label_segments, roi_totals
 
 NUM_ROIS = len(ROI_NAMES) - 1
 
