@@ -51,6 +51,7 @@ class _Queue:
 
     def draw(self) -> None:
         for *_, draw in sorted(self.items, key=lambda item: item[:3]):
+            self.cv.begin_object()  # each queued drawing is one object (one instance per class)
             draw()
 
 
