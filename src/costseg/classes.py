@@ -55,6 +55,13 @@ LABEL_ID_TO_TRAIN_ID = np.full(256, IGNORE_INDEX, dtype=np.uint8)
 """(256,) uint8 lookup: Cityscapes label id → train id (255 for void and ignored classes)."""
 LABEL_ID_TO_TRAIN_ID[TRAIN_ID_TO_LABEL_ID] = np.arange(NUM_CLASSES)
 
+INSTANCE_CLASS_NAMES = ("person", "rider", "car", "truck", "bus", "train", "motorcycle", "bicycle")
+"""Classes whose objects are instances (Cityscapes' ``hasInstances``; ``docs/definitions.md §9``)."""
+INSTANCE_CLASSES = tuple(CLASS_NAMES.index(n) for n in INSTANCE_CLASS_NAMES)
+"""Train ids of :data:`INSTANCE_CLASS_NAMES`."""
+INSTANCE_OFFSET = 1000
+"""Instance ids are ``label_id · INSTANCE_OFFSET + k``; smaller values hold no instance."""
+
 ROI_NAMES: tuple[str, ...] = ("image", "street", "sidewalk", "building", "sky")
 """Names of the RoI ids 0 (whole image) … 4 (SPEC §3)."""
 

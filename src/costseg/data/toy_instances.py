@@ -22,15 +22,7 @@ from __future__ import annotations
 import numpy as np
 from PIL import Image, ImageDraw
 
-from costseg.classes import CLASS_NAMES, IGNORE_INDEX, TRAIN_ID_TO_LABEL_ID, class_indices
-
-INSTANCE_CLASS_NAMES = ("person", "rider", "car", "truck", "bus", "train", "motorcycle", "bicycle")
-"""The classes whose objects are instances (Cityscapes' ``hasInstances``)."""
-INSTANCE_CLASSES: tuple[int, ...] = tuple(class_indices(INSTANCE_CLASS_NAMES, CLASS_NAMES))
-"""Train ids of :data:`INSTANCE_CLASS_NAMES`."""
-INSTANCE_OFFSET = 1000
-"""Instance ids are ``label_id · INSTANCE_OFFSET + k``; smaller values hold no instance."""
-
+from costseg.classes import IGNORE_INDEX, INSTANCE_CLASSES, INSTANCE_OFFSET, TRAIN_ID_TO_LABEL_ID
 
 class InstanceLayer:
     """A 32-bit instance-id canvas and the counter of each class's objects.
