@@ -56,7 +56,7 @@ LABEL_ID_TO_TRAIN_ID = np.full(256, IGNORE_INDEX, dtype=np.uint8)
 LABEL_ID_TO_TRAIN_ID[TRAIN_ID_TO_LABEL_ID] = np.arange(NUM_CLASSES)
 
 INSTANCE_CLASS_NAMES = ("person", "rider", "car", "truck", "bus", "train", "motorcycle", "bicycle")
-"""Classes whose objects are instances (Cityscapes' ``hasInstances``; ``docs/definitions.md §9``)."""
+"""Classes whose objects are instances (Cityscapes' ``hasInstances``; definitions.md §9)."""
 INSTANCE_CLASSES = tuple(CLASS_NAMES.index(n) for n in INSTANCE_CLASS_NAMES)
 """Train ids of :data:`INSTANCE_CLASS_NAMES`."""
 INSTANCE_OFFSET = 1000

@@ -159,6 +159,13 @@ def evaluate_parser() -> argparse.ArgumentParser:
     src.add_argument("--ckpt_path", help="a costseg checkpoint")
     src.add_argument("--network", help="costseg:PATH, vainf:PATH, hf:DIR (alias segformer:DIR)")
     src.add_argument("--probs", help="folder of saved probabilities (<image>.npz or .pt)")
+    src.add_argument(
+        "--mc_dropout",
+        type=whole_number(1),
+        metavar="N",
+        help="Monte-Carlo dropout: mean softmax of N passes with dropout active",
+    )
+    src.add_argument("--seed", type=whole_number(0), default=d.seed, help="seed of --mc_dropout")
     add("--data_root", help="Cityscapes root (needed for --network/--probs of other networks)")
     add("--split", default=d.split, choices=("train", "val", "test"))
     add("--classes", nargs="+", default=d.classes, help="classes of the table and segment maps")

@@ -36,4 +36,6 @@ class EvalOptions:
     temperature_sweep: bool = False
     guarantee: float | None = None
     guarantee_method: str = "bonferroni"
+    mc_dropout: int | None = None
+    seed: int = 0
     progress: bool = True

@@ -12,7 +12,7 @@ from pathlib import Path
 import torch
 
 from costseg.calibration_set import minimum_images
-from costseg.classes import class_indices
+from costseg.classes import CLASS_NAMES, INSTANCE_CLASSES, class_indices
 from costseg.options import EvalOptions
 from costseg.rules import (
     TEMPERATURES,
@@ -33,6 +33,8 @@ def check_options(opts: EvalOptions) -> list[RuleGroup]:
         raise ValueError("give at most one of --ckpt_path, --network and --probs")
     if opts.probs is not None and opts.data_root is None:
         raise ValueError("--probs needs --data_root: the dataset whose images were scored")
+    if opts.mc_dropout is not None and opts.probs is not None:
+        raise ValueError("--mc_dropout needs a network: saved probabilities cannot be resampled")
     if opts.save_probs and opts.probs is not None:
         raise ValueError("--save-probs writes a network's probabilities; with --probs they exist")
     rules = parse_rules(opts.cost)
@@ -92,6 +94,20 @@ def check_calibration_size(opts: EvalOptions, n_images: int, family: int) -> Non
             f"{n_images} calibration images cannot certify anything at α = {alpha:.3g}, "
             f"δ = {opts.guarantee} over {family} candidates: at least {needed} are needed"
         )
+
+
+def instance_classes(dataset, class_ids: list[int]) -> tuple[list[int], str]:
+    """The instance classes among ``class_ids`` whose misses are measured (none when the
+    dataset has no instance ids), and a line saying so for the outputs."""
+    chosen = [c for c in class_ids if c in INSTANCE_CLASSES]
+    if not getattr(dataset, "has_instances", False):
+        missing = getattr(dataset, "missing_instances", None)
+        why = f"{missing} of {len(dataset)} images have" if missing else "the dataset has"
+        return [], f"instance metrics absent: {why} no instance ids (*_gtFine_instanceIds.png)"
+    if not chosen:
+        return [], "instance metrics absent: no instance class among --classes"
+    names = ", ".join(CLASS_NAMES[c] for c in chosen)
+    return chosen, f"instance metrics for {names} (docs/definitions.md §9)"
 
 
 def needs_priors(groups: list[RuleGroup]) -> bool:

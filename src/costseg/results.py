@@ -16,17 +16,28 @@ from costseg.classes import CLASS_NAMES
 from costseg.rules import RuleGroup
 
 ROIS = (0, 1, 2, 3, 4)
+INSTANCE_COLUMNS = (
+    "gt_instances",
+    "missed_instances",
+    "instance_recall",
+    "missed_small",
+    "missed_medium",
+    "missed_large",
+)
+"""The instance metrics of each row (``docs/definitions.md §9``), where measured."""
 
 
 @dataclass
 class GroupResult:
-    """One rule group's metrics: ``RoIPrecisionRecall.compute()`` and ``SegmentErrors.compute()``
-    (see :mod:`costseg.metrics`), plus per-image counts when a guarantee needs them."""
+    """One rule group's metrics: ``RoIPrecisionRecall.compute()``, ``SegmentErrors.compute()``
+    and ``InstanceMisses.compute()`` (see :mod:`costseg.metrics`; empty when not measured), plus
+    per-image counts when a guarantee needs them."""
 
     group: RuleGroup
     pixels: dict[str, torch.Tensor]
     segments: dict[str, torch.Tensor]
     per_image: dict[str, torch.Tensor] = field(default_factory=dict)
+    instances: dict[str, torch.Tensor] = field(default_factory=dict)
 
     def rows(self, class_ids: Sequence[int], rois: Sequence[int] = ROIS) -> list[dict]:
         """One row per rule × class × RoI: precision, recall, segment counts and rates, mIoU.
@@ -47,6 +58,7 @@ class GroupResult:
                             "precision": pixels["precision"][k, r, cls].item(),
                             "recall": pixels["recall"][k, r, cls].item(),
                             **self._segment_columns(k, c, r),
+                            **self._instance_columns(k, cls, r),
                             "miou": pixels["miou"][k].item(),
                         }
                     )
@@ -61,6 +73,14 @@ class GroupResult:
         totals = {f"{key}_segments": int(seg[key][k, c, r]) for key in ("n_pred", "n_gt")}
         rates = {key: seg[key][k, c, r].item() for key in ("fp_rate", "fn_rate")}
         return counts | totals | rates
+
+    def _instance_columns(self, k: int, cls: int, r: int) -> dict:
+        """Instances of rule k, class ``cls``, RoI r (none if not measured for the class)."""
+        classes = self.instances.get("classes", torch.zeros(0)).tolist()
+        if cls not in classes:
+            return {}
+        c = classes.index(cls)
+        return {key: self.instances[key][k, c, r].item() for key in INSTANCE_COLUMNS}
 
 
 @dataclass
@@ -104,7 +124,7 @@ class EvalResults:
     def __post_init__(self) -> None:  # the metrics' sums may be on a GPU (examples, roi: CPU)
         for result in self.groups:
             result.pixels, result.segments = _cpu(result.pixels), _cpu(result.segments)
-            result.per_image = _cpu(result.per_image)
+            result.per_image, result.instances = _cpu(result.per_image), _cpu(result.instances)
         self.extra = _cpu(self.extra)
 
     def group(self, kind: str) -> GroupResult | None:

@@ -18,7 +18,7 @@ import torch
 
 from costseg.classes import CLASS_NAMES, class_index
 
-METRICS = ("precision", "recall", "fp_rate", "fn_rate")
+METRICS = ("precision", "recall", "fp_rate", "fn_rate", "instance_recall")
 ROI_IDS = {"roi0": 0, "image": 0, "roi1": 1, "street": 1, "roi2": 2, "sidewalk": 2}
 ROI_IDS |= {"roi3": 3, "building": 3, "roi4": 4, "sky": 4}
 _OPS = {">=": float.__ge__, "<=": float.__le__, ">": float.__gt__, "<": float.__lt__}
@@ -75,10 +75,21 @@ def metric_values(
     segments: dict[str, torch.Tensor],
     metric: Metric | Target,
     class_ids: Sequence[int],
+    instances: dict[str, torch.Tensor] | None = None,
 ) -> torch.Tensor:
-    """(K,) values of ``metric`` for every rule of a group (NaN where undefined)."""
+    """(K,) values of ``metric`` for every rule of a group (NaN where undefined); instance
+    metrics come from ``instances`` (``InstanceMisses.compute()``)."""
     if metric.metric in ("precision", "recall"):
         return pixels[metric.metric][:, metric.roi, metric.cls]
+    if metric.metric == "instance_recall":
+        measured = [] if not instances else instances["classes"].tolist()
+        if metric.cls not in measured:
+            name = CLASS_NAMES[metric.cls]
+            raise ValueError(
+                f"instance_recall of {name!r} was not measured: it needs instance ids and "
+                f"{name!r} in --classes (an instance class)"
+            )
+        return instances["instance_recall"][:, measured.index(metric.cls), metric.roi]
     if metric.cls not in class_ids:
         name = CLASS_NAMES[metric.cls]
         raise ValueError(f"{metric.metric} needs {name!r} in --classes (a segment metric)")
@@ -132,11 +143,12 @@ def choose(
     target: str,
     maximize: str,
     class_ids: Sequence[int],
+    instances: dict[str, torch.Tensor] | None = None,
 ) -> Choice:
     """The rules meeting ``target`` with the largest ``maximize`` (measured on these images)."""
     t, goal = parse_target(target), parse_metric(maximize)
-    target_values = metric_values(pixels, segments, t, class_ids)
-    values = metric_values(pixels, segments, goal, class_ids)
+    target_values = metric_values(pixels, segments, t, class_ids, instances)
+    values = metric_values(pixels, segments, goal, class_ids, instances)
     points = best_points(values, meets(target_values, t))
     reached = target_values[~target_values.isnan()]
     best = math.nan
@@ -153,9 +165,11 @@ def risk_level(target: Target) -> float:
     >>> round(risk_level(parse_target("person:roi1:recall>=0.95")), 6)
     0.05
     """
-    if target.metric in ("recall", "precision"):
+    if target.metric in ("recall", "precision", "instance_recall"):
         if target.op not in (">=", ">"):
-            raise ValueError("--guarantee certifies recall or precision >= a value")
+            raise ValueError(
+                "--guarantee certifies recall, precision or instance_recall >= a value"
+            )
         return 1 - target.value
     if target.op not in ("<=", "<"):
         raise ValueError("--guarantee certifies fp_rate or fn_rate <= a value")

@@ -24,6 +24,7 @@ from PIL import Image, ImageDraw
 
 from costseg.classes import IGNORE_INDEX, INSTANCE_CLASSES, INSTANCE_OFFSET, TRAIN_ID_TO_LABEL_ID
 
+
 class InstanceLayer:
     """A 32-bit instance-id canvas and the counter of each class's objects.
 

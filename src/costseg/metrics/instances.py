@@ -93,23 +93,21 @@ def instance_misses(
     >>> out.missed[0, 0, 0].tolist(), out.missed_mask[0, 0, 0].tolist()   # large: 2 px of 4
     ([[0], [0], [2]], [[True, True], [True, False]])
     """
-    rules = as_rules(preds, preds.shape[1] if preds.ndim == 4 else 1)
+    rules = preds.unsqueeze(1) if isinstance(preds, Tensor) and preds.ndim == 3 else preds
     check_batch(rules, target, roi, num_rois)
     if not isinstance(instances, Tensor) or instances.shape != target.shape:
         raise ValueError(f"expected instances of shape {tuple(target.shape)}, got {instances!r}")
-    position = torch.full((256,), -1, dtype=torch.long, device=target.device)
-    position[torch.tensor(list(classes), device=target.device)] = torch.arange(
-        len(classes), device=target.device
-    )
+    device = target.device
+    wanted = torch.tensor([int(c) for c in classes], dtype=torch.long, device=device)
+    position = torch.full((256,), -1, dtype=torch.long, device=device)
+    position[wanted] = torch.arange(len(wanted), device=device)
     rois = None if roi is None else roi.expand_as(target)
-    per_image = [
-        _one_image(
-            rules[b], target[b], instances[b], None if rois is None else rois[b], position,
-            torch.tensor(list(classes), device=target.device), num_rois, ignore_index, masks,
-        )  # fmt: skip
-        for b in range(len(target))
-    ]
-    gt, missed, mask = zip(*per_image, strict=True)
+    gt, missed, mask = [], [], []
+    for b in range(len(target)):
+        r = None if rois is None else rois[b]
+        one = _one_image(rules[b], target[b], instances[b], r, position, wanted, num_rois,
+                         ignore_index, masks)  # fmt: skip
+        gt.append(one[0]), missed.append(one[1]), mask.append(one[2])
     return InstanceCounts(
         torch.stack(gt), torch.stack(missed), torch.stack(mask) if masks else None
     )
@@ -135,7 +133,9 @@ def _one_image(
     pix = counted.nonzero().squeeze(1)
     unique, member = torch.unique(flat[pix], return_inverse=True)  # sorted: deterministic
     m = len(unique)
-    cls_pos = position[_TO_TRAIN.to(flat.device)[torch.div(unique, INSTANCE_OFFSET, rounding_mode="floor")]]
+    cls_pos = position[
+        _TO_TRAIN.to(flat.device)[torch.div(unique, INSTANCE_OFFSET, rounding_mode="floor")]
+    ]
     area = torch.bincount(member, minlength=m)
     owner = torch.zeros(m, dtype=torch.long, device=flat.device)
     if roi is not None:
@@ -226,8 +226,10 @@ class InstanceMisses(Metric):
     ) -> None:
         super().__init__()
         classes = tuple(int(c) for c in classes)
-        if not classes or len(set(classes)) != len(classes) or not set(classes) <= set(
-            INSTANCE_CLASSES
+        if (
+            not classes
+            or len(set(classes)) != len(classes)
+            or not set(classes) <= set(INSTANCE_CLASSES)
         ):
             raise ValueError(
                 f"expected distinct instance classes (train ids {INSTANCE_CLASSES}), got {classes}"

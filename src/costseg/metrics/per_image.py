@@ -6,7 +6,9 @@ these come from per-image counts (numerator, denominator):
 * ``recall``: (TP, TP + FN) pixels of ``cls`` inside the RoI; loss ``1 − recall``;
 * ``precision``: (TP, TP + FP) pixels of ``cls`` inside the RoI; loss ``1 − precision``;
 * ``fn_rate``: (FN segments, ground-truth segments) of ``cls`` owned by the RoI; loss the rate;
-* ``fp_rate``: (FP segments, predicted segments) of ``cls`` owned by the RoI; loss the rate.
+* ``fp_rate``: (FP segments, predicted segments) of ``cls`` owned by the RoI; loss the rate;
+* ``instance_recall``: (instances found, instances) of ``cls`` owned by the RoI; loss the
+  fraction of the image's instances missed (``docs/definitions.md §9``).
 
 Pixel counts follow :func:`~costseg.metrics.functional.roi_confusion` (ignored pixels count
 nowhere) and segment counts the segment core of :class:`~costseg.metrics.SegmentErrors`
@@ -33,11 +35,12 @@ from torch import Tensor
 from costseg.classes import IGNORE_INDEX
 from costseg.guarantee import fn_segment_rate, fp_segment_rate, precision_loss, recall_loss
 from costseg.metrics.functional import check_batch
+from costseg.metrics.instances import instance_misses
 from costseg.metrics.segments import _rule_errors, packed_masks
 
 __all__ = ["PerImageMetric", "per_image_counts", "per_image_loss"]
 
-PerImageMetric = Literal["recall", "precision", "fn_rate", "fp_rate"]
+PerImageMetric = Literal["recall", "precision", "fn_rate", "fp_rate", "instance_recall"]
 _METRICS: tuple[str, ...] = get_args(PerImageMetric)
 # Rows of the (4, R+1) segment counts of mask_segment_errors: fp, fn, n_pred, n_gt.
 _SEGMENT_ROWS = {"fp_rate": (0, 2), "fn_rate": (1, 3)}
@@ -52,6 +55,7 @@ def per_image_counts(
     metric: PerImageMetric,
     num_rois: int = 4,
     ignore_index: int = IGNORE_INDEX,
+    instances: Tensor | None = None,
 ) -> Tensor:
     """Per image and rule, the (numerator, denominator) counts behind ``metric``.
 
@@ -64,6 +68,7 @@ def per_image_counts(
         metric: "recall", "precision", "fn_rate" or "fp_rate" (see the module docstring).
         num_rois: R.
         ignore_index: target value that counts nowhere.
+        instances: (B, H, W) instance ids (Cityscapes' encoding), for "instance_recall".
 
     Returns:
         int64 (B, K, 2) on preds' device: ``[..., 0]`` the numerator, ``[..., 1]`` the
@@ -77,6 +82,13 @@ def per_image_counts(
     _check_args(preds, target, roi, cls, roi_id, metric, num_rois, ignore_index)
     if metric in ("recall", "precision"):
         return _pixel_counts(preds, target, roi, cls, roi_id, metric, ignore_index)
+    if metric == "instance_recall":
+        if instances is None:
+            raise ValueError("instance_recall needs instance ids, and these images have none")
+        out = instance_misses(preds, target, instances, (cls,), roi, num_rois, ignore_index)
+        whole = out.gt[:, 0, :, roi_id].sum(-1, keepdim=True).expand(-1, preds.shape[1])
+        found = whole - out.missed[:, :, 0, :, roi_id].sum(-1)
+        return torch.stack([found, whole], -1)
     return _segment_counts(preds, target, roi, cls, roi_id, metric, num_rois, ignore_index)
 
 
@@ -176,7 +188,7 @@ def per_image_loss(counts: ArrayLike | Tensor, metric: PerImageMetric) -> Tensor
     if metric not in _METRICS:
         raise ValueError(f"metric must be one of {', '.join(_METRICS)}; got {metric!r}")
     part, whole = counts.unbind(-1)
-    if metric == "recall":
+    if metric in ("recall", "instance_recall"):
         return recall_loss(part, whole - part)
     if metric == "precision":
         return precision_loss(part, whole - part)

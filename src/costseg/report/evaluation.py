@@ -16,7 +16,7 @@ from costseg.report.figures import heatmap_grid_figures
 from costseg.report.files import write_csv, write_json, write_text
 from costseg.report.tables import ROI_NAMES, compare_with_paper, console_table, paper_table
 from costseg.report.tensorboard import log_masks, log_scalars, log_table
-from costseg.results import EvalResults, GroupResult
+from costseg.results import INSTANCE_COLUMNS, EvalResults, GroupResult
 
 SUMMARY_COLUMNS = ("matrix", "class", "roi", "precision", "recall", "fp_segments", "fn_segments")
 
@@ -33,7 +33,8 @@ def write_evaluation(results: EvalResults, early: EarlyFigures | None = None) ->
     rows = named.rows(results.class_ids)
     headline = [r for r in rows if r["roi"] in (1, 2)]
     print(f"probabilities: {results.probabilities}")
-    print(console_table(headline, SUMMARY_COLUMNS))
+    instances = ("missed_instances", "gt_instances") if named.instances else ()
+    print(console_table(headline, (*SUMMARY_COLUMNS, *instances)))
     print("mIoU: " + ", ".join(f"{n} {100 * v:.2f}" for n, v in _miou(named).items()))
     tables = _tables(headline, named, _probability_note(results))
     write_text(out / "table.md", tables)
@@ -61,7 +62,8 @@ def write_evaluation(results: EvalResults, early: EarlyFigures | None = None) ->
 def _probability_note(results: EvalResults) -> str:
     ece = results.extra.get("ece", {})
     values = ", ".join(f"{k} {float(v['ece']):.4f}" for k, v in ece.items())
-    return results.probabilities + (f"; ECE (top label, 15 bins): {values}" if values else "")
+    note = results.probabilities + (f"; ECE (top label, 15 bins): {values}" if values else "")
+    return note + (f". {results.extra['instances']}" if "instances" in results.extra else "")
 
 
 def _miou(result: GroupResult) -> dict[str, float]:
@@ -101,6 +103,7 @@ def _json(results: EvalResults, rows: list[dict]) -> dict:
             "layout": "[rule][true class][predicted class], whole image, pixels",
             **{n: pixels["confmat"][k, 0].tolist() for k, n in enumerate(names)},
         },
+        "instances": results.extra.get("instances"),
         "scaling": results.extra.get("scaling"),
         "ece": {k: float(v["ece"]) for k, v in results.extra.get("ece", {}).items()},
     }
@@ -110,8 +113,9 @@ def _scalars(rows: list[dict], named: GroupResult) -> dict[str, float]:
     scalars = {f"evaluation/miou/{n}": v for n, v in _miou(named).items()}
     for r in rows:
         base = f"evaluation/{r['class']}/roi{r['roi']}"
-        for key in ("precision", "recall", "fp_segments", "fn_segments"):
-            scalars[f"{base}/{key}/{r['matrix']}"] = r[key]
+        for key in ("precision", "recall", "fp_segments", "fn_segments", *INSTANCE_COLUMNS):
+            if key in r:
+                scalars[f"{base}/{key}/{r['matrix']}"] = r[key]
     return scalars
 
 
@@ -119,7 +123,7 @@ def _figures(results: EvalResults) -> list[tuple[str, Batch]]:
     """The named rules' figures from their results, undrawn, in batches: figures of one kind
     are one figure redrawn."""
     named = results.groups[0]
-    names, segments = named.group.names, named.segments
+    names, segments, instances = named.group.names, named.segments, named.instances
     grids = []
     for kind, key in (("FP", "fp_map"), ("FN", "fn_map")):
         maps = {
@@ -128,4 +132,11 @@ def _figures(results: EvalResults) -> list[tuple[str, Batch]]:
             for c, cls in enumerate(results.class_ids)
         }
         grids.append((f"{kind.lower()}_segments", maps, kind))
+    if instances and instances["missed_map"].shape[-1] > 0:
+        maps = {
+            (n, CLASS_NAMES[cls]): instances["missed_map"][k, c].numpy()
+            for k, n in enumerate(names)
+            for c, cls in enumerate(instances["classes"].tolist())
+        }
+        grids.append(("missed_instances", maps, "missed instances"))
     return [("evaluation", heatmap_grid_figures(grids))]

@@ -50,6 +50,7 @@ def _write_grid(results: EvalResults, grid: GroupResult) -> list[tuple[str, Batc
         for metric in ("fp_rate", "fn_rate"):
             title = f"{metric.replace('_', ' ')} of {name} segments"
             ternary.append((f"ternary_{name}_{metric}", segments[metric][:, c, 0], title, metric))
+        ternary += _instance_ternaries(grid, cls)
     if results.options.get("target"):
         _write_choice(results, grid)
     return [
@@ -58,9 +59,29 @@ def _write_grid(results: EvalResults, grid: GroupResult) -> list[tuple[str, Batc
     ]
 
 
+def _instance_ternaries(grid: GroupResult, cls: int) -> list[tuple]:
+    """Ternary heatmaps of the instance recall of ``cls`` in RoIs 1 and 2, where measured."""
+    measured = grid.instances["classes"].tolist() if grid.instances else []
+    if cls not in measured:
+        return []
+    name, recall = CLASS_NAMES[cls], grid.instances["instance_recall"][:, measured.index(cls)]
+    return [
+        (f"ternary_{name}_roi{roi}_instance_recall", recall[:, roi],
+         f"instance recall of {name}, RoI {roi}", "instance recall")
+        for roi in (1, 2)
+    ]  # fmt: skip
+
+
 def _write_choice(results: EvalResults, grid: GroupResult) -> None:
     opts, out = results.options, results.output_dir
-    choice = choose(grid.pixels, grid.segments, opts["target"], opts["maximize"], results.class_ids)
+    choice = choose(
+        grid.pixels,
+        grid.segments,
+        opts["target"],
+        opts["maximize"],
+        results.class_ids,
+        grid.instances,
+    )
     record = {
         "target": choice.target,
         "maximize": choice.maximize,

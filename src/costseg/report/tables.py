@@ -18,8 +18,17 @@ from costseg.classes import CLASS_NAMES, ROI_NAMES
 Row = Mapping[str, Any]
 
 
-PERCENT = ("precision", "recall", "miou")
-EXTRA_COLUMNS = ("fp_segments", "fn_segments", "n_pred_segments", "n_gt_segments", "miou")
+PERCENT = ("precision", "recall", "miou", "instance_recall")
+EXTRA_COLUMNS = (
+    "fp_segments",
+    "fn_segments",
+    "n_pred_segments",
+    "n_gt_segments",
+    "missed_instances",
+    "gt_instances",
+    "instance_recall",
+    "miou",
+)
 
 PAPER_TABLE: tuple[dict[str, Any], ...] = tuple(
     {"matrix": m, "class": c, "roi": r, "precision": p, "recall": q}
