@@ -73,14 +73,14 @@ def main() -> None:
         print(f"  {CLASS_NAMES[c]:<14}{freq[c]:6.2f}" + (f"   Cityscapes {ref:.1f}" if ref else ""))
     roi = roi_map(pixel_priors(labels, progress=False))
     shares = torch.bincount(roi.flatten(), minlength=len(ROI_NAMES)).double() / roi.numel()
-    print("RoI map (default smoothing): " + ", ".join(
-        f"{r} {ROI_NAMES[r]} {100 * shares[r]:.1f} %" for r in range(1, len(ROI_NAMES))))  # fmt: skip
+    parts = [f"{r} {ROI_NAMES[r]} {100 * shares[r]:.1f} %" for r in range(1, len(ROI_NAMES))]
+    print("RoI map (default smoothing): " + ", ".join(parts))
     left, right = sidewalk_sides(roi)
     print(f"sidewalk RoI in the left half: {left}, in the right half: {right}")
     val = StreetScenes("val", args.val, size, args.seed)
     counts = persons_per_roi(val, roi)
-    print(f"person instances over {args.val} validation scenes by owning RoI: " + ", ".join(
-        f"{r} {ROI_NAMES[r]} {n}" for r, n in enumerate(counts)))  # fmt: skip
+    parts = [f"{r} {ROI_NAMES[r]} {n}" for r, n in enumerate(counts)]
+    print(f"person instances over {args.val} validation scenes by owning RoI: " + ", ".join(parts))
 
 
 if __name__ == "__main__":

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 import torch
 import torch.multiprocessing as mp
+from instance_reference import SIZES, reference_instances
+from test_metrics_ddp import free_port
 
 from costseg.classes import INSTANCE_CLASSES, LABEL_ID_TO_TRAIN_ID, class_index
 from costseg.data.toy import StreetScenes
 from costseg.metrics.instances import InstanceMisses, instance_misses
 from costseg.metrics.per_image import per_image_counts, per_image_loss
 from costseg.selection import metric_values, parse_target, risk_level
-from instance_reference import SIZES, reference_instances
-from test_metrics_ddp import free_port
 
 PERSON, CAR, BUILDING = class_index("person"), class_index("car"), class_index("building")
 CLASSES = (PERSON, CAR)
