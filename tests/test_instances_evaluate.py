@@ -79,10 +79,9 @@ def test_instance_rows_equal_the_brute_force_loop(tiny_run, tree, tmp_path) -> N
         stem = path.name.removesuffix(LABEL_SUFFIX)
         target = LABEL_ID_TO_TRAIN_ID[np.array(Image.open(path))].astype(np.int64)
         ids = np.array(Image.open(path.with_name(stem + INSTANCE_SUFFIX))).astype(np.int64)
-        preds = np.stack([
-            LABEL_ID_TO_TRAIN_ID[np.array(Image.open(tmp_path / "eval" / "predictions" / r / f"{stem}.png"))]
-            for r in RULES
-        ]).astype(np.int64)  # fmt: skip
+        saved = [tmp_path / "eval" / "predictions" / r / f"{stem}.png" for r in RULES]
+        preds = np.stack([LABEL_ID_TO_TRAIN_ID[np.array(Image.open(p))] for p in saved])
+        preds = preds.astype(np.int64)
         g, m, _ = reference_instances(preds, target, ids, roi.numpy(), classes)
         for key, v in g.items():
             gt[key] = gt.get(key, 0) + v
