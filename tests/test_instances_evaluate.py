@@ -133,9 +133,30 @@ def test_missing_instance_files_leave_the_metrics_out(tiny_run, tree, tmp_path) 
     assert not any("gt_instances" in r for r in results["rows"])
 
 
+def test_an_instance_target_without_its_class_is_refused(tiny_run, tree, tmp_path, capsys) -> None:
+    ckpt = find_checkpoint(None, runs_dir=tiny_run[2])
+    with pytest.raises(SystemExit) as exit_info:
+        _run(ckpt, tree, tmp_path / "bad", "--sweep", "0.5", "--target",
+             "rider:roi1:instance_recall>=0.9", "--maximize", "person:roi1:precision")  # fmt: skip
+    assert exit_info.value.code == 2
+    assert "'rider' in --classes" in capsys.readouterr().err
+
+
 def test_mc_dropout_refusals_are_one_line(tmp_path, capsys) -> None:
     with pytest.raises(SystemExit) as exit_info:
         evaluate_main(["--probs", str(tmp_path), "--data_root", str(tmp_path), "--mc_dropout", "2"])
     assert exit_info.value.code == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "saved probabilities" in err
+
+
+def test_sweep_draws_and_targets_instance_recall(tiny_run, tree, tmp_path) -> None:
+    ckpt = find_checkpoint(None, runs_dir=tiny_run[2])
+    out = tmp_path / "sweep"
+    _run(ckpt, tree, out, "--sweep", "0.5", "--target", "person:roi0:instance_recall>=0.0",
+         "--maximize", "person:roi0:instance_recall")  # fmt: skip
+    best = json.loads((out / "best.json").read_text())
+    sweep = json.loads((out / "sweep.json").read_text())["rows"]
+    recalls = [r["instance_recall"] for r in sweep if r["class"] == "person" and r["roi"] == 0]
+    assert len(recalls) == 6 and best["found"] and best["value"] == max(recalls)
+    assert (out / "figures" / "ternary_person_roi1_instance_recall.png").is_file()

@@ -102,7 +102,7 @@ def plan(opts: EvalOptions) -> EvalPlan:
         output_dir=_on_rank0(lambda: claim_output_dir(opts.output_dir, opts.overwrite, base)),
         priors=priors,
         canvas=heatmap_canvas(dataset),
-        instance_classes=instance_classes(dataset, class_indices(opts.classes)),
+        instance_classes=instance_classes(dataset, opts),
     )
 
 

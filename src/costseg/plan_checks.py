@@ -7,6 +7,7 @@ mistake is reported before a network is loaded.
 from __future__ import annotations
 
 import hashlib
+import re
 from pathlib import Path
 
 import torch
@@ -96,18 +97,24 @@ def check_calibration_size(opts: EvalOptions, n_images: int, family: int) -> Non
         )
 
 
-def instance_classes(dataset, class_ids: list[int]) -> tuple[list[int], str]:
-    """The instance classes among ``class_ids`` whose misses are measured (none when the
-    dataset has no instance ids), and a line saying so for the outputs."""
-    chosen = [c for c in class_ids if c in INSTANCE_CLASSES]
+def instance_classes(dataset, opts: EvalOptions) -> tuple[list[int], str]:
+    """The instance classes among ``--classes`` whose misses are measured (none when the
+    dataset has no instance ids), and a line saying so for the outputs; ValueError when
+    ``--target`` / ``--maximize`` ask for an instance metric that cannot be measured."""
+    chosen = [c for c in class_indices(opts.classes) if c in INSTANCE_CLASSES]
+    note = f"instance metrics for {', '.join(CLASS_NAMES[c] for c in chosen)} (definitions §9)"
     if not getattr(dataset, "has_instances", False):
         missing = getattr(dataset, "missing_instances", None)
         why = f"{missing} of {len(dataset)} images have" if missing else "the dataset has"
-        return [], f"instance metrics absent: {why} no instance ids (*_gtFine_instanceIds.png)"
-    if not chosen:
-        return [], "instance metrics absent: no instance class among --classes"
-    names = ", ".join(CLASS_NAMES[c] for c in chosen)
-    return chosen, f"instance metrics for {names} (docs/definitions.md §9)"
+        chosen, note = [], f"instance metrics absent: {why} no instance ids (*_instanceIds.png)"
+    elif not chosen:
+        note = "instance metrics absent: no instance class among --classes"
+    for text in (opts.target, opts.maximize):
+        metric = parse_metric(re.split(r"[<>=]", text)[0]) if text else None
+        if metric and metric.metric == "instance_recall" and metric.cls not in chosen:
+            name = CLASS_NAMES[metric.cls]
+            raise ValueError(f"{text} needs instance ids and {name!r} in --classes ({note})")
+    return chosen, note
 
 
 def needs_priors(groups: list[RuleGroup]) -> bool:
