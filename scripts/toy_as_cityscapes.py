@@ -8,7 +8,9 @@ resolution, augmentation, bf16 training, validation) on a machine without Citysc
 
 Images go to ``leftImg8bit/<split>/toy/toy_000000_<index>_leftImg8bit.png`` and labels, as
 Cityscapes label ids (train id 255 becomes id 0, "unlabeled"), to
-``gtFine/<split>/toy/toy_000000_<index>_gtFine_labelIds.png``.
+``gtFine/<split>/toy/toy_000000_<index>_gtFine_labelIds.png``, with instance ids in Cityscapes'
+encoding (``label_id · 1000 + k``; below 1000 the plain label id) as 16-bit PNGs,
+``..._gtFine_instanceIds.png``.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ import numpy as np
 from PIL import Image
 
 from costseg.classes import TRAIN_ID_TO_LABEL_ID
-from costseg.data.cityscapes import IMAGE_SUFFIX, LABEL_SUFFIX
+from costseg.data.cityscapes import IMAGE_SUFFIX, INSTANCE_SUFFIX, LABEL_SUFFIX
 from costseg.data.toy import StreetScenes
 
 _TO_LABEL_ID = np.zeros(256, dtype=np.uint8)  # everything else, incl. 255, is "unlabeled" (0)
@@ -30,12 +32,13 @@ _TO_LABEL_ID[: len(TRAIN_ID_TO_LABEL_ID)] = TRAIN_ID_TO_LABEL_ID
 
 
 def write_item(scenes: StreetScenes, root: Path, index: int) -> None:
-    """Write scene ``index`` of ``scenes`` as an image and a label-id PNG."""
-    image, train_ids = scenes[index]
+    """Write scene ``index`` of ``scenes`` as an image, a label-id and an instance-id PNG."""
+    image, train_ids, instance_ids = scenes.with_instances(index)
     name = f"toy_000000_{index:06d}"
     for folder, suffix, array in (
         ("leftImg8bit", IMAGE_SUFFIX, image.permute(1, 2, 0).numpy()),
         ("gtFine", LABEL_SUFFIX, _TO_LABEL_ID[train_ids.numpy()]),
+        ("gtFine", INSTANCE_SUFFIX, instance_ids.numpy().astype(np.uint16)),
     ):
         path = root / folder / scenes.split / "toy" / f"{name}{suffix}"
         path.parent.mkdir(parents=True, exist_ok=True)

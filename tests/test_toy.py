@@ -89,6 +89,16 @@ def test_layout_priors_put_each_region_where_cityscapes_has_it(labels: np.ndarra
     assert (lower[:, : w // 3] == sidewalk).any() and (lower[:, -w // 3 :] == sidewalk).any()
 
 
+def test_roi_map_of_the_default_priors_has_sidewalk_on_both_sides(labels: np.ndarray) -> None:
+    """With the default smoothing, the sidewalk RoI (id 2) reaches both halves of the image."""
+    from costseg.data.priors import pixel_priors, roi_map
+
+    roi = roi_map(pixel_priors(torch.from_numpy(labels).long(), progress=False))
+    half = SIZE[1] // 2
+    assert (roi[:, :half] == 2).any() and (roi[:, half:] == 2).any()
+    assert {1, 2, 3, 4} <= set(roi.unique().tolist())
+
+
 def test_camera_projects_by_hand() -> None:
     cam = Camera(f=100.0, cx=50.0, hy=40.0, hc=1.5)
     assert cam.p(1.0, 0.0, 10.0) == pytest.approx((60.0, 55.0))  # ground point right ahead

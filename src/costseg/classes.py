@@ -76,6 +76,13 @@ ROI_IDS: dict[str, int] = {f"roi{i}": i for i in range(len(ROI_NAMES))}
 ROI_IDS |= {name: i for i, name in enumerate(ROI_NAMES)}
 """How a RoI may be written (``roi1`` or ``street``) → its id."""
 
+INSTANCE_CLASS_NAMES = ("person", "rider", "car", "truck", "bus", "train", "motorcycle", "bicycle")
+"""Classes whose objects are instances (Cityscapes' ``hasInstances``; definitions.md §9)."""
+INSTANCE_CLASSES = tuple(CLASS_NAMES.index(n) for n in INSTANCE_CLASS_NAMES)
+"""Train ids of :data:`INSTANCE_CLASS_NAMES`."""
+INSTANCE_OFFSET = 1000
+"""Instance ids are ``label_id · INSTANCE_OFFSET + k``; smaller values hold no instance."""
+
 
 def class_index(name: str, names: Sequence[str] = CLASS_NAMES) -> int:
     """Index of a class name, or a ValueError that lists the valid names.

@@ -86,6 +86,13 @@ class NetworkOptions:
     network: str | None = option(
         help="costseg:PATH, vainf:PATH, hf:DIR (alias segformer:DIR)", group=SOURCE
     )
+    mc_dropout: int | None = option(
+        help="Monte-Carlo dropout: the mean softmax of N passes with dropout active",
+        type=whole_number(1),
+        metavar="N",
+        group=SOURCE,
+    )
+    seed: int = option(0, "seed of --mc_dropout", type=whole_number(0), group=SOURCE)
     output_dir: str | None = option(help="default: a new numbered folder <run>/<job>/version_<n>")
     device: str = option("auto", "auto, cpu, cuda, cuda:1, ...")
     save_probs: bool = option(

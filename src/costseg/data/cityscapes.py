@@ -4,6 +4,7 @@ The folder layout is torchvision's ``Cityscapes`` one::
 
     <root>/leftImg8bit/<split>/<city>/<name>_leftImg8bit.png
     <root>/gtFine/<split>/<city>/<name>_gtFine_labelIds.png
+    <root>/gtFine/<split>/<city>/<name>_gtFine_instanceIds.png   (optional: instance metrics)
 
 File pairing is checked when the dataset is built (cheap); the content of each file (decodable,
 matching sizes, known label ids) is checked when the item is read, so that opening the 2975
@@ -29,6 +30,7 @@ from costseg.classes import IGNORE_INDEX, LABEL_ID_TO_TRAIN_ID, VALID_LABEL_IDS
 
 IMAGE_SUFFIX = "_leftImg8bit.png"
 LABEL_SUFFIX = "_gtFine_labelIds.png"
+INSTANCE_SUFFIX = "_gtFine_instanceIds.png"
 _LAYOUT = (
     "expected <root>/leftImg8bit/<split>/<city>/*" + IMAGE_SUFFIX + " and "
     "<root>/gtFine/<split>/<city>/*" + LABEL_SUFFIX + "; Cityscapes is obtained from "
@@ -54,6 +56,8 @@ class CityscapesSegmentation(Dataset[tuple[Tensor, Tensor]]):
         files: ``(image_path, label_path)`` per item, sorted by image path.
         names: Item names without suffix (``"frankfurt_000000_000294"``), for writing
             predictions under the same names.
+        has_instances: every item has its ``*_gtFine_instanceIds.png`` (:meth:`with_instances`).
+        missing_instances: the number of items without one.
 
     Items are ``(image, label)``: image (3, H, W) uint8 RGB, label (H, W) int64 train ids.
 
@@ -74,6 +78,12 @@ class CityscapesSegmentation(Dataset[tuple[Tensor, Tensor]]):
         self.transform = transform
         self.files = _find_pairs(self.root, split)
         self.names = [image.name.removesuffix(IMAGE_SUFFIX) for image, _ in self.files]
+        self.instance_files = [
+            label.with_name(name + INSTANCE_SUFFIX)
+            for (_, label), name in zip(self.files, self.names, strict=True)
+        ]
+        self.missing_instances = sum(not p.is_file() for p in self.instance_files)
+        self.has_instances = self.missing_instances == 0
 
     def __len__(self) -> int:
         return len(self.files)
@@ -90,6 +100,20 @@ class CityscapesSegmentation(Dataset[tuple[Tensor, Tensor]]):
         if self.transform is not None:
             image, label = self.transform(tv_tensors.Image(image), tv_tensors.Mask(label))
         return image.as_subclass(Tensor), label.as_subclass(Tensor).long()
+
+    def with_instances(self, index: int) -> tuple[Tensor, Tensor, Tensor]:
+        """Item ``index`` (un-augmented) with its (H, W) int64 instance ids, read from the 16-bit
+        ``*_gtFine_instanceIds.png`` (``docs/definitions.md §9``)."""
+        image_path, label_path = self.files[index]
+        image, label = _decode(image_path, ImageReadMode.RGB), self._train_ids(label_path)
+        path = self.instance_files[index]
+        ids = _decode(path, ImageReadMode.UNCHANGED)
+        if ids.shape[0] != 1 or ids.shape[-2:] != label.shape:
+            raise ValueError(
+                f"{path} should be a single-channel instance-id PNG of {tuple(label.shape)} "
+                f"(H, W); got {tuple(ids.shape)}"
+            )
+        return image, label.long(), ids[0].long()
 
     def read_label(self, index: int) -> Tensor:
         """The un-augmented (H, W) int64 train-id label of item ``index``, without its image."""

@@ -7,11 +7,12 @@ mistake is reported before a network is loaded.
 from __future__ import annotations
 
 import hashlib
+import re
 from pathlib import Path
 
 import torch
 
-from costseg.classes import class_indices
+from costseg.classes import CLASS_NAMES, INSTANCE_CLASSES, class_indices
 from costseg.evaluation.held_out import minimum_images
 from costseg.metrics.selection import parse_metric, parse_target, risk_level
 from costseg.options import EvalOptions
@@ -33,6 +34,8 @@ def check_options(opts: EvalOptions) -> list[RuleGroup]:
         raise ValueError("give at most one of --ckpt_path, --network and --probs")
     if opts.probs is not None and opts.data_root is None:
         raise ValueError("--probs needs --data_root: the dataset whose images were scored")
+    if opts.mc_dropout is not None and opts.probs is not None:
+        raise ValueError("--mc_dropout needs a network: saved probabilities cannot be resampled")
     if opts.save_probs and opts.probs is not None:
         raise ValueError("--save-probs writes a network's probabilities; with --probs they exist")
     rules = parse_rules(opts.cost)
@@ -92,6 +95,26 @@ def check_calibration_size(opts: EvalOptions, n_images: int, family: int) -> Non
             f"{n_images} calibration images cannot certify anything at α = {alpha:.3g}, "
             f"δ = {opts.guarantee} over {family} candidates: at least {needed} are needed"
         )
+
+
+def instance_classes(dataset, opts: EvalOptions) -> tuple[list[int], str]:
+    """The instance classes among ``--classes`` whose misses are measured (none when the
+    dataset has no instance ids), and a line saying so for the outputs; ValueError when
+    ``--target`` / ``--maximize`` ask for an instance metric that cannot be measured."""
+    chosen = [c for c in class_indices(opts.classes) if c in INSTANCE_CLASSES]
+    note = f"instance metrics for {', '.join(CLASS_NAMES[c] for c in chosen)} (definitions §9)"
+    if not getattr(dataset, "has_instances", False):
+        missing = getattr(dataset, "missing_instances", None)
+        why = f"{missing} of {len(dataset)} images have" if missing else "the dataset has"
+        chosen, note = [], f"instance metrics absent: {why} no instance ids (*_instanceIds.png)"
+    elif not chosen:
+        note = "instance metrics absent: no instance class among --classes"
+    for text in (opts.target, opts.maximize):
+        metric = parse_metric(re.split(r"[<>=]", text)[0]) if text else None
+        if metric and metric.metric == "instance_recall" and metric.cls not in chosen:
+            name = CLASS_NAMES[metric.cls]
+            raise ValueError(f"{text} needs instance ids and {name!r} in --classes ({note})")
+    return chosen, note
 
 
 def needs_priors(groups: list[RuleGroup]) -> bool:

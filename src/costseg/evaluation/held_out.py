@@ -16,7 +16,7 @@ from costseg.calibration.guarantee import LTTResult, learn_then_test
 from costseg.calibration.sample import PixelSampler
 from costseg.calibration.scaling import Scaling
 from costseg.classes import CLASS_NAMES, NUM_ROIS
-from costseg.metrics.names import SEGMENT_RATES
+from costseg.metrics.names import INSTANCE_RATES, SEGMENT_RATES
 from costseg.metrics.per_image import per_image_counts, per_image_loss
 from costseg.metrics.scoring import GroupMetrics, score_batch
 from costseg.metrics.selection import metric_values, parse_metric, parse_target, risk_level
@@ -99,17 +99,25 @@ def certify(
     t, goal = parse_target(target), parse_metric(maximize)
     alpha = risk_level(t)
     segments = sorted({*class_ids, t.cls} | ({goal.cls} if goal.metric in SEGMENT_RATES else set()))
-    metrics = GroupMetrics(group, len(CLASS_NAMES), NUM_ROIS, segments)
+    wanted = {m.cls for m in (t, goal) if m.metric in INSTANCE_RATES}
+    metrics = GroupMetrics(
+        group, len(CLASS_NAMES), NUM_ROIS, segments, instance_classes=sorted(wanted)
+    )
     counts, n = [], 0
     for batch in batches:
         priors, roi = priors_at(tuple(batch.labels.shape[-2:]))
         metrics.to(batch.labels.device)  # a no-op after the first batch
-        (preds,) = score_batch([group], [metrics], probabilities(batch), batch.labels, priors, roi)
-        counts.append(per_image_counts(preds, batch.labels, roi, t.cls, t.roi, t.metric).cpu())
+        probs, ids = probabilities(batch), batch.instances
+        (preds,) = score_batch([group], [metrics], probs, batch.labels, priors, roi, ids)
+        counts.append(
+            per_image_counts(preds, batch.labels, roi, t.cls, t.roi, t.metric, instances=ids).cpu()
+        )
         n += len(batch.labels)
     losses = per_image_loss(torch.cat(counts), t.metric).numpy()
     ltt = learn_then_test(losses, alpha, delta, method)
     pooled = metrics.compute()
-    objective = metric_values(pooled["pixels"], pooled["segments"], goal, segments)
+    objective = metric_values(
+        pooled["pixels"], pooled["segments"], goal, segments, pooled["instances"]
+    )
     chosen = ltt.best(objective.cpu().numpy())  # None unless a certified λ has a finite value
     return Certificate(group, ltt, chosen, objective, target, maximize, n)

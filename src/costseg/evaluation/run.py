@@ -29,13 +29,21 @@ from costseg.data.prior_maps import PriorMaps, heatmap_canvas
 from costseg.evaluation.checks import (
     check_calibration_size,
     check_options,
+    instance_classes,
     needs_priors,
     source_priors,
 )
 from costseg.evaluation.held_out import as_logits, certify, fit_scaling
 from costseg.metrics import CalibrationError
 from costseg.metrics.scoring import GroupMetrics, score_batch
-from costseg.networks.sources import Batch, Source, batches, open_source, resolve_device
+from costseg.networks.sources import (
+    Batch,
+    Source,
+    batches,
+    open_source,
+    resolve_device,
+    with_mc_dropout,
+)
 from costseg.options import EvalOptions
 from costseg.report.outputs import INCOMPLETE, BatchWriter, claim_output_dir, mark_complete
 from costseg.report.results import EvalResults, Example, GroupResult
@@ -60,6 +68,7 @@ class EvalPlan:
     output_dir: Path
     priors: PriorMaps
     canvas: tuple[int, int]
+    instance_classes: tuple[list[int], str]  # classes of the instance metrics; what the outputs say
 
 
 def plan(opts: EvalOptions) -> EvalPlan:
@@ -69,6 +78,7 @@ def plan(opts: EvalOptions) -> EvalPlan:
     if _world_size() > 1 and not dist.is_initialized():
         dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
     source = open_source(opts.ckpt_path, opts.network, opts.probs, device)
+    source = with_mc_dropout(source, opts.mc_dropout, opts.seed)
     if source.data_config is None and opts.data_root is None:
         raise ValueError(f"{source.description} names no dataset: pass --data_root")
     config = source.data_config or {}
@@ -99,6 +109,7 @@ def plan(opts: EvalOptions) -> EvalPlan:
         class_ids=class_indices(opts.classes),
         priors=priors,
         canvas=heatmap_canvas(dataset),
+        instance_classes=instance_classes(dataset, opts),
         output_dir=_on_rank0(lambda: claim_output_dir(opts.output_dir, opts.overwrite, base)),
     )
 
@@ -135,9 +146,16 @@ def run(plan: EvalPlan, after_batch: Callable[[list[Example]], None] | None = No
 
 def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> EvalResults:
     opts, device = plan.options, plan.device
+    classes, extra["instances"] = plan.instance_classes
+    print(extra["instances"])
     metrics = [
         GroupMetrics(
-            g, len(CLASS_NAMES), NUM_ROIS, None if g.temperature else plan.class_ids, plan.canvas
+            g,
+            len(CLASS_NAMES),
+            NUM_ROIS,
+            None if g.temperature else plan.class_ids,
+            plan.canvas,
+            instance_classes=classes,
         ).to(device)
         for g in plan.groups
     ]
@@ -160,7 +178,15 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> 
             priors, roi = plan.priors.at(tuple(batch.labels.shape[-2:]))
             by_temperature = _tempered(plan, batch, probs)
             preds = [
-                score_batch([g], [m], by_temperature[g.temperature], batch.labels, priors, roi)[0]
+                score_batch(
+                    [g],
+                    [m],
+                    by_temperature[g.temperature],
+                    batch.labels,
+                    priors,
+                    roi,
+                    batch.instances,
+                )[0]
                 for g, m in zip(plan.groups, metrics, strict=True)
             ]
             writer.save_predictions(batch.stems, preds[named])
@@ -250,12 +276,11 @@ def _update_ece(ece: dict, plan: EvalPlan, batch: Batch, probs: torch.Tensor) ->
 
 
 def _describe_probabilities(plan: EvalPlan, scaling: Scaling) -> str:
-    if scaling.kind != "none":
-        text = scaling.describe()
-    elif plan.source.kind == "probs":
-        text = "saved probabilities, no scaling"
+    base = plan.source.probabilities  # saved ones, Monte-Carlo dropout, or None: the softmax
+    if scaling.kind == "none" and base:
+        text = f"{base}, no scaling"
     else:
-        text = scaling.describe()
+        text = (f"{base}; " if base else "") + scaling.describe()
     return text + ("; rounded to float16 as saved" if plan.options.save_probs else "")
 
 

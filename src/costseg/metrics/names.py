@@ -5,7 +5,7 @@ metric names from here. A metric reported per rule, class and RoI is a *rate* (a
 [0, 1], NaN when undefined) or a *count*; a new metric adds its name to these lists.
 
 >>> TARGET_METRICS
-('precision', 'recall', 'fp_rate', 'fn_rate')
+('precision', 'recall', 'fp_rate', 'fn_rate', 'instance_recall')
 >>> segment_column("fp"), SEGMENT_RATE_PARTS["fn_rate"]
 ('fp_segments', ('fn', 'n_gt'))
 """
@@ -28,10 +28,26 @@ SEGMENT_RATE_PARTS: dict[str, tuple[str, str]] = {
 
 SEGMENT_RATES: tuple[str, ...] = tuple(SEGMENT_RATE_PARTS)
 
+INSTANCE_RATES: tuple[str, ...] = ("instance_recall",)
+"""Per rule, class and RoI, from :class:`~costseg.metrics.InstanceMisses` (docs/definitions.md
+§9): the fraction of ground-truth instances with at least one pixel predicted as their class."""
+
+INSTANCE_COUNTS: tuple[str, ...] = (
+    "gt_instances",
+    "missed_instances",
+    "missed_small",
+    "missed_medium",
+    "missed_large",
+)
+"""Ground-truth instances, those missed entirely, and the missed ones by area."""
+
+INSTANCE_COLUMNS: tuple[str, ...] = (*INSTANCE_COUNTS[:2], *INSTANCE_RATES, *INSTANCE_COUNTS[2:])
+"""The instance columns of a result row, where instances are measured."""
+
 RULE_RATES: tuple[str, ...] = ("miou",)
 """Per rule only (over the whole image and the classes)."""
 
-TARGET_METRICS: tuple[str, ...] = (*PIXEL_RATES, *SEGMENT_RATES)
+TARGET_METRICS: tuple[str, ...] = (*PIXEL_RATES, *SEGMENT_RATES, *INSTANCE_RATES)
 """The rates per class and RoI that ``--target``, ``--maximize`` and ``--guarantee`` name."""
 
 RATES: tuple[str, ...] = (*TARGET_METRICS, *RULE_RATES)
@@ -47,8 +63,14 @@ SEGMENT_COLUMNS: tuple[str, ...] = tuple(segment_column(c) for c in SEGMENT_COUN
 ERROR_COLUMNS: tuple[str, ...] = SEGMENT_COLUMNS[:2]
 """``fp_segments``, ``fn_segments``: the segment errors of the summaries."""
 
-ROW_METRICS: tuple[str, ...] = (*PIXEL_RATES, *SEGMENT_COLUMNS, *SEGMENT_RATES, *RULE_RATES)
+ROW_METRICS: tuple[str, ...] = (
+    *PIXEL_RATES,
+    *SEGMENT_COLUMNS,
+    *SEGMENT_RATES,
+    *INSTANCE_COLUMNS,
+    *RULE_RATES,
+)
 """The metric columns of a result row (rule × class × RoI), in file order."""
 
-COUNTS: tuple[str, ...] = SEGMENT_COLUMNS
+COUNTS: tuple[str, ...] = (*SEGMENT_COLUMNS, *INSTANCE_COUNTS)
 """The result-row columns that are counts (whole numbers)."""

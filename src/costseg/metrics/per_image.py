@@ -7,7 +7,9 @@ these come from per-image counts (numerator, denominator):
 * ``recall``: (TP, TP + FN) pixels of ``cls`` inside the RoI; loss ``1 − recall``;
 * ``precision``: (TP, TP + FP) pixels of ``cls`` inside the RoI; loss ``1 − precision``;
 * ``fn_rate``: (FN segments, ground-truth segments) of ``cls`` owned by the RoI; loss the rate;
-* ``fp_rate``: (FP segments, predicted segments) of ``cls`` owned by the RoI; loss the rate.
+* ``fp_rate``: (FP segments, predicted segments) of ``cls`` owned by the RoI; loss the rate;
+* ``instance_recall``: (instances found, instances) of ``cls`` owned by the RoI; loss the
+  fraction of the image's instances missed (``docs/definitions.md §9``).
 
 Pixel counts follow :func:`~costseg.metrics.functional.roi_confusion` (ignored pixels count
 nowhere) and segment counts the segment core of :class:`~costseg.metrics.SegmentErrors`
@@ -37,8 +39,10 @@ from costseg.calibration.guarantee import (
 )
 from costseg.classes import IGNORE_INDEX, NUM_ROIS
 from costseg.metrics.functional.inputs import check_batch
+from costseg.metrics.functional.instances import instance_misses
 from costseg.metrics.functional.segment_rules import packed_masks, rule_errors
 from costseg.metrics.names import (
+    INSTANCE_RATES,
     PIXEL_RATES,
     SEGMENT_COUNTS,
     SEGMENT_RATE_PARTS,
@@ -57,6 +61,7 @@ def per_image_counts(
     metric: str,
     num_rois: int = NUM_ROIS,
     ignore_index: int = IGNORE_INDEX,
+    instances: Tensor | None = None,
 ) -> Tensor:
     """Per image and rule, the (numerator, denominator) counts behind ``metric``.
 
@@ -69,6 +74,7 @@ def per_image_counts(
         metric: one of :data:`~costseg.metrics.names.TARGET_METRICS` (see the module docstring).
         num_rois: R.
         ignore_index: target value that counts nowhere.
+        instances: (B, H, W) instance ids (Cityscapes' encoding), for "instance_recall".
 
     Returns:
         int64 (B, K, 2) on preds' device: ``[..., 0]`` the numerator, ``[..., 1]`` the
@@ -82,6 +88,13 @@ def per_image_counts(
     _check_args(preds, target, roi, cls, roi_id, metric, num_rois, ignore_index)
     if metric in PIXEL_RATES:
         return _pixel_counts(preds, target, roi, cls, roi_id, metric, ignore_index)
+    if metric in INSTANCE_RATES:
+        if instances is None:
+            raise ValueError("instance_recall needs instance ids, and these images have none")
+        out = instance_misses(preds, target, instances, (cls,), roi, num_rois, ignore_index)
+        whole = out.gt[:, 0, :, roi_id].sum(-1, keepdim=True).expand(-1, preds.shape[1])
+        found = whole - out.missed[:, :, 0, :, roi_id].sum(-1)
+        return torch.stack([found, whole], -1)
     return _segment_counts(preds, target, roi, cls, roi_id, metric, num_rois, ignore_index)
 
 
@@ -181,7 +194,7 @@ def per_image_loss(counts: ArrayLike | Tensor, metric: str) -> Tensor:
     if metric not in TARGET_METRICS:
         raise ValueError(f"metric must be one of {', '.join(TARGET_METRICS)}; got {metric!r}")
     part, whole = counts.unbind(-1)
-    if metric == "recall":
+    if metric in ("recall", "instance_recall"):
         return recall_loss(part, whole - part)
     if metric == "precision":
         return precision_loss(part, whole - part)

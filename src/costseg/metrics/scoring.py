@@ -19,15 +19,17 @@ from torch import Tensor
 from torchmetrics.wrappers.abstract import WrapperMetric
 
 from costseg.classes import NUM_ROIS
+from costseg.metrics.instances import InstanceMisses
 from costseg.metrics.roi import RoIPrecisionRecall
 from costseg.metrics.segments import SegmentErrors
 from costseg.rules import RuleGroup
 
 
 class GroupMetrics(WrapperMetric):
-    """The metrics of one rule group: pixel counts per RoI and, optionally, segment errors.
+    """The metrics of one rule group: pixel counts per RoI and, optionally, segment errors and
+    missed instances.
 
-    A torchmetrics wrapper: it holds no state of its own; its two metrics sum and synchronise
+    A torchmetrics wrapper: it holds no state of its own; its metrics sum and synchronise
     theirs, so it merges across batches and processes like them and fits in a
     :class:`torchmetrics.MetricCollection`.
 
@@ -38,7 +40,9 @@ class GroupMetrics(WrapperMetric):
         segment_classes: classes of the segment metrics; None = no segment metrics.
         heatmap_size: (h, w) canvas of the FP/FN location maps (see :class:`SegmentErrors`);
             ignored for groups without heatmaps.
-        kwargs: torchmetrics' options of every ``Metric``, passed to both metrics.
+        instance_classes: classes of the instance metrics (:class:`InstanceMisses`); None or
+            empty = none (then ``update`` ignores instance ids).
+        kwargs: torchmetrics' options of every ``Metric``, passed to each metric.
     """
 
     def __init__(
@@ -48,6 +52,7 @@ class GroupMetrics(WrapperMetric):
         num_rois: int = NUM_ROIS,
         segment_classes: Sequence[int] | None = None,
         heatmap_size: tuple[int, int] | None = None,
+        instance_classes: Sequence[int] | None = None,
         **kwargs: Any,
     ) -> None:
         super().__init__()
@@ -57,33 +62,56 @@ class GroupMetrics(WrapperMetric):
         if segment_classes:
             size = heatmap_size if group.heatmaps else (0, 0)
             self.segments = SegmentErrors(segment_classes, k, num_rois, heatmap_size=size, **kwargs)
+        self.instances = None
+        if instance_classes:
+            size = heatmap_size if group.heatmaps and heatmap_size else (0, 0)
+            self.instances = InstanceMisses(
+                instance_classes, k, num_rois, heatmap_size=size, **kwargs
+            )
 
-    def _children(self) -> list[RoIPrecisionRecall | SegmentErrors]:
-        return [self.pixels] + ([] if self.segments is None else [self.segments])
+    def _children(self) -> dict[str, Any]:
+        named = {"pixels": self.pixels, "segments": self.segments, "instances": self.instances}
+        return {name: metric for name, metric in named.items() if metric is not None}
 
-    def update(self, preds: Tensor, target: Tensor, roi: Tensor | None = None) -> None:
-        """Add (B, K, H, W) decisions of the group for (B, H, W) labels."""
-        for metric in self._children():
-            metric.update(preds, target, roi)
+    def update(
+        self,
+        preds: Tensor,
+        target: Tensor,
+        roi: Tensor | None = None,
+        instances: Tensor | None = None,
+    ) -> None:
+        """Add (B, K, H, W) decisions of the group for (B, H, W) labels (and instance ids)."""
+        for name, metric in self._children().items():
+            if name != "instances":
+                metric.update(preds, target, roi)
+            elif instances is not None:
+                metric.update(preds, target, instances, roi)
 
-    def forward(self, preds: Tensor, target: Tensor, roi: Tensor | None = None) -> dict:
+    def forward(
+        self,
+        preds: Tensor,
+        target: Tensor,
+        roi: Tensor | None = None,
+        instances: Tensor | None = None,
+    ) -> dict:
         """Add a batch and return its metrics alone (as :meth:`compute` does for all)."""
-        out = {"pixels": self.pixels(preds, target, roi), "segments": {}}
+        out = {"pixels": self.pixels(preds, target, roi), "segments": {}, "instances": {}}
         if self.segments is not None:
             out["segments"] = self.segments(preds, target, roi)
+        if self.instances is not None and instances is not None:
+            out["instances"] = self.instances(preds, target, instances, roi)
         return out
 
     def compute(self) -> dict[str, dict[str, Tensor]]:
-        """``{"pixels": RoIPrecisionRecall.compute(), "segments": SegmentErrors.compute()}``
-        (``{}`` without segment metrics)."""
-        out = {"pixels": self.pixels.compute(), "segments": {}}
-        if self.segments is not None:
-            out["segments"] = self.segments.compute()
+        """``{"pixels": RoIPrecisionRecall.compute(), "segments": SegmentErrors.compute(),
+        "instances": InstanceMisses.compute()}`` (``{}`` for metrics not measured)."""
+        out = {"pixels": {}, "segments": {}, "instances": {}}
+        out |= {name: metric.compute() for name, metric in self._children().items()}
         return out
 
     def reset(self) -> None:
         """Back to the metrics' default states."""
-        for metric in self._children():
+        for metric in self._children().values():
             metric.reset()
         super().reset()
 
@@ -95,6 +123,7 @@ def score_batch(
     labels: Tensor,
     priors: Tensor | None = None,
     roi: Tensor | None = None,
+    instances: Tensor | None = None,
 ) -> list[Tensor]:
     """Decide every group on (B, N, H, W) probabilities, update its metrics, return the maps.
 
@@ -105,11 +134,12 @@ def score_batch(
         labels: (B, H, W) train ids (255 = ignore).
         priors: None, (N,) or (N, H, W) pixel-wise priors.
         roi: None or (H, W) RoI ids.
+        instances: None or (B, H, W) instance ids (for groups with instance metrics).
 
     Returns:
         per group the (B, K, H, W) label maps.
     """
     preds = [g.decide(probs, priors) for g in groups]
     for m, p in zip(metrics, preds, strict=True):
-        m.update(p, labels, roi)
+        m.update(p, labels, roi, instances)
     return preds

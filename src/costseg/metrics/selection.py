@@ -17,7 +17,7 @@ from typing import NamedTuple
 import torch
 
 from costseg.classes import CLASS_NAMES, ROI_IDS, class_index
-from costseg.metrics.names import PIXEL_RATES, TARGET_METRICS
+from costseg.metrics.names import INSTANCE_RATES, PIXEL_RATES, TARGET_METRICS
 
 _OPS = {">=": float.__ge__, "<=": float.__le__, ">": float.__gt__, "<": float.__lt__}
 
@@ -76,10 +76,20 @@ def metric_values(
     segments: dict[str, torch.Tensor],
     metric: Metric | Target,
     class_ids: Sequence[int],
+    instances: dict[str, torch.Tensor] | None = None,
 ) -> torch.Tensor:
     """(K,) values of ``metric`` for every rule of a group (NaN where undefined)."""
     if metric.metric in PIXEL_RATES:
         return pixels[metric.metric][:, metric.roi, metric.cls]
+    if metric.metric in INSTANCE_RATES:
+        measured = [] if not instances else instances["classes"].tolist()
+        if metric.cls not in measured:
+            name = CLASS_NAMES[metric.cls]
+            raise ValueError(
+                f"instance_recall of {name!r} was not measured: it needs instance ids and "
+                f"{name!r} in --classes (an instance class)"
+            )
+        return instances["instance_recall"][:, measured.index(metric.cls), metric.roi]
     if metric.cls not in class_ids:
         name = CLASS_NAMES[metric.cls]
         raise ValueError(f"{metric.metric} needs {name!r} in --classes (a segment metric)")
@@ -133,11 +143,12 @@ def choose(
     target: str,
     maximize: str,
     class_ids: Sequence[int],
+    instances: dict[str, torch.Tensor] | None = None,
 ) -> Choice:
     """The rules meeting ``target`` with the largest ``maximize`` (measured on these images)."""
     t, goal = parse_target(target), parse_metric(maximize)
-    target_values = metric_values(pixels, segments, t, class_ids)
-    values = metric_values(pixels, segments, goal, class_ids)
+    target_values = metric_values(pixels, segments, t, class_ids, instances)
+    values = metric_values(pixels, segments, goal, class_ids, instances)
     points = best_points(values, meets(target_values, t))
     reached = target_values[~target_values.isnan()]
     best = math.nan
@@ -154,9 +165,11 @@ def risk_level(target: Target) -> float:
     >>> round(risk_level(parse_target("person:roi1:recall>=0.95")), 6)
     0.05
     """
-    if target.metric in PIXEL_RATES:
+    if target.metric in (*PIXEL_RATES, *INSTANCE_RATES):
         if target.op not in (">=", ">"):
-            raise ValueError("--guarantee certifies recall or precision >= a value")
+            raise ValueError(
+                "--guarantee certifies recall, precision or instance_recall >= a value"
+            )
         return 1 - target.value
     if target.op not in ("<=", "<"):
         raise ValueError("--guarantee certifies fp_rate or fn_rate <= a value")

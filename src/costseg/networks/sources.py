@@ -34,6 +34,8 @@ class Source:
         priors: (N, H, W) pixel-wise priors stored with a costseg checkpoint, else None.
         data_config: the dataset a costseg checkpoint was trained on, else None.
         run_dir: the training run's folder of a costseg checkpoint (default output place).
+        probabilities: what the scores are when not a network's logits (saved probabilities,
+            Monte-Carlo dropout), for every output.
     """
 
     kind: str
@@ -44,9 +46,12 @@ class Source:
     data_config: dict[str, Any] | None = None
     run_dir: Path | None = None
     hparams: dict[str, Any] = field(default_factory=dict)
+    probabilities: str | None = None
 
     def scores(self, images: Tensor, stems: list[str]) -> Tensor:
-        """(B, N, H, W) float logits (network) or probabilities (files) for a batch."""
+        """(B, N, H, W) float logits (network) or probabilities (files, Monte-Carlo dropout)."""
+        if self.network is not None and self.kind == "probs":  # MCDropout, seeded by the names
+            return self.network(images, stems).float()
         if self.network is not None:
             return self.network(images).float()
         from costseg.networks.probs_files import find_probs_file, load_probs
@@ -67,7 +72,9 @@ def open_source(
         folder = Path(probs)
         if not folder.is_dir():
             raise FileNotFoundError(f"--probs folder not found: {probs}")
-        return Source("probs", {"probs": str(folder)}, probs_dir=folder)
+        return Source(
+            "probs", {"probs": str(folder)}, probs_dir=folder, probabilities="saved probabilities"
+        )
     if network is not None and not network.startswith("costseg:"):
         from costseg.networks import load_network
 
@@ -102,6 +109,21 @@ def _costseg_source(path: Path, device: torch.device) -> Source:
     )
 
 
+def with_mc_dropout(source: Source, passes: int | None, seed: int) -> Source:
+    """``source`` giving Monte-Carlo dropout probabilities (``docs/definitions.md §12``) when
+    ``passes`` is set; ValueError for saved probabilities or a network without dropout."""
+    if passes is None:
+        return source
+    if source.network is None:
+        raise ValueError("--mc_dropout needs a network: saved probabilities cannot be resampled")
+    from costseg.networks.mc_dropout import MCDropout
+
+    net = MCDropout(source.network, passes, seed)
+    source.kind, source.network, source.probabilities = "probs", net, net.describe()
+    source.description["mc_dropout"] = {"passes": passes, "seed": seed}
+    return source
+
+
 def resolve_device(name: str) -> torch.device:
     """``auto`` (CUDA when present), ``cpu``, ``cuda``, ``cuda:1``, ...; ValueError if unusable.
 
@@ -133,6 +155,7 @@ class Batch:
     labels: Tensor  # (B, H, W) int64
     stems: list[str]
     scores: Tensor  # (B, N, H, W) logits or probabilities (see Source.kind)
+    instances: Tensor | None = None  # (B, H, W) int64 instance ids, where the dataset has them
 
 
 def batches(
@@ -146,7 +169,8 @@ def batches(
 ) -> Iterator[Batch]:
     """Score the chosen images of ``dataset``, batch by batch (a progress bar when ``desc``).
 
-    Images of different sizes (Mapillary, a user's own data) come in separate batches.
+    Images of different sizes (Mapillary, a user's own data) come in separate batches. Datasets
+    with ``has_instances`` give each batch its instance ids (``docs/definitions.md §9``).
     """
     loader = DataLoader(
         _Indexed(dataset, list(indices)),
@@ -155,32 +179,43 @@ def batches(
         collate_fn=_collate_by_size,
     )
     for group in progress(loader, desc):
-        for images, labels, chosen in group:
+        for images, labels, chosen, ids in group:
             images, labels = images.to(device), labels.to(device)
             stems = image_stems(dataset, chosen)
-            yield Batch(images, labels, stems, source.scores(images, stems))
+            ids = None if ids is None else ids.to(device)
+            yield Batch(images, labels, stems, source.scores(images, stems), ids)
 
 
 class _Indexed(Dataset):
-    """(image, label, index) of the chosen items of a dataset."""
+    """(image, label, index, instance ids or None) of the chosen items of a dataset."""
 
     def __init__(self, dataset: Dataset, indices: list[int]) -> None:
         self.dataset, self.indices = dataset, indices
+        self.instances = bool(getattr(dataset, "has_instances", False))
 
     def __len__(self) -> int:
         return len(self.indices)
 
     def __getitem__(self, i: int):
+        if self.instances:
+            image, label, ids = self.dataset.with_instances(self.indices[i])
+            return image, label, self.indices[i], ids
         image, label = self.dataset[self.indices[i]]
-        return image, label, self.indices[i]
+        return image, label, self.indices[i], None
 
 
-def _collate_by_size(items) -> list[tuple[torch.Tensor, torch.Tensor, list[int]]]:
-    """A batch as sub-batches of equal image size (datasets may mix resolutions)."""
+def _collate_by_size(items) -> list[tuple]:
+    """A batch as sub-batches of equal image size (datasets may mix resolutions):
+    (images, labels, indices, instance ids or None)."""
     by_size: dict[tuple[int, ...], list] = {}
     for item in items:
         by_size.setdefault(tuple(item[1].shape), []).append(item)
     return [
-        (torch.stack([i[0] for i in same]), torch.stack([i[1] for i in same]), [i[2] for i in same])
+        (
+            torch.stack([i[0] for i in same]),
+            torch.stack([i[1] for i in same]),
+            [i[2] for i in same],
+            None if same[0][3] is None else torch.stack([i[3] for i in same]),
+        )
         for same in by_size.values()
     ]

@@ -10,7 +10,7 @@ from __future__ import annotations
 from torch.utils.tensorboard import SummaryWriter
 
 from costseg.classes import CLASS_NAMES, ROI_NAMES
-from costseg.metrics.names import ERROR_COLUMNS
+from costseg.metrics.names import ERROR_COLUMNS, INSTANCE_COLUMNS
 from costseg.report.drawing import Batch, save_and_log_all
 from costseg.report.early_figures import EarlyFigures, example_figures, plan_figures
 from costseg.report.figures import heatmap_grid_figures
@@ -40,7 +40,8 @@ def write_evaluation(results: EvalResults, early: EarlyFigures | None = None) ->
     rows = named.rows(results.class_ids)
     headline = [r for r in rows if r["roi"] in PAPER_ROIS]
     print(f"probabilities: {results.probabilities}")
-    print(console_table(headline, SUMMARY_COLUMNS))
+    instances = INSTANCE_COLUMNS[:2] if named.instances else ()
+    print(console_table(headline, (*SUMMARY_COLUMNS, *instances)))
     print("mIoU: " + ", ".join(f"{n} {100 * v:.2f}" for n, v in _miou(named).items()))
     tables = _tables(headline, named, _probability_note(results))
     write_text(out / "table.md", tables)
@@ -72,7 +73,8 @@ def write_evaluation(results: EvalResults, early: EarlyFigures | None = None) ->
 def _probability_note(results: EvalResults) -> str:
     ece = results.extra.get("ece", {})
     values = ", ".join(f"{k} {float(v['ece']):.4f}" for k, v in ece.items())
-    return results.probabilities + (f"; ECE (top label, 15 bins): {values}" if values else "")
+    note = results.probabilities + (f"; ECE (top label, 15 bins): {values}" if values else "")
+    return note + (f". {results.extra['instances']}" if "instances" in results.extra else "")
 
 
 def _miou(result: GroupResult) -> dict[str, float]:
@@ -112,6 +114,7 @@ def _json(results: EvalResults, rows: list[dict]) -> dict:
             "layout": "[rule][true class][predicted class], whole image, pixels",
             **{n: pixels["confmat"][k, 0].tolist() for k, n in enumerate(names)},
         },
+        "instances": results.extra.get("instances"),
         "scaling": results.extra.get("scaling"),
         "ece": {k: float(v["ece"]) for k, v in results.extra.get("ece", {}).items()},
     }
@@ -121,7 +124,7 @@ def _figures(results: EvalResults) -> list[tuple[str, Batch]]:
     """The named rules' figures from their results, undrawn, in batches: figures of one kind
     are one figure redrawn."""
     named = results.named
-    names, segments = named.group.names, named.segments
+    names, segments, instances = named.group.names, named.segments, named.instances
     grids = []
     for kind, key in (("FP", "fp_map"), ("FN", "fn_map")):
         maps = {
@@ -130,4 +133,11 @@ def _figures(results: EvalResults) -> list[tuple[str, Batch]]:
             for c, cls in enumerate(results.class_ids)
         }
         grids.append((f"{kind.lower()}_segments", maps, kind))
+    if instances and instances["missed_map"].shape[-1] > 0:
+        maps = {
+            (n, CLASS_NAMES[cls]): instances["missed_map"][k, c].numpy()
+            for k, n in enumerate(names)
+            for c, cls in enumerate(instances["classes"].tolist())
+        }
+        grids.append(("missed_instances", maps, "missed instances"))
     return [("evaluation", heatmap_grid_figures(grids))]

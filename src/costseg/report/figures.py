@@ -245,6 +245,12 @@ def heatmap_grid_figures(
         yield tag, grid.fig
 
 
+def _what(kind: str) -> str:
+    """A heatmap grid's subject: ``FP`` / ``FN`` segments, or a phrase such as "missed
+    instances" as given."""
+    return kind if " " in kind else f"{kind} segments"
+
+
 class _HeatmapGrid:
     """A grid of heatmap panels (rows: classes, columns: rules) with one shared colour bar."""
 
@@ -270,8 +276,8 @@ class _HeatmapGrid:
                 ax.set_title(rule)
             if j == 0:
                 ax.set_ylabel(cls)
-        self.title = self.fig.suptitle(f"{kind} segments")
-        label = f"{kind} segment frequency"
+        self.title = self.fig.suptitle(_what(kind))
+        label = f"{_what(kind)}: frequency"
         self.bar = self.fig.colorbar(image, ax=axes, label=label, shrink=0.9)
 
     def show(self, arrays: Mapping[tuple[str, str], np.ndarray], vmax: float, kind: str) -> None:
@@ -279,5 +285,5 @@ class _HeatmapGrid:
         self.norm.vmax = vmax
         for key, image in self.images.items():
             image.set_data(arrays[key])
-        self.title.set_text(f"{kind} segments")
-        self.bar.set_label(f"{kind} segment frequency")
+        self.title.set_text(_what(kind))
+        self.bar.set_label(f"{_what(kind)}: frequency")

@@ -14,6 +14,7 @@ import torch
 
 from costseg.classes import CLASS_NAMES, ROI_NAMES
 from costseg.metrics.names import (
+    INSTANCE_COLUMNS,
     PIXEL_RATES,
     RULE_RATES,
     SEGMENT_COUNTS,
@@ -27,13 +28,15 @@ ROIS = tuple(range(len(ROI_NAMES)))
 
 @dataclass
 class GroupResult:
-    """One rule group's metrics: ``RoIPrecisionRecall.compute()`` and ``SegmentErrors.compute()``
-    (see :mod:`costseg.metrics`), plus per-image counts when a guarantee needs them."""
+    """One rule group's metrics: ``RoIPrecisionRecall.compute()``, ``SegmentErrors.compute()``
+    and ``InstanceMisses.compute()`` (see :mod:`costseg.metrics`; empty when not measured), plus
+    per-image counts when a guarantee needs them."""
 
     group: RuleGroup
     pixels: dict[str, torch.Tensor]
     segments: dict[str, torch.Tensor]
     per_image: dict[str, torch.Tensor] = field(default_factory=dict)
+    instances: dict[str, torch.Tensor] = field(default_factory=dict)
 
     def rows(self, class_ids: Sequence[int], rois: Sequence[int] = ROIS) -> list[dict]:
         """One row per rule × class × RoI: the columns of
@@ -49,6 +52,7 @@ class GroupResult:
                     row = {**columns, "class": CLASS_NAMES[cls], "roi": r}
                     row |= {m: self.pixels[m][k, r, cls].item() for m in PIXEL_RATES}
                     row |= self._segment_columns(k, c, r)
+                    row |= self._instance_columns(k, cls, r)
                     row |= {m: self.pixels[m][k].item() for m in RULE_RATES}
                     rows.append(row)
         return rows
@@ -60,6 +64,14 @@ class GroupResult:
         seg = self.segments
         counts = {segment_column(m): int(seg[m][k, c, r]) for m in SEGMENT_COUNTS}
         return counts | {m: seg[m][k, c, r].item() for m in SEGMENT_RATES}
+
+    def _instance_columns(self, k: int, cls: int, r: int) -> dict:
+        """Instances of rule k, class ``cls``, RoI r (none if not measured for the class)."""
+        classes = self.instances.get("classes", torch.zeros(0)).tolist()
+        if cls not in classes:
+            return {}
+        c = classes.index(cls)
+        return {key: self.instances[key][k, c, r].item() for key in INSTANCE_COLUMNS}
 
 
 @dataclass
@@ -106,7 +118,7 @@ class EvalResults:
     def __post_init__(self) -> None:  # the metrics' sums may be on a GPU (examples, roi: CPU)
         for result in self.groups:
             result.pixels, result.segments = _cpu(result.pixels), _cpu(result.segments)
-            result.per_image = _cpu(result.per_image)
+            result.per_image, result.instances = _cpu(result.per_image), _cpu(result.instances)
         self.extra = _cpu(self.extra)
 
     @property

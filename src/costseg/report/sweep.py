@@ -64,6 +64,7 @@ def _triangle_figures(results: EvalResults, grid: GroupResult) -> list[tuple[str
         for metric in SEGMENT_RATES:
             title = f"{metric.replace('_', ' ')} of {name} segments"
             ternary.append((f"ternary_{name}_{metric}", segments[metric][:, c, 0], title, metric))
+        ternary += _instance_ternaries(grid, cls)
     return [
         (group.output, ternary_figures(group.weights, ternary, labels, note=group.note)),
         (group.output, edge_tradeoff_figures(group.weights, edges, labels, note=group.note)),
@@ -83,10 +84,28 @@ def _line_figures(results: EvalResults, result: GroupResult) -> Iterator[tuple]:
         yield f"{group.family}_{name}", figure
 
 
+def _instance_ternaries(grid: GroupResult, cls: int) -> list[tuple]:
+    """Ternary heatmaps of the instance recall of ``cls`` in RoIs 1 and 2, where measured."""
+    measured = grid.instances["classes"].tolist() if grid.instances else []
+    if cls not in measured:
+        return []
+    name, recall = CLASS_NAMES[cls], grid.instances["instance_recall"][:, measured.index(cls)]
+    return [
+        (f"ternary_{name}_roi{roi}_instance_recall", recall[:, roi],
+         f"instance recall of {name}, RoI {roi}", "instance recall")
+        for roi in (1, 2)
+    ]  # fmt: skip
+
+
 def _write_choice(results: EvalResults, result: GroupResult) -> None:
     opts, out, group = results.options, results.output_dir, result.group
     choice = choose(
-        result.pixels, result.segments, opts["target"], opts["maximize"], results.class_ids
+        result.pixels,
+        result.segments,
+        opts["target"],
+        opts["maximize"],
+        results.class_ids,
+        result.instances,
     )
     record = {
         "target": choice.target,

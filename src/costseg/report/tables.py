@@ -15,12 +15,18 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from costseg.classes import CLASS_NAMES, NUM_CLASSES, NUM_ROIS, ROI_NAMES
-from costseg.metrics.names import PIXEL_RATES, RATES, RULE_RATES, SEGMENT_COLUMNS
+from costseg.metrics.names import (
+    INSTANCE_COLUMNS,
+    PIXEL_RATES,
+    RATES,
+    RULE_RATES,
+    SEGMENT_COLUMNS,
+)
 
 Row = Mapping[str, Any]
 
 PERCENT = RATES
-EXTRA_COLUMNS = (*SEGMENT_COLUMNS, *RULE_RATES)
+EXTRA_COLUMNS = (*SEGMENT_COLUMNS, *INSTANCE_COLUMNS[:3], *RULE_RATES)
 """Columns added to the paper's layout when the rows have them."""
 
 PAPER_TABLE: tuple[dict[str, Any], ...] = tuple(

@@ -18,13 +18,16 @@ import torch
 from PIL import Image, ImageDraw
 from torch.utils.data import Dataset
 
+from costseg.classes import TRAIN_ID_TO_LABEL_ID
 from costseg.data.toy.draw import SKY, Canvas
+from costseg.data.toy.instances import InstanceLayer
 from costseg.data.toy.photo import photograph
 from costseg.data.toy.scene import draw_street
 from costseg.data.toy.street import Street
 
 MIN_SIZE = 64
 SPLITS = {"train": 0, "val": 1, "test": 2}
+LABEL_ID_SKY = TRAIN_ID_TO_LABEL_ID[SKY]
 
 
 def _check_size(size: tuple[int, int]) -> tuple[int, int]:
@@ -50,14 +53,40 @@ def render_scene(
     >>> image.shape, label.shape, label.dtype.name
     ((64, 128, 3), (64, 128), 'uint8')
     """
+    image, label, _ = _render(rng, size, instances=False)
+    return image, label
+
+
+def render_scene_instances(
+    rng: np.random.Generator, size: tuple[int, int] = (256, 512)
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`render_scene` (same image and label) plus its instance ids.
+
+    Returns:
+        image (H, W, 3) uint8, label (H, W) uint8 and instance ids (H, W) int32 in Cityscapes'
+        encoding (:mod:`costseg.data.toy.instances`; ``docs/definitions.md §9``).
+
+    >>> _, label, ids = render_scene_instances(np.random.default_rng(0), size=(64, 128))
+    >>> ids.shape, ids.dtype.name, bool((ids[label == 11] // 1000 == 24).all())
+    ((64, 128), 'int32', True)
+    """
+    image, label, ids = _render(rng, size, instances=True)
+    assert ids is not None
+    return image, label, ids
+
+
+def _render(
+    rng: np.random.Generator, size: tuple[int, int], instances: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     h, w = _check_size(size)
     st = Street.sample(rng, h, w)
     image, label = st.sky_gradient(h, w), Image.new("L", (w, h), SKY)
+    layer = InstanceLayer(Image.new("I", (w, h), int(LABEL_ID_SKY))) if instances else None
     shadow = Image.new("L", (w, h), 0)
-    canvas = Canvas(image, label, st.cam, st.sky[1], st.haze_range)
+    canvas = Canvas(image, label, st.cam, st.sky[1], st.haze_range, layer)
     draw_street(canvas, rng, st, ImageDraw.Draw(shadow))
     labels = np.array(label)
-    return photograph(image, labels, shadow, rng), labels
+    return photograph(image, labels, shadow, rng), labels, None if layer is None else layer.array()
 
 
 class StreetScenes(Dataset):
@@ -98,11 +127,29 @@ class StreetScenes(Dataset):
     def __len__(self) -> int:
         return self.length
 
+    has_instances = True
+    """Every scene has instance ids (:meth:`with_instances`)."""
+
     def __getitem__(self, index: int) -> tuple[torch.Tensor, torch.Tensor]:
+        image, label, _ = self._item(index, instances=False)
+        return image, label
+
+    def with_instances(self, index: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Item ``index`` with its (H, W) int64 instance ids (``docs/definitions.md §9``).
+
+        >>> _, label, ids = StreetScenes("val", 1, (64, 128)).with_instances(0)
+        >>> ids.shape, ids.dtype, bool((ids >= 1000).any())
+        (torch.Size([64, 128]), torch.int64, True)
+        """
+        image, label, ids = self._item(index, instances=True)
+        assert ids is not None
+        return image, label, ids
+
+    def _item(self, index: int, instances: bool) -> tuple[torch.Tensor, ...]:
         if not -self.length <= index < self.length:
             raise IndexError(f"index {index} is out of range for {self.length} scenes")
         rng = np.random.default_rng([self.seed, SPLITS[self.split], int(index) % self.length])
-        image, label = render_scene(rng, self.size)
-        return torch.from_numpy(image).permute(2, 0, 1).contiguous(), torch.from_numpy(
-            label.astype(np.int64)
-        )
+        image, label, ids = _render(rng, self.size, instances)
+        image_t = torch.from_numpy(image).permute(2, 0, 1).contiguous()
+        label_t = torch.from_numpy(label.astype(np.int64))
+        return image_t, label_t, None if ids is None else torch.from_numpy(ids.astype(np.int64))

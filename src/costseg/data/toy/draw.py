@@ -16,6 +16,7 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from costseg.classes import class_indices
+from costseg.data.toy.instances import InstanceLayer
 
 (ROAD, SIDEWALK, BUILDING, WALL, FENCE, POLE, LIGHT, SIGN, VEGETATION, TERRAIN, SKY, PERSON,
  RIDER, CAR, TRUCK, BUS, TRAIN, MOTORCYCLE, BICYCLE) = class_indices(
@@ -60,13 +61,26 @@ class Camera:
 
 
 class Canvas:
-    """An RGB image and its label, drawn together through one camera."""
+    """An RGB image and its label (and optionally instance ids), drawn together through one
+    camera."""
 
     def __init__(
-        self, image: Image.Image, label: Image.Image, cam: Camera, haze: RGB, haze_range: float
+        self,
+        image: Image.Image,
+        label: Image.Image,
+        cam: Camera,
+        haze: RGB,
+        haze_range: float,
+        instances: InstanceLayer | None = None,
     ) -> None:
         self.image, self.label = ImageDraw.Draw(image), ImageDraw.Draw(label)
         self.cam, self.haze, self.haze_range = cam, haze, haze_range
+        self.instances = instances
+
+    def begin_object(self) -> None:
+        """The shapes drawn from here on belong to a new object (a new instance per class)."""
+        if self.instances is not None:
+            self.instances.begin_object()
 
     def tint(self, rgb: RGB, z: float) -> RGB:
         t = (z - 10.0) / self.haze_range
@@ -81,6 +95,8 @@ class Canvas:
         self.image.polygon(pts, fill=self.tint(rgb, z))
         if cls is not None:
             self.label.polygon(pts, fill=cls)
+            if self.instances is not None:
+                self.instances.draw.polygon(pts, fill=self.instances.value(cls))
 
     def ellipse(self, box: list[float], cls: int, rgb: RGB, z: float, width: int = 0) -> None:
         """An ellipse in its bounding box (x0, y0, x1, y1); a ring when ``width`` > 0."""
@@ -92,12 +108,18 @@ class Canvas:
         else:
             self.image.ellipse(box, fill=colour)
             self.label.ellipse(box, fill=cls)
+        if self.instances is not None:
+            value = self.instances.value(cls)
+            kind = {"outline": value, "width": width} if width else {"fill": value}
+            self.instances.draw.ellipse(box, **kind)
 
     def line(self, pts: list[Point], cls: int | None, rgb: RGB, z: float, width: float) -> None:
         w = max(1, round(width))
         self.image.line(pts, fill=self.tint(rgb, z), width=w)
         if cls is not None:
             self.label.line(pts, fill=cls, width=w)
+            if self.instances is not None:
+                self.instances.draw.line(pts, fill=self.instances.value(cls), width=w)
 
     def side(self, x: float, z0: float, z1: float, y0: float, y1: float) -> list[Point]:
         """Quad in the plane X = x (facades, vehicle sides)."""

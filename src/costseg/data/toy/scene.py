@@ -51,6 +51,7 @@ class _Queue:
 
     def draw(self) -> None:
         for *_, draw in sorted(self.items, key=lambda item: item[:3]):
+            self.cv.begin_object()  # each queued drawing is one object (one instance per class)
             draw()
 
 
@@ -75,8 +76,10 @@ def _poles_and_trees(q: _Queue, st: Street, side: int) -> None:
 def _sidewalk(q: _Queue, st: Street, side: int) -> None:
     """Pedestrians (alone or in groups), parked two-wheelers, clutter and maybe a railing."""
     rng, e, o, out = q.rng, st.edges[side], st.outer[side], 1.0 if side else -1.0
-    for _ in range(rng.poisson(1.8 if st.park[side] else 3.5)):
-        x, z = e + out * rng.uniform(0.5, abs(o - e) - 0.4), _loguniform(rng, 3.5, 30.0)
+    for _ in range(rng.poisson(1.8 if st.park[side] else 4.0)):
+        # Most people walk near the curb: the house side has doors, bins and bicycles.
+        near = 0.4 + rng.beta(1.0, 3.0) * (abs(o - e) - 0.8)
+        x, z = e + out * near, _loguniform(rng, 12.0, 50.0)
         for _ in range(1 if rng.random() < 0.8 else int(rng.integers(2, 4))):
             tall = rng.uniform(1.55, 1.95) if rng.random() < 0.9 else rng.uniform(1.1, 1.4)
             q.add(0, z, pedestrian, x, z, tall)
@@ -127,7 +130,7 @@ def _road(q: _Queue, st: Street, rail: float | None) -> None:
         x, z = st.lanes[-1] + rng.uniform(0.5, 1.5), _loguniform(rng, 5.0, 35.0)
         add(x, z, (0.4, 2.0), two_wheeler, rng.random() < 0.4, True)
     for _ in range(int(rng.integers(1, 5)) if rng.random() < 0.55 else 0):
-        x, z = rng.uniform(st.edges[0] + 0.5, st.edges[1] - 0.5), rng.uniform(6.0, 25.0)
+        x, z = rng.uniform(st.edges[0] + 0.5, st.edges[1] - 0.5), rng.uniform(10.0, 35.0)
         add(x, z, (0.3, 0.5), pedestrian, rng.uniform(1.55, 1.95))
 
 

@@ -51,14 +51,17 @@ class Street:
         f, cx, hy, hc = rng.uniform(
             (0.9 * w, 0.46 * w, 0.38 * h, 1.3), (1.1 * w, 0.54 * w, 0.46 * h, 1.7)
         )
-        n, lw = int(rng.integers(2, 5)), rng.uniform(2.9, 3.5)
+        n, lw = int(rng.choice([2, 3, 4], p=[0.7, 0.2, 0.1])), rng.uniform(2.9, 3.5)
         oncoming = n // 2 if rng.random() < 0.7 else 0  # else a one-way street
-        ego = int(rng.integers(oncoming, n))  # the camera drives in a lane of its direction
+        # The camera drives in a lane of its direction: on two-way streets mostly the one next
+        # to the centre line, on one-way streets mostly a middle one.
+        middle = oncoming if oncoming else (n - 1) // 2
+        ego = middle if rng.random() < 0.8 else int(rng.integers(oncoming, n))
         lanes = tuple((k - ego) * lw for k in range(n))
-        parking = np.where(rng.random(2) < 0.6, rng.uniform(2.0, 2.5, 2), 0.0)
+        parking = np.where(rng.random(2) < 0.35, rng.uniform(2.0, 2.5, 2), 0.0)
         edges = (lanes[0] - lw / 2 - parking[0], lanes[-1] + lw / 2 + parking[1])
-        walk, park = rng.uniform(3.5, 6.5, 2), rng.random(2) < 0.25
-        verge = np.where(rng.random(2) < 0.6, rng.uniform(1.5, 5.0, 2), 0.0)
+        walk, park = rng.uniform(4.5, 8.0, 2), rng.random(2) < 0.25
+        verge = np.where(rng.random(2) < 0.75, rng.uniform(3.0, 9.0, 2), 0.0)  # front gardens
         verge += park * rng.uniform(3.0, 12.0, 2)
         outer = (edges[0] - walk[0], edges[1] + walk[1])
         facades = (outer[0] - verge[0], outer[1] + verge[1])
@@ -103,7 +106,7 @@ def draw_backdrop(cv: Canvas, rng: np.random.Generator, st: Street) -> None:
             if park or rng.random() < 0.12:
                 green_wall(cv, rng, x, zs, rng.uniform(7.0, 15.0))
             else:
-                building(cv, rng, x, zs, rng.uniform(10.0, 30.0))
+                building(cv, rng, x, zs, rng.uniform(14.0, 34.0))
             z = zs[1]
 
 
