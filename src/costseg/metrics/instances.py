@@ -37,7 +37,7 @@ class InstanceMisses(KeepShapes, Metric):
     >>> m = InstanceMisses(classes=(11,), num_rois=0)
     >>> m.update(torch.tensor([[[11, 0, 0]]]), torch.tensor([[[11, 11, 11]]]),
     ...          torch.tensor([[[24000, 24001, 24001]]]))
-    >>> out = m.shaped(m.compute())
+    >>> out = m.compute()
     >>> out["gt_instances"].tolist(), out["missed_instances"].tolist(), out["instance_recall"]
     ([[[2]]], [[[1]]], tensor([[[0.5000]]], dtype=torch.float64))
     """
