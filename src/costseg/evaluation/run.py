@@ -1,117 +1,34 @@
-"""The ``evaluate.py`` job: options → plan (once) → one loop over the images → results.
+"""The ``evaluate.py`` job: plan (once) → one loop over the images → results → reports.
 
-:func:`plan` checks every option, opens the probability source
-(:mod:`costseg.networks.sources`) and the data, builds the rule groups
-(:mod:`costseg.rules`), splits off calibration images when a scaling or a guarantee needs
-them, and claims a fresh output folder. :func:`run` fits and certifies on the calibration images
-(:mod:`costseg.evaluation.held_out`), then passes over the reported images once: scores →
-probabilities → every rule group → metrics (:mod:`costseg.metrics.scoring`, shared with
-validation). :func:`evaluate` does both and hands the results to
-:mod:`costseg.report.evaluation`. Under ``torchrun`` every process takes its own share of the
-reported images and the metrics' sums are merged.
+:func:`run` fits and certifies on the calibration images of the plan
+(:mod:`costseg.evaluation.plan`, :mod:`costseg.evaluation.held_out`), then passes over the
+reported images once: scores → probabilities → every rule group → metrics
+(:mod:`costseg.metrics.scoring`, shared with validation). :func:`evaluate` plans, runs and hands
+the results to :mod:`costseg.report.evaluation`; the output folder is marked ``INCOMPLETE``
+until every file is written. Under ``torchrun`` the metrics' sums of all processes are merged.
 """
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
-from pathlib import Path
+from dataclasses import asdict
 
 import torch
-import torch.distributed as dist
-from torch.utils.data import Dataset
 
 from costseg.calibration.scaling import Scaling
-from costseg.classes import CLASS_NAMES, NUM_ROIS, class_indices
-from costseg.data.from_config import build_dataset, eval_batch_size
-from costseg.data.prior_maps import PriorMaps, heatmap_canvas
-from costseg.evaluation.checks import (
-    check_calibration_size,
-    check_options,
-    instance_classes,
-    needs_priors,
-    source_priors,
-)
+from costseg.classes import CLASS_NAMES, NUM_ROIS
 from costseg.evaluation.held_out import as_logits, certify, fit_scaling
+from costseg.evaluation.plan import EvalPlan, plan, rank
 from costseg.metrics import CalibrationError
 from costseg.metrics.scoring import GroupMetrics, score_batch
 from costseg.networks.sources import (
     Batch,
-    Source,
     batches,
-    open_source,
-    resolve_device,
-    with_mc_dropout,
 )
 from costseg.options import EvalOptions
-from costseg.report.outputs import INCOMPLETE, BatchWriter, claim_output_dir, mark_complete
+from costseg.report.outputs import INCOMPLETE, BatchWriter, mark_complete
 from costseg.report.results import EvalResults, Example, GroupResult
-from costseg.rules import RuleGroup, named_group, temperature_group
-
-
-@dataclass
-class EvalPlan:
-    """What one evaluation will do, decided once before the first image."""
-
-    options: EvalOptions
-    device: torch.device
-    source: Source
-    dataset: Dataset
-    indices: list[int]  # this process's share of the reported images
-    num_reported: int  # reported images over all processes
-    calibration: tuple[Dataset, list[int]] | None  # images that fit / certify, never reported
-    batch_size: int
-    num_workers: int
-    groups: list[RuleGroup]
-    class_ids: list[int]
-    output_dir: Path
-    priors: PriorMaps
-    canvas: tuple[int, int]
-    instance_classes: tuple[list[int], str]  # classes of the instance metrics; what the outputs say
-
-
-def plan(opts: EvalOptions) -> EvalPlan:
-    """Check the options, open source and data, and claim the output folder."""
-    groups = check_options(opts)
-    device = resolve_device(opts.device)
-    if _world_size() > 1 and not dist.is_initialized():
-        dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
-    source = open_source(opts.ckpt_path, opts.network, opts.probs, device)
-    source = with_mc_dropout(source, opts.mc_dropout, opts.seed)
-    if source.data_config is None and opts.data_root is None:
-        raise ValueError(f"{source.description} names no dataset: pass --data_root")
-    config = source.data_config or {}
-    dataset = build_dataset(config, opts.split, opts.data_root)
-    count = len(dataset) if opts.limit is None else min(opts.limit, len(dataset))
-    if count == 0:
-        raise ValueError(f"the {opts.split} split holds no images: nothing to evaluate")
-    reported, calibration = _split_calibration(opts, config, dataset, count)
-    if calibration is not None:
-        candidates = next((g for g in groups if g.candidates), named_group(groups))
-        check_calibration_size(opts, len(calibration[1]), len(candidates.names))
-    base = _default_base(source)
-    cache = (Path(opts.output_dir).resolve().parent if opts.output_dir else base.parent) / "priors"
-    priors = PriorMaps(source_priors(source, opts, config, cache), CLASS_NAMES, device)
-    if priors.priors is None and needs_priors(groups):
-        raise ValueError("ml and --alpha_sweep need pixel-wise priors, and this source has none")
-    return EvalPlan(
-        options=opts,
-        device=device,
-        source=source,
-        dataset=dataset,
-        indices=reported[_rank() :: _world_size()],
-        num_reported=len(reported),
-        calibration=calibration,
-        batch_size=opts.batch_size or eval_batch_size(config, opts.data_root),
-        num_workers=int(config.get("init_args", {}).get("num_workers", 2)),
-        groups=groups,
-        class_ids=class_indices(opts.classes),
-        priors=priors,
-        canvas=heatmap_canvas(dataset),
-        instance_classes=instance_classes(dataset, opts),
-        output_dir=_on_rank0(lambda: claim_output_dir(opts.output_dir, opts.overwrite, base)),
-    )
+from costseg.rules import named_group, temperature_group
 
 
 def run(plan: EvalPlan, after_batch: Callable[[list[Example]], None] | None = None) -> EvalResults:
@@ -165,7 +82,7 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> 
     named = plan.groups.index(named_group(plan.groups))
     writer = BatchWriter(plan.output_dir, plan.groups[named].names, opts.save_predictions)
     examples: list[Example] = []
-    desc = "evaluate" if opts.progress and _rank() == 0 else None
+    desc = "evaluate" if opts.progress and rank() == 0 else None
     with torch.inference_mode():
         for batch in batches(
             plan.source, plan.dataset, plan.indices, plan.batch_size, device, plan.num_workers, desc
@@ -219,7 +136,7 @@ def evaluate(opts: EvalOptions) -> EvalResults:
     planned, early = plan(opts), None
     out = planned.output_dir
     try:
-        if _rank() == 0:
+        if rank() == 0:
             from costseg.report.early_figures import EarlyFigures
 
             roi = planned.priors.roi_map()
@@ -240,7 +157,7 @@ def evaluate(opts: EvalOptions) -> EvalResults:
         if early:
             early.cancel()
         raise
-    if _rank() == 0:
+    if rank() == 0:
         mark_complete(out)
     return results
 
@@ -290,41 +207,3 @@ def _keep_examples(examples: list, limit: int, batch: Batch, preds: torch.Tensor
         kept = None if probs is False else probs[i].to("cpu", torch.float16)
         image, label = batch.images[i].cpu(), batch.labels[i].cpu()
         examples.append(Example(image, label, preds[i].cpu(), batch.stems[i], kept))
-
-
-def _split_calibration(opts: EvalOptions, config: dict, dataset: Dataset, count: int):
-    """(reported indices, calibration (dataset, indices) or None), disjoint by construction."""
-    if not (opts.calibrate or opts.guarantee is not None):
-        return list(range(count)), None
-    if opts.calibration_split is not None:
-        held = build_dataset(config, opts.calibration_split, opts.data_root)
-        return list(range(count)), (held, list(range(len(held))))
-    half = count // 2
-    if half == 0:
-        raise ValueError(f"{count} image(s): too few to split into calibration and report halves")
-    return list(range(half, count)), (dataset, list(range(half)))
-
-
-def _default_base(source: Source) -> Path:
-    if source.run_dir is not None:
-        return source.run_dir / "evaluation"
-    name = str(next(iter(source.description.values()))).split(":")[-1].rstrip("/")
-    return Path("eval") / (Path(name).stem or "network")
-
-
-def _on_rank0(make):
-    """``make()`` on rank 0, its value shared with every process (e.g. the output folder)."""
-    value = [make() if _rank() == 0 else None]
-    if dist.is_available() and dist.is_initialized():
-        dist.broadcast_object_list(value, src=0)
-    return value[0]
-
-
-def _rank() -> int:
-    return dist.get_rank() if dist.is_available() and dist.is_initialized() else 0
-
-
-def _world_size() -> int:
-    if dist.is_available() and dist.is_initialized():
-        return dist.get_world_size()
-    return int(os.environ.get("WORLD_SIZE", "1"))

@@ -1,0 +1,131 @@
+"""What one evaluation will do, decided once before the first image: the checked options, the
+probability source, the data and its split into calibration and reported images, the rule
+groups, the priors, and a claimed output folder. Under ``torchrun`` each process gets its own
+share of the reported images."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+import torch.distributed as dist
+from torch.utils.data import Dataset
+
+from costseg.classes import CLASS_NAMES, class_indices
+from costseg.data.from_config import build_dataset, eval_batch_size
+from costseg.data.prior_maps import PriorMaps, heatmap_canvas
+from costseg.evaluation.checks import (
+    check_calibration_size,
+    check_options,
+    instance_classes,
+    needs_priors,
+    source_priors,
+)
+from costseg.networks.sources import Source, open_source, resolve_device, with_mc_dropout
+from costseg.options import EvalOptions
+from costseg.report.outputs import claim_output_dir
+from costseg.rules import RuleGroup, named_group
+
+
+@dataclass
+class EvalPlan:
+    """What one evaluation will do, decided once before the first image."""
+
+    options: EvalOptions
+    device: torch.device
+    source: Source
+    dataset: Dataset
+    indices: list[int]  # this process's share of the reported images
+    num_reported: int  # reported images over all processes
+    calibration: tuple[Dataset, list[int]] | None  # images that fit / certify, never reported
+    batch_size: int
+    num_workers: int
+    groups: list[RuleGroup]
+    class_ids: list[int]
+    output_dir: Path
+    priors: PriorMaps
+    canvas: tuple[int, int]
+    instance_classes: tuple[list[int], str]  # classes of the instance metrics; what the outputs say
+
+
+def plan(opts: EvalOptions) -> EvalPlan:
+    """Check the options, open source and data, and claim the output folder."""
+    groups = check_options(opts)
+    device = resolve_device(opts.device)
+    if world_size() > 1 and not dist.is_initialized():
+        dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
+    source = open_source(opts.ckpt_path, opts.network, opts.probs, device)
+    source = with_mc_dropout(source, opts.mc_dropout, opts.seed)
+    if source.data_config is None and opts.data_root is None:
+        raise ValueError(f"{source.description} names no dataset: pass --data_root")
+    config = source.data_config or {}
+    dataset = build_dataset(config, opts.split, opts.data_root)
+    count = len(dataset) if opts.limit is None else min(opts.limit, len(dataset))
+    if count == 0:
+        raise ValueError(f"the {opts.split} split holds no images: nothing to evaluate")
+    reported, calibration = _split_calibration(opts, config, dataset, count)
+    if calibration is not None:
+        candidates = next((g for g in groups if g.candidates), named_group(groups))
+        check_calibration_size(opts, len(calibration[1]), len(candidates.names))
+    base = _default_base(source)
+    cache = (Path(opts.output_dir).resolve().parent if opts.output_dir else base.parent) / "priors"
+    priors = PriorMaps(source_priors(source, opts, config, cache), CLASS_NAMES, device)
+    if priors.priors is None and needs_priors(groups):
+        raise ValueError("ml and --alpha_sweep need pixel-wise priors, and this source has none")
+    return EvalPlan(
+        options=opts,
+        device=device,
+        source=source,
+        dataset=dataset,
+        indices=reported[rank() :: world_size()],
+        num_reported=len(reported),
+        calibration=calibration,
+        batch_size=opts.batch_size or eval_batch_size(config, opts.data_root),
+        num_workers=int(config.get("init_args", {}).get("num_workers", 2)),
+        groups=groups,
+        class_ids=class_indices(opts.classes),
+        priors=priors,
+        canvas=heatmap_canvas(dataset),
+        instance_classes=instance_classes(dataset, opts),
+        output_dir=on_rank0(lambda: claim_output_dir(opts.output_dir, opts.overwrite, base)),
+    )
+
+
+def _split_calibration(opts: EvalOptions, config: dict, dataset: Dataset, count: int):
+    """(reported indices, calibration (dataset, indices) or None), disjoint by construction."""
+    if not (opts.calibrate or opts.guarantee is not None):
+        return list(range(count)), None
+    if opts.calibration_split is not None:
+        held = build_dataset(config, opts.calibration_split, opts.data_root)
+        return list(range(count)), (held, list(range(len(held))))
+    half = count // 2
+    if half == 0:
+        raise ValueError(f"{count} image(s): too few to split into calibration and report halves")
+    return list(range(half, count)), (dataset, list(range(half)))
+
+
+def _default_base(source: Source) -> Path:
+    if source.run_dir is not None:
+        return source.run_dir / "evaluation"
+    name = str(next(iter(source.description.values()))).split(":")[-1].rstrip("/")
+    return Path("eval") / (Path(name).stem or "network")
+
+
+def on_rank0(make):
+    """``make()`` on rank 0, its value shared with every process (e.g. the output folder)."""
+    value = [make() if rank() == 0 else None]
+    if dist.is_available() and dist.is_initialized():
+        dist.broadcast_object_list(value, src=0)
+    return value[0]
+
+
+def rank() -> int:
+    return dist.getrank() if dist.is_available() and dist.is_initialized() else 0
+
+
+def world_size() -> int:
+    if dist.is_available() and dist.is_initialized():
+        return dist.getworld_size()
+    return int(os.environ.get("WORLD_SIZE", "1"))
