@@ -23,7 +23,8 @@ python scripts/bench_pipeline.py --ckpt_path "$ckpt" --sections full-resolution 
 python scripts/toy_as_cityscapes.py /tmp/standin4 --train 1 --val 4 >/dev/null
 python - "$ckpt" <<'PY' | tee "$out/sweep_profile.txt"
 import cProfile, pstats, sys
-from costseg.evaluation import plan, run
+from costseg.evaluation.plan import plan
+from costseg.evaluation.run import run
 from costseg.options import EvalOptions
 
 opts = EvalOptions(ckpt_path=sys.argv[1], data_root="/tmp/standin4", sweep=0.05, num_examples=0,
@@ -37,7 +38,7 @@ PY
 python - "$ckpt" "$out" <<'PY' | tail -n 3
 import sys
 from pathlib import Path
-from costseg.evaluation import evaluate
+from costseg.evaluation.run import evaluate
 from costseg.options import EvalOptions
 
 out = Path(sys.argv[2]) / "evaluation"

@@ -13,13 +13,13 @@ import torch
 from costseg.classes import CLASS_NAMES
 from costseg.data.prior_maps import PriorMaps
 from costseg.decision import decide
-from costseg.networks.sources import Source, open_source, resolve_device
+from costseg.networks.sources import Source, open_source, resolve_device, with_mc_dropout
 from costseg.options import PredictOptions
 from costseg.prediction.inputs import Inputs, find_inputs, read_image, video_frames
 from costseg.prediction.outputs import PredictionWriter
-from costseg.prediction.progress import Progress
+from costseg.progress import progress
 from costseg.report.explorer import ExplorerExample, embedded
-from costseg.report.outputs import claim_output_dir
+from costseg.report.outputs import claim_output_dir, mark_complete
 from costseg.rules import Rule, adapted_priors, parse_rules, vertex_matrices
 
 
@@ -52,7 +52,9 @@ def plan(opts: PredictOptions) -> PredictPlan:
         raise ValueError("give at most one of --ckpt_path and --network")
     device = resolve_device(opts.device)
     claimed = claim_output_dir(opts.output_dir, False, Path()) if opts.output_dir else None
-    source = open_source(opts.ckpt_path, opts.network, None, device)
+    source = with_mc_dropout(
+        open_source(opts.ckpt_path, opts.network, None, device), opts.mc_dropout, opts.seed
+    )
     if any(r.priors_alpha for r in rules) and source.priors is None:
         raise ValueError("ml needs pixel-wise priors, and this source has none")
     argmax = next((k for k, r in enumerate(rules) if _is_argmax(r)), None)
@@ -83,11 +85,14 @@ def _default_base(source: Source) -> Path:
     return Path("predict") / (Path(name).stem or "network")
 
 
-def decide_image(plan: PredictPlan, image: np.ndarray) -> tuple[torch.Tensor, np.ndarray, object]:
-    """The network once, then every rule.
+def decide_image(
+    plan: PredictPlan, image: np.ndarray, stem: str
+) -> tuple[torch.Tensor, np.ndarray, object]:
+    """The network once (or ``--mc_dropout`` times), then every rule.
 
     Args:
         image: (H, W, 3) uint8 RGB.
+        stem: the image's name (seeds Monte-Carlo dropout).
 
     Returns:
         probs (N, H, W) float32 (rounded to float16 with ``--save-probs``, so that the saved
@@ -96,7 +101,8 @@ def decide_image(plan: PredictPlan, image: np.ndarray) -> tuple[torch.Tensor, np
     """
     x = torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1)[None].to(plan.device)
     with torch.inference_mode():
-        probs = plan.source.scores(x, [""]).softmax(1)
+        scores = plan.source.scores(x, [stem])
+        probs = scores if plan.source.kind == "probs" else scores.softmax(1)
         if plan.options.save_probs:
             probs = probs.half().float()
         priors, roi = plan.priors.at(image.shape[:2])
@@ -126,25 +132,22 @@ def run(job: PredictPlan) -> Path:
     writer = PredictionWriter(job.output_dir, job.rule_names, opts.save_probs)
     k = len(job.rule_names)
     argmax = next((i for i, r in enumerate(job.rules) if _is_argmax(r)), k)
-    video = job.inputs.video
+    video, desc = job.inputs.video, "predict" if opts.progress else None
     if video is None:
-        with Progress("images", len(job.inputs.images), opts.progress) as progress:
-            for path in job.inputs.images:
-                image = read_image(path)
-                probs, maps, roi = decide_image(job, image)
-                writer.image(path.stem, image, maps[:k], maps[argmax], roi, probs)
-                _keep_example(job, path.stem, image, probs)
-                progress.update()
+        for path in progress(job.inputs.images, desc):
+            image = read_image(path)
+            probs, maps, roi = decide_image(job, image, path.stem)
+            writer.image(path.stem, image, maps[:k], maps[argmax], roi, probs)
+            _keep_example(job, path.stem, image, probs)
     else:
         writer.open_video(video.path.stem, video.rate)
         try:
-            with Progress("frames", video.frames, opts.progress) as progress:
-                for i, image in enumerate(video_frames(video.path)):
-                    probs, maps, roi = decide_image(job, image)
-                    stem = f"{video.path.stem}_{i:06d}"
-                    writer.frame(stem, image, maps[:k], maps[argmax], roi, probs)
-                    _keep_example(job, stem, image, probs)
-                    progress.update()
+            frames = enumerate(video_frames(video.path))
+            for i, image in progress(frames, desc, total=video.frames):
+                stem = f"{video.path.stem}_{i:06d}"
+                probs, maps, roi = decide_image(job, image, stem)
+                writer.frame(stem, image, maps[:k], maps[argmax], roi, probs)
+                _keep_example(job, stem, image, probs)
         except BaseException:
             writer.close_videos(abandon=True)
             raise
@@ -152,6 +155,7 @@ def run(job: PredictPlan) -> Path:
     if opts.explorer:
         _write_explorer(job)
     writer.finish({"source": job.source.description, "input": str(opts.input)})
+    mark_complete(job.output_dir)
     print(f"predictions written to {job.output_dir}")
     return job.output_dir
 
