@@ -1,4 +1,5 @@
-"""Empirical check of the Learn-then-Test guarantee on the procedural world (SPEC §7).
+"""Empirical check of the Learn-then-Test guarantee on the procedural world (docs/definitions.md
+§7).
 
     python scripts/check_guarantee.py [--ckpt_path PATH] [--n 50] [--trials 200] [--test 1000]
 

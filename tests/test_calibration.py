@@ -26,7 +26,8 @@ from costseg.metrics import CalibrationError
 
 
 def brute_force_ece(probs, target, n_bins: int, norm: str) -> dict[str, object]:
-    """SPEC §6 with Python loops: bins [b/n, (b+1)/n), 1.0 in the last bin, 255 ignored."""
+    """docs/definitions.md §6 with Python loops: bins [b/n, (b+1)/n), 1.0 in the last bin, 255
+    ignored."""
     pixels = []
     for b in range(target.shape[0]):
         for y in range(target.shape[1]):

@@ -1,4 +1,4 @@
-"""Cost matrices against SPEC §2, block by block, and every invalid input."""
+"""Cost matrices against docs/definitions.md §2, block by block, and every invalid input."""
 
 import itertools
 
@@ -17,7 +17,7 @@ from costseg.costs import (
     validate_cost,
 )
 
-# SPEC §2, retyped here on purpose: the test must not read the files it checks.
+# docs/definitions.md §2, retyped here on purpose: the test must not read the files it checks.
 AGGREGATES = {
     "road": ["road"],
     "flat": ["sidewalk", "terrain"],

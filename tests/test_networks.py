@@ -1,6 +1,7 @@
 """Tests for costseg.networks: VainF and costseg checkpoints, specs and their errors.
 
-The VainF reference below is written from the architecture facts (SPEC §8): torchvision ResNet
+The VainF reference below is written from the architecture facts (docs/definitions.md §8):
+torchvision ResNet
 names, ASPP with a pooling branch and a projection, a 1x1 low-level projection to 48, ONE 3x3
 conv on ``[low-level, ASPP]``, a 1x1 classifier and bilinear upsampling. It shares no code with
 costseg's `DeepLabV3Plus`.

@@ -23,7 +23,7 @@ from costseg.data.priors_cache import cached_priors
 
 
 def _brute_force(labels: list[torch.Tensor], n: int, eps: float) -> torch.Tensor:
-    """SPEC §3 with plain loops (no smoothing)."""
+    """docs/definitions.md §3 with plain loops (no smoothing)."""
     h, w = labels[0].shape
     out = torch.zeros(n, h, w, dtype=torch.float64)
     for y in range(h):

@@ -1,4 +1,4 @@
-"""Tests for costseg.networks.probs_files: per-image probability files (SPEC §8)."""
+"""Tests for costseg.networks.probs_files: per-image probability files (docs/definitions.md §8)."""
 
 from __future__ import annotations
 

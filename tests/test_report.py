@@ -181,7 +181,7 @@ def test_paper_table_groups_class_then_roi_then_matrix():
         paper_table([{"matrix": "ml", "class": "person", "roi": 1, "precision": 0.5}])
 
 
-# SPEC §5, retyped here independently of tables.PAPER_TABLE.
+# docs/definitions.md §5, retyped here independently of tables.PAPER_TABLE.
 SPEC_TABLE = """
 altruistic person 1 41.12 99.81
 robotistic person 1 89.87 94.98

@@ -1,6 +1,7 @@
 """Confusion cost matrices: load, validate, build (symmetric, aggregates, sky), mix, grid.
 
-A cost matrix ``C`` is (N, N) with **rows = predicted class, columns = true class** (SPEC §1).
+A cost matrix ``C`` is (N, N) with **rows = predicted class, columns = true class**
+(docs/definitions.md §1).
 Matrices are float64 tensors so that YAML values and mixtures stay exact.
 
 >>> C = load_cost("egoistic")
@@ -26,7 +27,8 @@ PRESETS = ("robotistic", "altruistic", "egoistic")
 def validate_cost(cost: torch.Tensor, class_names: Sequence[str] = CLASS_NAMES) -> torch.Tensor:
     """Check that ``cost`` is a valid confusion cost matrix for ``class_names``.
 
-    Valid (SPEC §1): shape (N, N) with N = len(class_names), finite, zero diagonal, positive
+    Valid (docs/definitions.md §1): shape (N, N) with N = len(class_names), finite, zero diagonal,
+    positive
     off-diagonal entries.
 
     Args:
@@ -76,7 +78,7 @@ def load_cost(name_or_path: str | Path, class_names: Sequence[str] = CLASS_NAMES
     * ``off_diagonal: λ`` — the symmetric matrix with every off-diagonal entry λ;
     * ``classes: [...]`` + ``matrix: N×N`` — a full matrix over named classes (any order);
     * ``aggregates`` + ``order`` + ``matrix`` (A×A) + ``epsilon``, ``suppressed_row_cost`` (M),
-      ``suppressed_column_cost`` (s) — expanded to N×N as in SPEC §2.
+      ``suppressed_column_cost`` (s) — expanded to N×N as in docs/definitions.md §2.
 
     Returns:
         (N, N) float64 matrix, validated.

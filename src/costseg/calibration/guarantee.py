@@ -1,4 +1,4 @@
-"""Choosing a value system with a guarantee: Learn-then-Test (SPEC §7).
+"""Choosing a value system with a guarantee: Learn-then-Test (docs/definitions.md §7).
 
 Angelopoulos, Bates, Candès, Jordan, Lei (2021), "Learn then Test: Calibrating Predictive
 Algorithms to Achieve Risk Control". For each candidate λ (a grid point or an α of the Bayes↔ML

@@ -1,4 +1,5 @@
-"""A uniform sample of labelled pixels per image, to fit a scaling in constant memory (SPEC §6)."""
+"""A uniform sample of labelled pixels per image, to fit a scaling in constant memory
+(docs/definitions.md §6)."""
 
 from __future__ import annotations
 

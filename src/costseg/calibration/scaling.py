@@ -1,4 +1,5 @@
-"""Calibration of the network's probabilities: temperature and vector scaling (SPEC §6).
+"""Calibration of the network's probabilities: temperature and vector scaling (docs/definitions.md
+§6).
 
 Argmax does not change when the probabilities are sharpened or flattened; a cost rule does. So
 the probabilities a rule sees are ``softmax(z / T)`` (temperature scaling) or
@@ -153,7 +154,7 @@ def fit_vector_scaling(
 
 @dataclass(frozen=True)
 class Scaling:
-    """How the logits become the probabilities every rule sees (SPEC §6).
+    """How the logits become the probabilities every rule sees (docs/definitions.md §6).
 
     Attributes:
         kind: ``"none"`` (plain softmax), ``"temperature"`` (``softmax(z / T)``) or

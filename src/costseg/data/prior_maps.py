@@ -1,7 +1,8 @@
 """Pixel-wise priors and the RoI map at every image size an evaluation meets.
 
 Priors are stored at label resolution; images of other sizes get them resized bilinearly
-(SPEC §3), once per size. FP/FN location heatmaps of all images go onto one fixed canvas.
+(docs/definitions.md §3), once per size. FP/FN location heatmaps of all images go onto one fixed
+canvas.
 
 >>> maps = PriorMaps(torch.full((19, 4, 8), 1 / 19), device=torch.device("cpu"))
 >>> [tuple(t.shape) for t in maps.at((2, 4))]

@@ -1,6 +1,7 @@
 """Pixel-wise class priors from training labels and the regions of interest (RoI) they define.
 
-SPEC §3: per image location, the fraction of training labels holding each class (label 255 is
+docs/definitions.md §3: per image location, the fraction of training labels holding each class
+(label 255 is
 counted in neither numerator nor denominator), Gaussian-smoothed, floored at ``eps`` and
 renormalised to sum 1. As in the paper's authors' code, the per-class *counts* are smoothed
 (σ = 80 px at Cityscapes' 1024 rows, so ``80 · H / 1024`` by default) and then divided by the
@@ -51,7 +52,7 @@ def pixel_priors(
     progress: bool = True,
     max_labels: int | None = None,
 ) -> Tensor:
-    """Per-location class frequencies of a set of label maps (SPEC §3).
+    """Per-location class frequencies of a set of label maps (docs/definitions.md §3).
 
     Args:
         labels: Iterable of (H, W) integer label maps of one size; values in
@@ -147,7 +148,8 @@ def _count(
 
 
 def roi_map(pi: Tensor, class_names: Sequence[str] = CLASS_NAMES) -> Tensor:
-    """Region of interest per location: the RoI class with the highest prior (SPEC §3).
+    """Region of interest per location: the RoI class with the highest prior (docs/definitions.md
+    §3).
 
     Args:
         pi: (N, H, W) priors, N = ``len(class_names)``.

@@ -1,4 +1,5 @@
-"""Priors computed once and cached, for networks costseg did not train (SPEC §3, §8)."""
+"""Priors computed once and cached, for networks costseg did not train (docs/definitions.md §3,
+§8)."""
 
 from __future__ import annotations
 
@@ -44,7 +45,8 @@ def cached_priors(
     """Priors from ``cache_file`` when it was made with the same settings, else computed and saved.
 
     For a network costseg did not train: the priors come from the dataset's training labels
-    (SPEC §3, §8), computed once with a progress bar. The file records ``settings`` (say the
+    (docs/definitions.md §3, §8), computed once with a progress bar. The file records ``settings``
+    (say the
     dataset root, split and label size) together with ``num_classes``, ``sigma``, ``eps`` and
     ``max_labels``; any difference, an unreadable file or other classes mean a recomputation.
 

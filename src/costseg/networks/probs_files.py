@@ -1,4 +1,5 @@
-"""Precomputed probabilities (SPEC §8), so that networks of any framework can be evaluated.
+"""Precomputed probabilities (docs/definitions.md §8), so that networks of any framework can be
+evaluated.
 
 One file per image, named after the image (``<city>_<seq>_<frame>.npz`` or ``.pt``, directly in
 the folder or in a ``<city>/`` subfolder), holding ``probs`` or ``logits`` of shape (N, H, W) at

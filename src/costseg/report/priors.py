@@ -1,4 +1,4 @@
-"""Figures of the pixel-wise priors and the RoI map (SPEC §3)."""
+"""Figures of the pixel-wise priors and the RoI map (docs/definitions.md §3)."""
 
 from __future__ import annotations
 

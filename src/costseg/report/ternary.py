@@ -1,4 +1,5 @@
-"""The value-space triangle (SPEC §2): heatmaps over barycentric weights and trade-offs per edge.
+"""The value-space triangle (docs/definitions.md §2): heatmaps over barycentric weights and
+trade-offs per edge.
 
 A grid point ``(α, β, γ)`` (``α + β + γ = 1``) stands for the mixture ``α C_0 + β C_1 + γ C_2`` of
 three vertex matrices, by default ``C_R, C_A, C_E``. Mixing is not scale invariant, so every
