@@ -12,7 +12,6 @@ import torch
 
 from costseg.classes import CLASS_NAMES
 from costseg.data.prior_maps import PriorMaps
-from costseg.decision import decide
 from costseg.networks.sources import Source, open_source, resolve_device, with_mc_dropout
 from costseg.options import PredictOptions
 from costseg.prediction.inputs import Inputs, find_inputs, read_image, video_frames
@@ -20,7 +19,7 @@ from costseg.prediction.outputs import PredictionWriter
 from costseg.progress import progress
 from costseg.report.explorer import ExplorerExample, embedded
 from costseg.report.outputs import claim_output_dir, mark_complete
-from costseg.rules import Rule, adapted_priors, parse_rules, vertex_matrices
+from costseg.rules import Rule, apply_rules, parse_rules, vertex_matrices
 
 
 @dataclass
@@ -106,19 +105,8 @@ def decide_image(
         if plan.options.save_probs:
             probs = probs.half().float()
         priors, roi = plan.priors.at(image.shape[:2])
-        maps = torch.stack([_decide(probs, rule, priors) for rule in plan.rules])
+        maps = apply_rules(probs, plan.rules, priors)[0]
     return probs[0], maps.to(torch.uint8).cpu().numpy(), None if roi is None else roi.cpu().numpy()
-
-
-def _decide(probs: torch.Tensor, rule: Rule, priors: torch.Tensor | None) -> torch.Tensor:
-    """(H, W) decisions of one rule for a (1, N, H, W) image. A few named rules are decided one
-    by one: at a photo's size ``decide`` per rule takes a fraction of ``decide_mixtures`` with
-    identity weights (scripts/bench_predict.py)."""
-    if rule.priors_alpha:
-        if priors is None:
-            raise ValueError(f"rule {rule.name!r} needs pixel-wise priors")
-        return decide(probs, rule.cost, adapted_priors(priors, rule.priors_alpha))[0]
-    return decide(probs, rule.cost)[0]
 
 
 def predict(opts: PredictOptions) -> Path:

@@ -20,7 +20,7 @@ import torch
 
 from costseg.classes import CLASS_NAMES
 from costseg.costs import PRESETS, load_cost, symmetric_cost
-from costseg.decision import decide, decide_mixtures
+from costseg.decision import decide
 from costseg.decision.label_maps import empty_labels
 from costseg.rules.base import Rule, RuleGroup, adapted_priors
 
@@ -54,21 +54,18 @@ def apply_rules(
 ) -> torch.Tensor:
     """Decisions of every rule: probs (B, N, H, W) → (B, K, H, W) int64.
 
-    Rules without priors share one pass (:func:`decide_mixtures` with identity weights); each
-    rule with priors needs ``priors`` ((N,) or (N, H, W)) and one pass of its own.
+    Each rule is one :func:`decide` call (for a few named rules faster than one
+    :func:`decide_mixtures` pass with identity weights: scripts/bench_predict.py); a rule with
+    priors needs ``priors`` ((N,) or (N, H, W)).
     """
-    n = probs.shape[1]
     shape = probs.shape[0], len(rules), *probs.shape[2:]
     out = empty_labels(*shape, dtype=torch.long, device=probs.device)
-    plain = [k for k, r in enumerate(rules) if not r.priors_alpha]
-    if plain:
-        vertices = torch.stack([cost_or_symmetric(rules[k].cost, n) for k in plain])
-        weights = torch.eye(len(plain), dtype=torch.float64)
-        out[:, plain] = decide_mixtures(probs, vertices, weights).long()
     for k, rule in enumerate(rules):
-        if rule.priors_alpha:
-            if priors is None:
-                raise ValueError(f"rule {rule.name!r} needs pixel-wise priors")
+        if not rule.priors_alpha:
+            out[:, k] = decide(probs, rule.cost)
+        elif priors is None:
+            raise ValueError(f"rule {rule.name!r} needs pixel-wise priors")
+        else:
             out[:, k] = decide(probs, rule.cost, adapted_priors(priors, rule.priors_alpha))
     return out
 
