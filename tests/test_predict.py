@@ -104,7 +104,7 @@ def test_a_video_gives_videos_of_the_same_frame_count_and_rate(checkpoint, tmp_p
     video, out = tmp_path / "clip.mp4", tmp_path / "out"
     _write_video(video, 6, 12)
     predict_main(["--input", str(video), "--ckpt_path", str(checkpoint), "--output_dir", str(out)])
-    assert "predict: 6/6 frames (100 %)" in capsys.readouterr().err  # progress without a terminal
+    assert "predict: 6/6 (100%)" in capsys.readouterr().err  # progress without a terminal
     for name in ("clip_panels", "clip_robotistic", "clip_altruistic", "clip_egoistic"):
         assert _frames_and_rate(out / f"{name}.mp4") == (6, Fraction(12)), name
     assert len(json.loads((out / "counts.json").read_text())["images"]) == 6
