@@ -122,10 +122,10 @@ def on_rank0(make):
 
 
 def rank() -> int:
-    return dist.getrank() if dist.is_available() and dist.is_initialized() else 0
+    return dist.get_rank() if dist.is_available() and dist.is_initialized() else 0
 
 
 def world_size() -> int:
     if dist.is_available() and dist.is_initialized():
-        return dist.getworld_size()
+        return dist.get_world_size()
     return int(os.environ.get("WORLD_SIZE", "1"))
