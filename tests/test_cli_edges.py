@@ -118,7 +118,11 @@ def _interrupt_when(job: subprocess.Popen, ready, seconds: float = 240) -> tuple
         assert job.poll() is None and time.monotonic() < deadline, job.communicate()
         time.sleep(0.05)
     os.killpg(job.pid, signal.SIGINT)
-    return job.communicate(timeout=120)
+    try:
+        return job.communicate(timeout=120)
+    except subprocess.TimeoutExpired:
+        os.killpg(job.pid, signal.SIGKILL)  # leave no job behind a failed test
+        raise
 
 
 def test_ctrl_c_during_evaluation(ckpt, tmp_path):
