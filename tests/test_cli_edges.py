@@ -111,6 +111,20 @@ def test_a_full_disk_is_one_line_and_the_folder_stays_incomplete(
     assert (out / INCOMPLETE).is_file()
 
 
+def _start(command: list[str]) -> subprocess.Popen:
+    """The job in a process group of its own, with Ctrl-C's default handling even when the tests
+    run in the background (a shell starts background jobs with SIGINT ignored)."""
+    return subprocess.Popen(
+        command,
+        env=ENV,
+        start_new_session=True,
+        text=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+
+
 def _interrupt_when(job: subprocess.Popen, ready, seconds: float = 240) -> tuple[str, str]:
     """SIGINT to the job's process group (as Ctrl-C in a terminal) once ``ready()``."""
     deadline = time.monotonic() + seconds
@@ -129,8 +143,7 @@ def test_ctrl_c_during_evaluation(ckpt, tmp_path):
     out = tmp_path / "out"
     command = [sys.executable, str(ROOT / "evaluate.py"), "--ckpt_path", ckpt, "--no-progress"]
     command += ["--sweep", "0.05", "--output_dir", str(out)]
-    job = subprocess.Popen(command, env=ENV, start_new_session=True, text=True,
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
+    job = _start(command)
     output, err = _interrupt_when(job, (out / "figures").exists)  # drawing while scoring
     assert job.returncode == 130, (output, err)
     assert err.strip().splitlines() == [
@@ -146,8 +159,7 @@ def test_ctrl_c_during_training(tmp_path):
     run = tmp_path / "toy" / "version_0"
     command = [sys.executable, str(ROOT / "train.py"), *TINY_TRAIN, "--trainer.max_steps=100000"]
     command += [f"--trainer.logger.init_args.save_dir={tmp_path}"]
-    job = subprocess.Popen(command, env=ENV, start_new_session=True, text=True,
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
+    job = _start(command)
     output, err = _interrupt_when(job, lambda: any(run.glob("events.out.tfevents.*")))
     assert job.returncode == 130, (output, err)
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err

@@ -37,7 +37,7 @@ def forced(request, monkeypatch):
 
 
 @pytest.mark.parametrize("path", CPU_PATHS)
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(probabilities(), st.floats(0.01, 100))
 def test_symmetric_rule_is_argmax_including_ties(path, probs, lam):
     cost = lam * symmetric_cost(probs.shape[1])
@@ -178,9 +178,8 @@ def loop_of_decides(probs, weights, priors=None):
     return decide_mixtures_reference(probs, VERTICES, weights, priors)
 
 
-@pytest.mark.parametrize("step", [0.1, 0.05])
-def test_mixtures_equal_decide_on_each_mixed_matrix(step, forced):
-    weights = barycentric_grid(step)
+def test_mixtures_equal_decide_on_each_mixed_matrix(forced):
+    weights = barycentric_grid(0.1)
     probs = torch.cat([smooth((1, 19, 40, 48), 7), smooth((1, 19, 40, 48), 8, scale=1)])
     assert torch.equal(
         decide_mixtures(probs, VERTICES, weights).long(), loop_of_decides(probs, weights)
