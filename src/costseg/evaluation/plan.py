@@ -69,7 +69,7 @@ def plan(opts: EvalOptions) -> EvalPlan:
     if calibration is not None:
         candidates = next((g for g in groups if g.candidates), named_group(groups))
         check_calibration_size(opts, len(calibration[1]), len(candidates.names))
-    base = _default_base(source)
+    base = source.default_output("evaluation", "eval")
     cache = (Path(opts.output_dir).resolve().parent if opts.output_dir else base.parent) / "priors"
     priors = PriorMaps(source_priors(source, opts, config, cache), CLASS_NAMES, device)
     if priors.priors is None and needs_priors(groups):
@@ -104,13 +104,6 @@ def _split_calibration(opts: EvalOptions, config: dict, dataset: Dataset, count:
     if half == 0:
         raise ValueError(f"{count} image(s): too few to split into calibration and report halves")
     return list(range(half, count)), (dataset, list(range(half)))
-
-
-def _default_base(source: Source) -> Path:
-    if source.run_dir is not None:
-        return source.run_dir / "evaluation"
-    name = str(next(iter(source.description.values()))).split(":")[-1].rstrip("/")
-    return Path("eval") / (Path(name).stem or "network")
 
 
 def on_rank0(make):

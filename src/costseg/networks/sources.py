@@ -48,6 +48,14 @@ class Source:
     hparams: dict[str, Any] = field(default_factory=dict)
     probabilities: str | None = None
 
+    def default_output(self, job: str, elsewhere: str) -> Path:
+        """Where a job's numbered output folders go by default: ``<run>/<job>`` beside a costseg
+        checkpoint, else ``<elsewhere>/<the network's or folder's name>``."""
+        if self.run_dir is not None:
+            return self.run_dir / job
+        name = str(next(iter(self.description.values()))).split(":")[-1].rstrip("/")
+        return Path(elsewhere) / (Path(name).stem or "network")
+
     def scores(self, images: Tensor, stems: list[str]) -> Tensor:
         """(B, N, H, W) float logits (network) or probabilities (files, Monte-Carlo dropout)."""
         if self.network is not None and self.kind == "probs":  # MCDropout, seeded by the names

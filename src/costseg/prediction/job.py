@@ -56,6 +56,7 @@ def plan(opts: PredictOptions) -> PredictPlan:
     )
     if any(r.priors_alpha for r in rules) and source.priors is None:
         raise ValueError("ml needs pixel-wise priors, and this source has none")
+    base = source.default_output("prediction", "predict")
     argmax = next((k for k, r in enumerate(rules) if _is_argmax(r)), None)
     if argmax is None:
         rules.append(Rule("argmax", None))
@@ -65,7 +66,7 @@ def plan(opts: PredictOptions) -> PredictPlan:
         device=device,
         source=source,
         rules=rules,
-        output_dir=claimed or claim_output_dir(None, False, _default_base(source)),
+        output_dir=claimed or claim_output_dir(None, False, base),
         priors=PriorMaps(source.priors, CLASS_NAMES, device),
     )
 
@@ -75,13 +76,6 @@ def _is_argmax(rule: Rule) -> bool:
         return False
     cost = rule.cost
     return cost is None or bool((cost == cost[0, 1] * (1 - torch.eye(len(cost)))).all())
-
-
-def _default_base(source: Source) -> Path:
-    if source.run_dir is not None:
-        return source.run_dir / "prediction"
-    name = str(next(iter(source.description.values()))).split(":")[-1].rstrip("/")
-    return Path("predict") / (Path(name).stem or "network")
 
 
 def decide_image(
