@@ -7,8 +7,8 @@ Every figure is timed in the same run (best of several repeats). Sections:
 1. one 1024 x 2048 image on the CPU: VainF's ResNet-101 DeepLabV3+ (random weights) with three
    rules, against reading the image's saved float16 probabilities (``--probs``) with the same
    rules;
-2. training throughput (images/s) of the default config ``configs/toy.yaml``; on a GPU also of
-   ``configs/cityscapes.yaml``'s network (crop 768, batch 8, bf16 autocast, channels-last).
+2. training throughput (images/s) of the default config (the packaged ``toy.yaml``); on a GPU
+   also of ``cityscapes.yaml``'s network (crop 768, batch 8, bf16 autocast, channels-last).
 
 The decision layer is timed by scripts/bench_decision.py, the evaluation pipeline by
 scripts/bench_pipeline.py.
@@ -25,7 +25,7 @@ import torch
 import yaml
 from bench_decision import best_time  # the same timer as the decision benchmark
 
-ROOT = Path(__file__).resolve().parents[1]
+from costseg import CONFIGS
 
 
 def bench_network_and_rules(steps: int = 2) -> None:
@@ -69,7 +69,7 @@ def bench_training(steps: int = 5) -> None:
     from costseg.data.datamodule import StreetScenesDataModule
     from costseg.training.module import SegmentationModule
 
-    config = yaml.safe_load((ROOT / "configs" / "toy.yaml").read_text())
+    config = yaml.safe_load((CONFIGS / "toy.yaml").read_text())
     module = SegmentationModule(**config["model"])
     data = StreetScenesDataModule(**{**config["data"]["init_args"], "num_workers": 0})
     images, labels = next(iter(_batches(data)))
@@ -88,7 +88,7 @@ def bench_training(steps: int = 5) -> None:
 def bench_training_cuda(steps: int = 10) -> None:
     from costseg.training.module import SegmentationModule
 
-    config = yaml.safe_load((ROOT / "configs" / "cityscapes.yaml").read_text())
+    config = yaml.safe_load((CONFIGS / "cityscapes.yaml").read_text())
     model, data = config["model"], config["data"]["init_args"]
     torch.backends.cudnn.benchmark = True
     module = SegmentationModule(**{**model, "backbone_weights": None}).cuda().train()

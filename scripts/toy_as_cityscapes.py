@@ -1,10 +1,10 @@
 """Write procedural street scenes in Cityscapes' folder layout and label-id encoding.
 
-A stand-in tree for running ``configs/cityscapes.yaml`` end to end (data loading at full
-resolution, augmentation, bf16 training, validation) on a machine without Cityscapes:
+A stand-in tree for running ``--config cityscapes`` end to end (data loading at full resolution,
+augmentation, bf16 training, validation) on a machine without Cityscapes:
 
     python scripts/toy_as_cityscapes.py /tmp/cityscapes --train 160 --val 16
-    python train.py --config configs/cityscapes.yaml --data.init_args.root /tmp/cityscapes
+    python train.py --config cityscapes --data.init_args.root /tmp/cityscapes
 
 Images go to ``leftImg8bit/<split>/toy/toy_000000_<index>_leftImg8bit.png`` and labels, as
 Cityscapes label ids (train id 255 becomes id 0, "unlabeled"), to

@@ -1,6 +1,6 @@
 """Statistics of the procedural street scenes: class frequencies, the RoI map, persons per RoI.
 
-Run ``python scripts/toy_stats.py`` (defaults: ``configs/toy.yaml``'s 128 x 256 scenes, priors
+Run ``python scripts/toy_stats.py`` (defaults: ``toy.yaml``'s 128 x 256 scenes, priors
 from the first 2000 training labels with the default smoothing, 100 validation scenes). Prints
 the pixel frequency of each class over the training labels next to Cityscapes', the share of
 each RoI in the RoI map and whether the sidewalk RoI (id 2) reaches both halves of the image,

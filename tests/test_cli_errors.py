@@ -8,6 +8,7 @@ from conftest import TINY_TRAIN
 from costseg.checkpoints import find_checkpoint
 from costseg.classes import CLASS_NAMES
 from costseg.cli import evaluate_main, train_main
+from costseg.costs import COSTS_DIR
 
 
 def _one_line(main, args, capsys, *needles):
@@ -38,7 +39,10 @@ def _target(text):
 
 EVALUATE_CASES = {
     "unknown cost": (["--cost", "selfish"], ["unknown cost 'selfish'", "ml"]),
-    "aggregate table as cost": (["--cost", "configs/costs/aggregates.yaml"], ["aggregates.yaml"]),
+    "aggregate table as cost": (
+        ["--cost", str(COSTS_DIR / "aggregates.yaml")],
+        ["aggregate table"],
+    ),
     "zero batch": (["--batch_size", "0"], ["--batch_size", ">= 1"]),
     "zero limit": (["--limit", "0"], ["--limit", ">= 1"]),
     "negative limit": (["--limit", "-3"], ["--limit", ">= 1"]),

@@ -12,13 +12,15 @@ import yaml
 from conftest import TINY_TRAIN
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
+from costseg import CONFIGS
+
 ROOT = Path(__file__).resolve().parents[1]
 EVERY = 3
 
 
 def _config(tmp_path: Path) -> Path:
-    """configs/toy.yaml with the periodic last.ckpt every EVERY steps."""
-    config = yaml.safe_load((ROOT / "configs" / "toy.yaml").read_text())
+    """The packaged toy.yaml with the periodic last.ckpt every EVERY steps."""
+    config = yaml.safe_load((CONFIGS / "toy.yaml").read_text())
     periodic = [
         c for c in config["trainer"]["callbacks"] if "every_n_train_steps" in c["init_args"]
     ]

@@ -21,9 +21,8 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
+from costseg import CONFIGS
 from costseg.options import EvalOptions, PredictOptions
-
-CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 
 
 def fail(message: str, join: bool = False) -> NoReturn:
@@ -60,14 +59,19 @@ def user_errors(*extra: type[BaseException]) -> Iterator[None]:
 
 
 def train_main(args: Sequence[str] | None = None) -> tuple[Any, Any]:
-    """``python train.py [--config configs/toy.yaml] [--trainer.max_steps 100] ...``.
+    """``python train.py [--config toy] [--trainer.max_steps 100] ...``.
 
     Returns:
         the trained module and its trainer (for scripts and tests).
     """
     args = list(sys.argv[1:] if args is None else args)
     if not any(a == "--config" or a.startswith("--config=") for a in args):
-        args = ["--config", str(CONFIG_DIR / "toy.yaml"), *args]
+        args = ["--config", "toy", *args]
+    for i, arg in enumerate(args):
+        if arg.startswith("--config="):
+            args[i] = f"--config={config_path(arg.split('=', 1)[1])}"
+        elif i and args[i - 1] == "--config":
+            args[i] = config_path(arg)
     if "-h" in args or "--help" in args:
         print_train_help(args)
         sys.exit(0)
@@ -83,6 +87,20 @@ def train_main(args: Sequence[str] | None = None) -> tuple[Any, Any]:
             return run_training(args)
 
 
+def config_path(value: str) -> str:
+    """A ``--config`` value as a file: an existing file as given, else a packaged config by name
+    (``toy``, ``cityscapes.yaml``, ``configs/toy.yaml``); anything else is left as it is.
+
+    >>> Path(config_path("toy")).name, config_path("configs/none.yaml")
+    ('toy.yaml', 'configs/none.yaml')
+    """
+    path = Path(value)
+    if path.is_file() or path.parent.as_posix() not in (".", "configs"):
+        return value
+    packaged = CONFIGS / (path.name if path.suffix in (".yaml", ".yml") else f"{path.name}.yaml")
+    return str(packaged) if packaged.is_file() else value
+
+
 def print_train_help(args: Sequence[str]) -> None:
     """A fast ``train.py --help``: usage and every key of the chosen config with its value.
 
@@ -96,11 +114,11 @@ def print_train_help(args: Sequence[str]) -> None:
         else next(a.split("=", 1)[1] for a in args if a.startswith("--config="))
     )
     print(
-        "usage: train.py [--config FILE] [--KEY VALUE ...] [--ckpt_path PATH|last] "
+        "usage: train.py [--config FILE|toy|cityscapes] [--KEY VALUE ...] [--ckpt_path PATH|last] "
         "[--print_config] [--help_all]\n\n"
         "Train DeepLabv3+ with LightningCLI. Every key of the config can be overridden, e.g.\n"
         "  python train.py --trainer.max_steps 3000 --model.backbone resnet34\n"
-        "  python train.py --config configs/cityscapes.yaml --data.init_args.root DIR\n"
+        "  python train.py --config cityscapes --data.init_args.root DIR\n"
         "  python train.py --ckpt_path last        # resume the newest runs/**/last.ckpt\n"
         "--help_all lists every option of the trainer, model and data classes.\n\n"
         f"Keys of {path} and their values:"

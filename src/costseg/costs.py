@@ -14,13 +14,18 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import torch
 import yaml
 
+from costseg import CONFIGS
 from costseg.classes import CLASS_NAMES
 
-COSTS_DIR = Path(__file__).resolve().parents[2] / "configs" / "costs"
+if TYPE_CHECKING:
+    from importlib.resources.abc import Traversable
+
+COSTS_DIR = CONFIGS / "costs"
 PRESETS = ("robotistic", "altruistic", "egoistic")
 
 
@@ -73,7 +78,7 @@ def validate_cost(cost: torch.Tensor, class_names: Sequence[str] = CLASS_NAMES) 
 def load_cost(name_or_path: str | Path, class_names: Sequence[str] = CLASS_NAMES) -> torch.Tensor:
     """Load a preset (``robotistic``, ``altruistic``, ``egoistic``) or a YAML cost file.
 
-    Three YAML formats (see ``configs/costs/``):
+    Three YAML formats (see the presets in ``src/costseg/configs/costs/``):
 
     * ``off_diagonal: λ`` — the symmetric matrix with every off-diagonal entry λ;
     * ``classes: [...]`` + ``matrix: N×N`` — a full matrix over named classes (any order);
@@ -90,14 +95,14 @@ def load_cost(name_or_path: str | Path, class_names: Sequence[str] = CLASS_NAMES
     >>> load_cost("robotistic").sum().item()    # 19 * 18 ones
     342.0
     """
-    path = Path(name_or_path)
+    path, folder = Path(name_or_path), Path(name_or_path).parent
     if path.suffix not in (".yaml", ".yml"):
         if str(name_or_path) not in PRESETS:
             raise ValueError(
                 f"unknown cost {str(name_or_path)!r}: expected one of {', '.join(PRESETS)} "
                 "or a path to a .yaml file"
             )
-        path = COSTS_DIR / f"{name_or_path}.yaml"
+        path, folder = COSTS_DIR / f"{name_or_path}.yaml", COSTS_DIR
     spec = _read_yaml(path)
     if "off_diagonal" in spec:
         cost = float(spec["off_diagonal"]) * symmetric_cost(len(class_names))
@@ -106,9 +111,9 @@ def load_cost(name_or_path: str | Path, class_names: Sequence[str] = CLASS_NAMES
             raise ValueError(
                 f"{path} is an aggregate table (which class is in which aggregate), not a cost "
                 "matrix: a cost file names it under 'aggregates' with 'order' and 'matrix' "
-                "(see configs/costs/egoistic.yaml)"
+                "(see the preset costseg/configs/costs/egoistic.yaml)"
             )
-        cost = _expand_aggregates(spec, path.parent, class_names)
+        cost = _expand_aggregates(spec, folder, class_names)
     elif "classes" in spec:
         cost = _full_matrix(spec, class_names)
     else:
@@ -125,7 +130,7 @@ def save_cost(
     Path(path).write_text(yaml.safe_dump(spec, sort_keys=False, width=1000))
 
 
-def _read_yaml(path: Path) -> dict:
+def _read_yaml(path: Path | Traversable) -> dict:
     if not path.is_file():
         raise FileNotFoundError(f"cost file not found: {path}")
     try:
@@ -172,7 +177,9 @@ def _full_matrix(spec: dict, class_names: Sequence[str]) -> torch.Tensor:
     return cost
 
 
-def _expand_aggregates(spec: dict, folder: Path, class_names: Sequence[str]) -> torch.Tensor:
+def _expand_aggregates(
+    spec: dict, folder: Path | Traversable, class_names: Sequence[str]
+) -> torch.Tensor:
     table = spec["aggregates"]
     if isinstance(table, str):
         table = _read_yaml(folder / table)
