@@ -7,7 +7,7 @@ from pathlib import Path
 SRC = Path(__file__).resolve().parents[1] / "src" / "costseg"
 # Packages (and top-level modules), lower layers first; each may import its own layer or lower.
 CHAIN = [
-    {"classes", "checkpoints", "options", "progress", "threads"},
+    {"atomic", "classes", "checkpoints", "options", "progress", "threads"},
     {"costs"},
     {"decision"},
     {"rules", "calibration"},

@@ -17,8 +17,6 @@ from __future__ import annotations
 
 import itertools
 import json
-import os
-import tempfile
 from collections.abc import Iterable, Mapping, Sequence, Sized
 from pathlib import Path
 from typing import Any
@@ -28,6 +26,7 @@ import torch.nn.functional as F
 from scipy.ndimage import gaussian_filter
 from torch import Tensor
 
+from costseg.atomic import AtomicFile
 from costseg.classes import CLASS_NAMES, IGNORE_INDEX, NUM_CLASSES, ROI_CLASSES, class_indices
 from costseg.progress import progress as progress_of
 
@@ -204,17 +203,14 @@ def save_priors(
 
     ``settings`` (JSON-like: how the priors were made) are stored for :func:`cached_priors`.
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     payload = {
         "format": _FORMAT,
         "class_names": list(class_names),
         "priors": pi.float().cpu(),
         "settings": None if settings is None else normalise_settings(settings),
     }
-    with tempfile.NamedTemporaryFile(dir=path.parent, suffix=".tmp", delete=False) as tmp:
+    with AtomicFile(path) as tmp:
         torch.save(payload, tmp)
-    os.replace(tmp.name, path)
 
 
 def load_priors(path: str | Path, class_names: Sequence[str] = CLASS_NAMES) -> Tensor:

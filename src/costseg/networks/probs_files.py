@@ -10,7 +10,6 @@ written by ``numpy.savez(path, probs=array)``, a ``.pt`` file by
 
 from __future__ import annotations
 
-import os
 import zipfile
 from pathlib import Path
 
@@ -18,6 +17,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from costseg.atomic import AtomicFile
 from costseg.classes import NUM_CLASSES
 from costseg.networks.base import read_torch_file
 
@@ -55,17 +55,11 @@ def save_probs(path: str | Path, probs: Tensor, compress: bool = False) -> Path:
             f"expected (N, H, W) floating probabilities; got {tuple(probs.shape)} {dtype}"
         )
     half = probs.detach().to("cpu", torch.float16)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "wb") as f:
-            if path.suffix == ".pt":
-                torch.save({"probs": half}, f)
-            else:
-                (np.savez_compressed if compress else np.savez)(f, probs=half.numpy())
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    with AtomicFile(path) as tmp, open(tmp, "wb") as f:
+        if path.suffix == ".pt":
+            torch.save({"probs": half}, f)
+        else:  # a file object: numpy would add ".npz" to a name
+            (np.savez_compressed if compress else np.savez)(f, probs=half.numpy())
     return path
 
 

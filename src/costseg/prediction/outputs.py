@@ -6,33 +6,20 @@
 
 from __future__ import annotations
 
-import io
-import os
 from collections.abc import Iterator, Sequence
 from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
 import torch
-from PIL import Image
 
 from costseg.classes import CLASS_NAMES, ROI_NAMES, TRAIN_ID_TO_LABEL_ID, colorize
 from costseg.prediction.counts import label_counts
 from costseg.prediction.panels import overlay, panel
 from costseg.prediction.video import VideoWriter
-from costseg.report.files import write_csv, write_json
+from costseg.report.files import write_csv, write_json, write_png
 
 COUNT_COLUMNS = ("image", "rule", "class", "roi", "pixels", "segments")
-
-
-def write_png(path: Path, array: np.ndarray) -> None:
-    """An (H, W) or (H, W, 3) uint8 array as PNG, via a temporary file and a rename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    buffer = io.BytesIO()
-    Image.fromarray(array).save(buffer, format="PNG", compress_level=1)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_bytes(buffer.getvalue())
-    os.replace(tmp, path)
 
 
 class PredictionWriter:

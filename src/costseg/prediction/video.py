@@ -7,11 +7,12 @@ leaves no video that looks finished.
 from __future__ import annotations
 
 import contextlib
-import os
 from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
+
+from costseg.atomic import AtomicFile
 
 CODECS = ("libx264", "h264", "mpeg4")
 
@@ -26,14 +27,15 @@ class VideoWriter:
 
     def __init__(self, path: Path, rate: Fraction) -> None:
         self.path, self.rate = path, rate
-        self.tmp = path.with_name(f".{path.stem}.partial{path.suffix}")
+        self.file: AtomicFile | None = None
         self.container = self.stream = None
         self.count = 0
 
     def _open(self, height: int, width: int) -> None:
         import av
 
-        self.container = av.open(str(self.tmp), "w")
+        self.file = AtomicFile(self.path)
+        self.container = av.open(str(self.file.tmp), "w")
         codec = next(c for c in CODECS if c in av.codecs_available)
         self.stream = self.container.add_stream(codec, rate=self.rate)
         self.stream.width, self.stream.height = width, height
@@ -63,7 +65,7 @@ class VideoWriter:
         self.container.mux(self.stream.encode(None))
         self.container.close()
         self.container = None
-        os.replace(self.tmp, self.path)
+        self.file.commit()
 
     def abandon(self) -> None:
         """Drop an unfinished file."""
@@ -71,4 +73,5 @@ class VideoWriter:
             with contextlib.suppress(Exception):  # the file is removed either way
                 self.container.close()
             self.container = None
-        self.tmp.unlink(missing_ok=True)
+        if self.file is not None:
+            self.file.discard()

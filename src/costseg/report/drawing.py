@@ -113,7 +113,7 @@ class Drawing:
 def _draw(batch: Batch, folder: Path) -> Drawn:
     import matplotlib
 
-    from costseg.report.files import png_bytes, render, write_bytes
+    from costseg.report.files import render, write_png
 
     drawn = []
     # A fixed title height: matplotlib's default measures every tick label at each draw to
@@ -121,7 +121,7 @@ def _draw(batch: Batch, folder: Path) -> Drawn:
     with matplotlib.rc_context({"axes.titley": 1.0}):
         for tag, fig in batch:
             image = render(fig)
-            write_bytes(_path(folder, tag), png_bytes(image))
+            write_png(_path(folder, tag), image)
             drawn.append((tag, image.shape))
     return drawn
 

@@ -1,9 +1,5 @@
-"""Atomic writers for result files: text, JSON, CSV and figures.
-
-Every writer creates the parent folders, writes to a temporary file in the destination folder
-and renames it over the destination (``os.replace``), so a reader never sees a half-written
-file, even if the process is killed mid-write.
-"""
+"""Result files: text, JSON, CSV and figures, each written atomically by
+:func:`costseg.atomic.write_bytes` (parent folders created, never a half-written file)."""
 
 from __future__ import annotations
 
@@ -12,7 +8,6 @@ import io
 import json
 import math
 import os
-import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -20,34 +15,21 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
+from costseg.atomic import write_bytes
+
 if TYPE_CHECKING:  # matplotlib is imported where a figure is drawn, not with the writers
     from matplotlib.figure import Figure
-
-
-def _atomic_write(path: str | os.PathLike, data: bytes) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with open(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
 
 
 def write_text(path: str | os.PathLike, text: str) -> Path:
     """Write ``text`` (UTF-8) to ``path`` atomically and return the path.
 
+    >>> import tempfile
     >>> with tempfile.TemporaryDirectory() as d:
     ...     write_text(Path(d) / "a" / "b.txt", "hi").read_text()
     'hi'
     """
-    return _atomic_write(path, text.encode("utf-8"))
+    return write_bytes(path, text.encode("utf-8"))
 
 
 def to_jsonable(obj: Any) -> Any:
@@ -82,6 +64,7 @@ def to_jsonable(obj: Any) -> Any:
 def write_json(path: str | os.PathLike, obj: Any) -> Path:
     """Write ``obj`` as strict JSON (indent 2) atomically; NaN/inf are written as ``null``.
 
+    >>> import tempfile
     >>> with tempfile.TemporaryDirectory() as d:
     ...     write_json(Path(d) / "r.json", {"recall": float("nan")}).read_text()
     '{\\n  "recall": null\\n}\\n'
@@ -100,6 +83,7 @@ def write_csv(
         rows: one dict per line.
         columns: column order; default: every key in order of first appearance.
 
+    >>> import tempfile
     >>> with tempfile.TemporaryDirectory() as d:
     ...     write_csv(Path(d) / "r.csv", [{"a": 1, "b": float("nan")}, {"a": 2}]).read_text()
     'a,b\\n1,nan\\n2,\\n'
@@ -128,6 +112,7 @@ def save_figure(fig: Figure, path: str | os.PathLike, dpi: float = 100) -> Path:
     The image is ``figsize * dpi`` pixels (no tight bounding box), and the figure stays open.
 
     >>> from matplotlib.figure import Figure
+    >>> import tempfile
     >>> with tempfile.TemporaryDirectory() as d:
     ...     save_figure(Figure(figsize=(2, 1)), Path(d) / "f.png", dpi=10).read_bytes()[:4]
     b'\\x89PNG'
@@ -136,7 +121,7 @@ def save_figure(fig: Figure, path: str | os.PathLike, dpi: float = 100) -> Path:
     buffer = io.BytesIO()
     # Render before opening the temp file so a drawing error leaves nothing behind.
     fig.savefig(buffer, format=fmt, dpi=dpi)
-    return _atomic_write(path, buffer.getvalue())
+    return write_bytes(path, buffer.getvalue())
 
 
 def render(fig: Figure, dpi: float = 100) -> np.ndarray:
@@ -179,11 +164,10 @@ def redraw_only(fig: Figure, changing: Sequence) -> Figure:
 
 
 def png_bytes(image: np.ndarray) -> bytes:
-    """An (H, W, 3) uint8 array as PNG (fast compression: figures are mostly flat colour).
+    """An (H, W) or (H, W, 3) uint8 array as PNG (fast compression: label maps and figures are
+    mostly flat colour).
 
-    >>> png = png_bytes(np.zeros((2, 3, 3), np.uint8))
-    >>> with tempfile.TemporaryDirectory() as d:
-    ...     write_bytes(Path(d) / "a.png", png).read_bytes()[:4]
+    >>> png_bytes(np.zeros((2, 3, 3), np.uint8))[:4]
     b'\\x89PNG'
     """
     from PIL import Image
@@ -193,6 +177,12 @@ def png_bytes(image: np.ndarray) -> bytes:
     return buffer.getvalue()
 
 
-def write_bytes(path: str | os.PathLike, data: bytes) -> Path:
-    """Write ``data`` to ``path`` atomically and return the path."""
-    return _atomic_write(path, data)
+def write_png(path: str | os.PathLike, image: np.ndarray) -> Path:
+    """Write an (H, W) or (H, W, 3) uint8 array as a PNG file atomically; return the path.
+
+    >>> import tempfile
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     write_png(Path(d) / "a.png", np.zeros((2, 3), np.uint8)).read_bytes()[:4]
+    b'\\x89PNG'
+    """
+    return write_bytes(path, png_bytes(image))

@@ -8,14 +8,13 @@ says ``--overwrite``. A claimed folder holds the marker file ``INCOMPLETE`` unti
 
 from __future__ import annotations
 
-import os
 import tempfile
 from pathlib import Path
 
 import torch
-from PIL import Image
 
 from costseg.classes import TRAIN_ID_TO_LABEL_ID
+from costseg.report.files import write_png, write_text
 
 INCOMPLETE = "INCOMPLETE"
 _MARKER_TEXT = (
@@ -48,7 +47,7 @@ def claim_output_dir(output_dir: str | None, overwrite: bool, default_base: Path
             "or choose another folder"
         )
     _make_writable(out)
-    (out / INCOMPLETE).write_text(_MARKER_TEXT)
+    write_text(out / INCOMPLETE, _MARKER_TEXT)
     return out
 
 
@@ -102,11 +101,8 @@ class BatchWriter:
             return
         for k, name in enumerate(self.rule_names):
             folder = self.output_dir / "predictions" / name
-            folder.mkdir(parents=True, exist_ok=True)
             for stem, pred in zip(stems, preds[:, k].cpu().numpy(), strict=True):
-                tmp = folder / f".{stem}.png.tmp"
-                Image.fromarray(TRAIN_ID_TO_LABEL_ID[pred]).save(tmp, format="PNG")
-                os.replace(tmp, folder / f"{stem}.png")
+                write_png(folder / f"{stem}.png", TRAIN_ID_TO_LABEL_ID[pred])
 
     def save_probs(self, stems: list[str], probs: torch.Tensor) -> None:
         """(B, N, H, W) probabilities → ``probs/<image>.npz`` (float16, docs/definitions.md §8)."""
