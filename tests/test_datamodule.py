@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
 import torch
 from conftest import CITYSCAPES_SIZE
+from torch.utils.data import Dataset
 
 from costseg.classes import CLASS_NAMES
 from costseg.data.cityscapes import CityscapesSegmentation
@@ -24,7 +26,6 @@ def _check_batch(batch: list[torch.Tensor], n: int, size: tuple[int, int]) -> No
 
 @pytest.fixture(scope="module")
 def toy() -> StreetScenesDataModule:
-    pytest.importorskip("costseg.data.toy.dataset")
     return StreetScenesDataModule(
         batch_size=2, num_workers=0, size=SIZE, train_length=5, val_length=3, test_length=2,
         prior_images=4,
@@ -68,13 +69,47 @@ def test_toy_prior_labels(toy: StreetScenesDataModule) -> None:
     assert len(everything.prior_labels()) == 3
 
 
-def test_loader_settings(toy: StreetScenesDataModule) -> None:
-    train, val = toy.train_dataloader(), toy.val_dataloader()
-    assert train.drop_last and not val.drop_last
-    assert not train.persistent_workers and train.pin_memory == torch.cuda.is_available()
-    workers = StreetScenesDataModule(batch_size=2, num_workers=2, size=SIZE, train_length=4)
-    assert workers.train_dataloader().persistent_workers
-    assert workers.val_dataloader().num_workers == 2
+class _Pids(Dataset):
+    """``length`` items (the id of the process that read it, the index): who loads what."""
+
+    def __init__(self, length: int) -> None:
+        self.length = length
+
+    def __len__(self) -> int:
+        return self.length
+
+    def __getitem__(self, index: int) -> tuple[torch.Tensor, torch.Tensor]:
+        return torch.tensor(os.getpid()), torch.tensor(index)
+
+
+def _epoch(loader) -> tuple[set[int], list[list[int]], list[bool]]:
+    """The reading processes, the batches' indices, and whether each batch was pinned."""
+    batches = list(loader)
+    return (
+        {pid for pids, _ in batches for pid in pids.tolist()},
+        [indices.tolist() for _, indices in batches],
+        [pids.is_pinned() for pids, _ in batches],
+    )
+
+
+@pytest.mark.parametrize("workers", [0, 2])
+def test_loader_settings(monkeypatch, workers: int) -> None:
+    """Training drops the last partial batch and shuffles; evaluation keeps every item in
+    order; worker processes read the items and survive the epoch; pinned only with CUDA."""
+    data = StreetScenesDataModule(batch_size=2, num_workers=workers, size=SIZE, train_length=5)
+    monkeypatch.setattr(data, "make_dataset", lambda split, augment: _Pids(5))
+    readers, train, pinned = _epoch(shuffled := data.train_dataloader())
+    assert [len(b) for b in train] == [2, 2] and len({i for b in train for i in b}) == 4
+    assert set(pinned) == {torch.cuda.is_available()}
+    readers_val, val, _ = _epoch(loader := data.val_dataloader())
+    assert val == [[0, 1], [2, 3], [4]]
+    orders = {tuple(i for b in _epoch(shuffled)[1] for i in b) for _ in range(4)}
+    assert len(orders) > 1  # shuffled: 4 equal epochs have a chance of 1 in 120³
+    if workers == 0:
+        assert readers == readers_val == {os.getpid()}
+        return
+    assert os.getpid() not in readers | readers_val and len(readers_val) == workers
+    assert _epoch(loader)[0] == readers_val  # the same processes: persistent workers
 
 
 def test_bad_arguments() -> None:

@@ -20,6 +20,7 @@ from costseg.data.priors import (
     save_priors,
 )
 from costseg.data.priors_cache import cached_priors
+from costseg.data.toy import StreetScenes
 
 
 def _brute_force(labels: list[torch.Tensor], n: int, eps: float) -> torch.Tensor:
@@ -130,8 +131,7 @@ def test_roi_map_on_hand_made_priors() -> None:
 
 
 def test_roi_map_on_toy_priors() -> None:
-    toy = pytest.importorskip("costseg.data.toy.dataset")
-    scenes = toy.StreetScenes(split="train", length=100, size=(64, 128), seed=0)
+    scenes = StreetScenes(split="train", length=100, size=(64, 128), seed=0)
     # Unsmoothed counts: with the default σ = 5 px the thinner left sidewalk loses to road.
     roi = roi_map(pixel_priors((label for _, label in scenes), sigma=0, progress=False))
     h, w = roi.shape
