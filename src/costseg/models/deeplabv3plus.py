@@ -26,7 +26,8 @@ from costseg.models.resnet import ResNetTrunk
 
 __all__ = ["BACKBONES", "DeepLabV3Plus", "DeepLabV3PlusDecoder", "load_backbone_weights"]
 
-ATROUS_RATES: dict[int, tuple[int, int, int]] = {16: (6, 12, 18), 8: (12, 24, 36)}
+# DeepLabv3+'s rates at output stride 16 and 8; at 32 (no dilated stage) half of 16's.
+ATROUS_RATES: dict[int, tuple[int, int, int]] = {32: (3, 6, 9), 16: (6, 12, 18), 8: (12, 24, 36)}
 LOW_LEVEL_CHANNELS = 48  # the paper's projection width for the stride-4 features
 _HEAD_PREFIXES = ("fc.", "classifier.")  # classification heads that the backbone drops
 
@@ -57,10 +58,10 @@ def _mobilenet_v3_large(output_stride: int) -> nn.Module:
 
 
 _SPECS: dict[str, _BackboneSpec] = {
-    "resnet18": _BackboneSpec(_resnet("resnet18"), 64, 512, (8, 16)),
-    "resnet34": _BackboneSpec(_resnet("resnet34"), 64, 512, (8, 16)),
-    "resnet50": _BackboneSpec(_resnet("resnet50"), 256, 2048, (8, 16)),
-    "resnet101": _BackboneSpec(_resnet("resnet101"), 256, 2048, (8, 16)),
+    "resnet18": _BackboneSpec(_resnet("resnet18"), 64, 512, (8, 16, 32)),
+    "resnet34": _BackboneSpec(_resnet("resnet34"), 64, 512, (8, 16, 32)),
+    "resnet50": _BackboneSpec(_resnet("resnet50"), 256, 2048, (8, 16, 32)),
+    "resnet101": _BackboneSpec(_resnet("resnet101"), 256, 2048, (8, 16, 32)),
     "mobilenet_v3_large": _BackboneSpec(_mobilenet_v3_large, 24, 960, (16,)),
 }
 BACKBONES: tuple[str, ...] = tuple(_SPECS)
@@ -111,7 +112,7 @@ class DeepLabV3Plus(nn.Module):
     Args:
         num_classes: number of output channels (logits).
         backbone: one of `BACKBONES`.
-        output_stride: 16 or 8 (ResNets), 16 (mobilenet_v3_large); ASPP rates follow it.
+        output_stride: 32, 16 or 8 (ResNets), 16 (mobilenet_v3_large); ASPP rates follow it.
         backbone_weights: optional path to a torchvision classification state dict for the
             backbone (its ``fc.*`` / ``classifier.*`` head is ignored); nothing is downloaded.
             The ResNets are costseg's own (`costseg.models.resnet`) under torchvision's names.

@@ -102,7 +102,7 @@ class ResNetTrunk(nn.Module):
 
     Args:
         name: one of `RESNETS`.
-        output_stride: 16 or 8, the stride of the ``"out"`` features.
+        output_stride: 32 (no dilation), 16 or 8, the stride of the ``"out"`` features.
 
     Raises:
         ValueError: unknown ``name`` or unsupported ``output_stride``.
@@ -116,8 +116,8 @@ class ResNetTrunk(nn.Module):
     def __init__(self, name: str, output_stride: int = 16) -> None:
         if name not in RESNETS:
             raise ValueError(f"name must be one of {', '.join(RESNETS)}; got {name!r}")
-        if output_stride not in (8, 16):
-            raise ValueError(f"output_stride must be 8 or 16; got {output_stride!r}")
+        if output_stride not in (8, 16, 32):
+            raise ValueError(f"output_stride must be 8, 16 or 32; got {output_stride!r}")
         super().__init__()
         block, depths = RESNETS[name]
         self.conv1 = nn.Conv2d(3, 64, 7, stride=2, padding=3, bias=False)
@@ -125,7 +125,7 @@ class ResNetTrunk(nn.Module):
         self.relu = nn.ReLU(inplace=True)
         self.maxpool = nn.MaxPool2d(kernel_size=3, stride=2, padding=1)
         in_channels, dilation = 64, 1
-        dilate = (False, False, output_stride == 8, True)
+        dilate = (False, False, output_stride == 8, output_stride <= 16)
         for i, (planes, blocks) in enumerate(zip((64, 128, 256, 512), depths, strict=True)):
             stride, previous = (2 if i else 1), dilation
             if dilate[i]:
