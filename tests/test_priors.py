@@ -13,8 +13,8 @@ from scipy.ndimage import gaussian_filter
 from costseg.classes import CLASS_NAMES, ROI_NAMES, class_index
 from costseg.data.priors import (
     default_sigma,
-    load_priors,
     pixel_priors,
+    read_priors_file,
     resize_priors,
     roi_map,
     save_priors,
@@ -147,19 +147,19 @@ def test_save_and_load(tmp_path: Path) -> None:
     pi = pixel_priors(_random_labels(3, (4, 6), 19, seed=4), progress=False)
     path = tmp_path / "ckpt" / "priors.pt"
     save_priors(path, pi)
-    assert torch.equal(load_priors(path), pi)
+    assert torch.equal(read_priors_file(path, CLASS_NAMES)["priors"], pi)
     assert [p.name for p in path.parent.iterdir()] == ["priors.pt"]  # no temp file left
     with pytest.raises(FileNotFoundError, match=r"missing\.pt"):
-        load_priors(tmp_path / "missing.pt")
+        read_priors_file(tmp_path / "missing.pt", CLASS_NAMES)
     (tmp_path / "junk.pt").write_bytes(b"junk")
     with pytest.raises(ValueError, match=r"junk\.pt"):
-        load_priors(tmp_path / "junk.pt")
+        read_priors_file(tmp_path / "junk.pt", CLASS_NAMES)
     torch.save({"priors": pi}, tmp_path / "other.pt")
     with pytest.raises(ValueError, match="not a pixel-priors file"):
-        load_priors(tmp_path / "other.pt")
+        read_priors_file(tmp_path / "other.pt", CLASS_NAMES)
     renamed = ("street", *CLASS_NAMES[1:])
     with pytest.raises(ValueError, match="expected"):
-        load_priors(path, class_names=renamed)
+        read_priors_file(path, renamed)
 
 
 def _counts(labels: list[torch.Tensor], n: int) -> np.ndarray:
@@ -231,7 +231,7 @@ def test_cached_priors_reused_and_recomputed(tmp_path: Path) -> None:
     first = cached_priors(factory, cache, settings, progress=False)
     assert (first.reused, first.num_labels, first.sigma, len(calls)) == (False, 3, 1.25, 1)
     torch.testing.assert_close(first.priors, pixel_priors(labels, progress=False))
-    assert torch.equal(load_priors(cache), first.priors)
+    assert torch.equal(read_priors_file(cache, CLASS_NAMES)["priors"], first.priors)
     # Same settings (a tuple read back as a list, a path as its string): reused, no labels read.
     same = {**settings, "size": [16, 8], "root": str(tmp_path / "data")}
     again = cached_priors(factory, cache, same, progress=False)
@@ -247,4 +247,4 @@ def test_cached_priors_reused_and_recomputed(tmp_path: Path) -> None:
     # A file that is no priors file is replaced, not an error.
     cache.write_bytes(b"junk")
     assert not cached_priors(factory, cache, settings, progress=False).reused
-    assert torch.equal(load_priors(cache), first.priors)
+    assert torch.equal(read_priors_file(cache, CLASS_NAMES)["priors"], first.priors)

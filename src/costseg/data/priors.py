@@ -27,6 +27,7 @@ from scipy.ndimage import gaussian_filter
 from torch import Tensor
 
 from costseg.atomic import AtomicFile
+from costseg.checkpoints import read_torch_file
 from costseg.classes import CLASS_NAMES, IGNORE_INDEX, NUM_CLASSES, ROI_CLASSES, class_indices
 from costseg.progress import progress as progress_of
 
@@ -213,28 +214,18 @@ def save_priors(
         torch.save(payload, tmp)
 
 
-def load_priors(path: str | Path, class_names: Sequence[str] = CLASS_NAMES) -> Tensor:
-    """Read priors written by :func:`save_priors`, checking they belong to ``class_names``.
-
-    Returns:
-        (N, H, W) float32 priors.
+def read_priors_file(path: str | Path, class_names: Sequence[str]) -> dict[str, Any]:
+    """The checked payload of a file written by :func:`save_priors`: ``"priors"`` (N, H, W)
+    float32, ``"class_names"``, ``"settings"``.
 
     Raises:
         FileNotFoundError: No file at ``path``.
         ValueError: The file is not a priors file, or its classes differ from ``class_names``.
     """
-    return read_priors_file(path, class_names)["priors"]
-
-
-def read_priors_file(path: str | Path, class_names: Sequence[str]) -> dict[str, Any]:
-    """The checked payload of a priors file (see :func:`load_priors` for the errors)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"priors file '{path}' does not exist; create it with save_priors")
-    try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as err:  # torch.load raises many types for a foreign or truncated file
-        raise ValueError(f"cannot read priors file '{path}': {type(err).__name__}") from None
+    payload = read_torch_file(path)
     if not isinstance(payload, dict) or payload.get("format") != _FORMAT:
         raise ValueError(f"'{path}' is not a pixel-priors file written by save_priors")
     if list(payload["class_names"]) != list(class_names):

@@ -23,8 +23,7 @@ from typing import Any
 
 import torch
 
-from costseg.classes import CLASS_NAMES, NUM_CLASSES
-from costseg.networks.base import IMAGENET_MEAN, IMAGENET_STD, ImageNetwork, read_torch_file
+from costseg.networks.base import IMAGENET_MEAN, IMAGENET_STD, ImageNetwork
 from costseg.networks.costseg import CostsegCheckpoint, load_costseg_checkpoint
 from costseg.networks.hf import load_hf
 from costseg.networks.vainf import VAINF_DEPTHS, export_vainf_state, load_vainf
@@ -40,7 +39,6 @@ __all__ = [
     "load_hf",
     "load_network",
     "load_vainf",
-    "read_torch_file",
 ]
 
 PREFIXES = ("costseg", "vainf", "hf", "segformer")
@@ -70,14 +68,7 @@ def load_network(spec: str, device: str | torch.device = "cpu") -> ImageNetwork:
     """
     prefix, location, options = _parse_spec(spec)
     if prefix == "costseg":
-        checkpoint = load_costseg_checkpoint(location)
-        if checkpoint.class_names != CLASS_NAMES:
-            raise ValueError(
-                f"{location} was trained on {len(checkpoint.class_names)} classes "
-                f"({', '.join(checkpoint.class_names[:3])}, ...), not the {NUM_CLASSES} "
-                "Cityscapes train classes"
-            )
-        net = checkpoint.network
+        net = load_costseg_checkpoint(location).network
     elif prefix == "vainf":
         net = load_vainf(location, **options)
     else:

@@ -1,17 +1,14 @@
-"""What every network source shares: the uint8-image wrapper and safe checkpoint reading."""
+"""What every network source shares: the uint8-image wrapper and the check of loaded weights."""
 
 from __future__ import annotations
 
-import pickle
-from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 from torch import Tensor, nn
 from torch.nn import functional as F
 
-__all__ = ["IMAGENET_MEAN", "IMAGENET_STD", "ImageNetwork", "check_state_keys", "read_torch_file"]
+__all__ = ["IMAGENET_MEAN", "IMAGENET_STD", "ImageNetwork", "check_state_keys"]
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
@@ -84,55 +81,3 @@ def check_state_keys(expected: dict[str, Tensor], state: dict[str, Any], what: s
             raise ValueError(
                 f"{what}: {key} has shape {tuple(got or ())}, expected {tuple(value.shape)}"
             )
-
-
-def _numpy_scalar_globals() -> list[Any]:
-    """What a pickled numpy scalar needs (VainF stores ``best_score`` as one), under the module
-    names of numpy 2 and of numpy 1 (which wrote most published checkpoints)."""
-    core = getattr(np, "_core", None) or np.core
-    scalar = core.multiarray.scalar
-    dtypes = {type(np.dtype(code)) for code in "?bhilqBHILQefdg"}
-    return [
-        np.dtype,
-        *dtypes,
-        (scalar, "numpy.core.multiarray.scalar"),
-        (scalar, "numpy._core.multiarray.scalar"),
-    ]
-
-
-def read_torch_file(path: str | Path, mmap: bool = False) -> Any:
-    """``torch.load`` of weights and plain data only (``weights_only=True``), on the CPU.
-
-    Numpy scalars are allowed too; ``mmap`` suits large zip-format files (not legacy ones).
-
-    Raises:
-        FileNotFoundError: no such file.
-        ValueError: unreadable, or holds other objects (one line naming the file).
-
-    >>> read_torch_file("no/such.pth")
-    Traceback (most recent call last):
-    ...
-    FileNotFoundError: file not found: no/such.pth
-    """
-    if not Path(path).is_file():
-        raise FileNotFoundError(f"file not found: {path}")
-    allow = getattr(torch.serialization, "safe_globals", None)  # torch >= 2.5
-    try:
-        if allow is None:
-            return torch.load(path, map_location="cpu", weights_only=True, mmap=mmap)
-        with allow(_numpy_scalar_globals()):
-            return torch.load(path, map_location="cpu", weights_only=True, mmap=mmap)
-    except pickle.UnpicklingError as err:
-        # torch's message spans many lines and suggests weights_only=False: keep the cause.
-        lines = str(err).partition("WeightsUnpickler error:")[2].strip().splitlines()
-        cause = (lines or ["unreadable pickle"])[0].split(" was not an allowed global")[0]
-        if "global" not in cause.lower() and "got <class" not in cause:
-            raise ValueError(f"{path} is not a readable torch file: {cause}") from None
-        raise ValueError(
-            f"{path} holds objects other than weights and plain data ({cause})"
-        ) from None
-    except Exception as err:  # torch raises several types for a truncated or foreign file
-        if mmap and "mmap can only be used" in str(err):  # a legacy or non-torch file
-            return read_torch_file(path, mmap=False)
-        first = (str(err).strip().splitlines() or [type(err).__name__])[0]
-        raise ValueError(f"{path} is not a readable torch file: {first}") from None

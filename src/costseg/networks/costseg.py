@@ -2,20 +2,23 @@
 
 A Lightning checkpoint of `costseg.training.module.SegmentationModule` holds only tensors and
 plain data (hyper-parameters are a dict of strings and numbers), so
-``torch.load(weights_only=True)`` reads it, and the network is rebuilt from ``hyper_parameters``
-and the ``net.*`` weights.
+:func:`costseg.checkpoints.read_checkpoint` reads it with ``weights_only=True``, and the network
+is rebuilt from ``hyper_parameters`` and the ``net.*`` weights.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from torch import Tensor
 
+from costseg.checkpoints import CHECKPOINT_KEY, read_checkpoint
+from costseg.classes import CLASS_NAMES
 from costseg.models.deeplabv3plus import DeepLabV3Plus
-from costseg.networks.base import ImageNetwork, check_state_keys, read_torch_file
+from costseg.networks.base import ImageNetwork, check_state_keys
 
 __all__ = ["CostsegCheckpoint", "load_costseg_checkpoint"]
 
@@ -30,7 +33,7 @@ class CostsegCheckpoint:
         data_config: ``{"class_path": ..., "init_args": {...}}`` of the training data, or None.
         class_names: the N classes, in output order.
         hparams: the LightningModule's hyper-parameters.
-        extra: everything the module stored under the checkpoint's ``"costseg"`` key
+        extra: everything the module stored under the checkpoint's ``CHECKPOINT_KEY``
             (``priors_info``, ...), priors included.
     """
 
@@ -42,17 +45,19 @@ class CostsegCheckpoint:
     extra: dict[str, Any] = field(default_factory=dict)
 
 
-_NET_ARGS = ("num_classes", "backbone", "output_stride", "decoder_channels", "decoder_convs")
+_NET_ARGS = ("num_classes", "backbone", "output_stride", "decoder_channels")
 
 
-def load_costseg_checkpoint(path: str | Path) -> CostsegCheckpoint:
-    """Read a ``train.py`` checkpoint into a plain `DeepLabV3Plus`, without Lightning.
-
-    The file holds only tensors and plain data, so it is read with ``weights_only=True``.
+def load_costseg_checkpoint(
+    path: str | Path, class_names: Sequence[str] = CLASS_NAMES
+) -> CostsegCheckpoint:
+    """Read a ``train.py`` checkpoint trained on ``class_names`` into a plain `DeepLabV3Plus`,
+    without Lightning.
 
     Raises:
         FileNotFoundError: no such file.
-        ValueError: not a readable costseg checkpoint, or its weights do not fit its settings.
+        ValueError: not a readable costseg checkpoint, trained on other classes, or its weights
+            do not fit its settings.
 
     >>> load_costseg_checkpoint("runs/none/last.ckpt")
     Traceback (most recent call last):
@@ -60,10 +65,8 @@ def load_costseg_checkpoint(path: str | Path) -> CostsegCheckpoint:
     FileNotFoundError: file not found: runs/none/last.ckpt
     """
     path = Path(path)
-    checkpoint = read_torch_file(path, mmap=True)
-    extra = checkpoint.get("costseg") if isinstance(checkpoint, dict) else None
-    if not isinstance(extra, dict) or "state_dict" not in checkpoint:
-        raise ValueError(f"{path} is not a costseg checkpoint (no 'costseg' and 'state_dict')")
+    checkpoint = read_checkpoint(path, class_names)
+    extra = checkpoint[CHECKPOINT_KEY]
     hparams = dict(checkpoint.get("hyper_parameters") or {})
     net = DeepLabV3Plus(**{k: hparams[k] for k in _NET_ARGS if k in hparams})
     state = {k[4:]: v for k, v in checkpoint["state_dict"].items() if k.startswith("net.")}

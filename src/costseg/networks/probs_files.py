@@ -18,8 +18,8 @@ import torch
 from torch import Tensor
 
 from costseg.atomic import AtomicFile
+from costseg.checkpoints import read_torch_file
 from costseg.classes import NUM_CLASSES
-from costseg.networks.base import read_torch_file
 
 __all__ = ["PROBS_SUFFIXES", "find_probs_file", "load_probs", "save_probs"]
 

@@ -28,9 +28,10 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from costseg.checkpoints import read_torch_file
 from costseg.classes import NUM_CLASSES
 from costseg.models.deeplabv3plus import LOW_LEVEL_CHANNELS, DeepLabV3Plus
-from costseg.networks.base import ImageNetwork, check_state_keys, read_torch_file
+from costseg.networks.base import ImageNetwork, check_state_keys
 
 __all__ = [
     "VAINF_DEPTHS",

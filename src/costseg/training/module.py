@@ -16,6 +16,7 @@ import lightning as L
 import torch
 import torch.nn.functional as F
 
+from costseg.checkpoints import CHECKPOINT_KEY
 from costseg.classes import CLASS_NAMES, IGNORE_INDEX, class_index
 from costseg.data.prior_maps import PriorMaps
 from costseg.metrics import CalibrationError
@@ -23,9 +24,6 @@ from costseg.metrics.scoring import GroupMetrics, score_batch
 from costseg.models.deeplabv3plus import DeepLabV3Plus
 from costseg.networks.base import IMAGENET_MEAN, IMAGENET_STD
 from costseg.rules import parse_rules, rules_group
-
-CHECKPOINT_KEY = "costseg"
-
 
 class SegmentationModule(L.LightningModule):
     """DeepLabv3+ for semantic segmentation with cost-based validation.

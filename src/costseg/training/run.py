@@ -20,7 +20,7 @@ from lightning.pytorch import LightningDataModule, Trainer
 from lightning.pytorch.callbacks import RichProgressBar, TQDMProgressBar
 from lightning.pytorch.cli import LightningCLI
 
-from costseg.checkpoints import check_classes, find_checkpoint
+from costseg.checkpoints import find_checkpoint, read_checkpoint
 from costseg.data.priors import default_sigma, pixel_priors, roi_map, save_priors
 from costseg.training.module import SegmentationModule
 from costseg.training.progress import StepProgress
@@ -74,7 +74,7 @@ def run_training(args: Sequence[str]) -> tuple[SegmentationModule, Trainer]:
         ckpt_path = cli.config.get("ckpt_path")
         if ckpt_path:
             ckpt_path = str(find_checkpoint(ckpt_path))
-            check_classes(ckpt_path, data.class_names)
+            read_checkpoint(ckpt_path, data.class_names)
     _warn_slow_bf16(trainer)
     _use_step_progress(trainer)
     logging.getLogger("lightning.pytorch.utilities.rank_zero").addFilter(_no_interrupt_note)
