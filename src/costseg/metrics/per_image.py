@@ -11,8 +11,8 @@ these come from per-image counts (numerator, denominator):
 * ``instance_recall``: (instances found, instances) of ``cls`` owned by the RoI; loss the
   fraction of the image's instances missed (``docs/definitions.md §9``).
 
-Pixel counts follow :func:`~costseg.metrics.functional.roi_confusion` (ignored pixels count
-nowhere) and segment counts the segment core of :class:`~costseg.metrics.SegmentErrors`
+Pixel counts come from :func:`~costseg.metrics.functional.roi_confusion` (ignored pixels count
+nowhere) and segment counts from the segment counter of :class:`~costseg.metrics.SegmentErrors`
 (8-connected components, owner = the RoI holding most pixels), so summing the counts over images
 gives exactly the pooled metrics' counts. RoI id 0 means the whole image.
 
@@ -40,6 +40,7 @@ from costseg.calibration.guarantee import (
 from costseg.classes import IGNORE_INDEX, NUM_ROIS
 from costseg.metrics.functional.inputs import check_batch
 from costseg.metrics.functional.instances import instance_misses
+from costseg.metrics.functional.roi import roi_confusion
 from costseg.metrics.functional.segment_rules import packed_masks, rule_errors
 from costseg.metrics.names import (
     INSTANCE_RATES,
@@ -132,18 +133,20 @@ def _pixel_counts(
     metric: str,
     ignore_index: int,
 ) -> Tensor:
-    """(B, K, 2): (TP, TP + FN) or (TP, TP + FP) pixels of ``cls`` in RoI ``roi_id``."""
+    """(B, K, 2): (TP, TP + FN) or (TP, TP + FP) pixels of ``cls`` in RoI ``roi_id``, from
+    :func:`roi_confusion` of "``cls`` or not" on each image's counted pixels (RoIs are small)."""
     inside = target != ignore_index
     if roi_id > 0 and roi is not None:
         inside = inside & (roi.to(target.device) == roi_id).expand_as(target)
-    gt = target == cls
     out = torch.zeros(*preds.shape[:2], 2, dtype=torch.long, device=preds.device)
-    recall = metric == "recall"
-    for b in range(len(target)):  # only the counted pixels of each image: RoIs are small
-        counted = (inside[b] & gt[b] if recall else inside[b]).flatten().nonzero().squeeze(1)
-        hits = preds[b].flatten(1)[:, counted] == cls  # (K, P')
-        out[b, :, 0] = hits.sum(1) if recall else (hits & gt[b].flatten()[counted]).sum(1)
-        out[b, :, 1] = len(counted) if recall else hits.sum(1)
+    for b in range(len(target)):
+        counted = inside[b].flatten().nonzero().squeeze(1)
+        is_cls = (preds[b].flatten(1)[:, counted] == cls).long()  # (K, P')
+        truth = (target[b].flatten()[counted] == cls).long()
+        cm = roi_confusion(is_cls[None, :, None], truth[None, None], None, 2, 0)  # (K, 1, 2, 2)
+        tp = cm[:, 0, 1, 1]  # (K,): rows = truth, columns = prediction
+        out[b, :, 0] = tp
+        out[b, :, 1] = cm[:, 0, 1].sum(-1) if metric == "recall" else cm[:, 0, :, 1].sum(-1)
     return out
 
 

@@ -1,12 +1,13 @@
-"""The counts of :func:`~costseg.metrics.segment_counts.mask_counts` from a packed mask's runs
-(numba), for :class:`~costseg.metrics.SegmentErrors` without location maps (a sweep).
+"""The counts of :func:`~costseg.metrics.functional.mask_segment_errors` from a packed mask's
+runs (numba): :func:`~costseg.metrics.functional.rule_errors` takes them where no location maps
+are wanted (a sweep: many masks per class and image).
 
 A predicted mask of a smooth label map is a few runs of set bits per row. They are read from the
 packed bits a 64-bit word at a time (empty words skipped), joined into 8-connected components
 with a union-find over the runs of neighbouring rows, and counted with per-row prefix sums: each
 run's pixels per RoI, whether it holds a ground-truth pixel, and the ground-truth components it
-meets (from the ground truth's own runs). No pixel is visited one by one; the labelling by
-``scipy.ndimage.label`` and the pixel pass it replaces took most of a sweep's segment metrics.
+meets (from the ground truth's own runs). No pixel is visited one by one: labelling each mask with
+``scipy.ndimage.label`` took most of a sweep's segment metrics.
 """
 
 from __future__ import annotations
@@ -15,7 +16,6 @@ import numba
 import numpy as np
 
 from costseg.metrics.functional.segments import Segments
-from costseg.metrics.segment_counts import tally
 
 
 class Prepared:
@@ -57,9 +57,13 @@ def _extend(labels, row, stop):
 
 def run_counts(bits: np.ndarray, shape: tuple[int, int], prepared: Prepared) -> np.ndarray:
     """(4, R+1) int64 fp, fn, n_pred, n_gt segments (column 0: whole image) of the (H, W) mask
-    packed in ``bits`` (``np.packbits`` of its rows' pixels, W a multiple of 64)."""
+    packed in ``bits`` (``np.packbits`` of its pixels, row after row)."""
+    h, w = shape
+    if w % 64:  # rows to whole 64-bit words: each row padded with zeros, which start no run
+        mask = np.unpackbits(bits, count=h * w).reshape(h, w)
+        bits = np.packbits(np.pad(mask, ((0, 0), (0, -w % 64))), axis=-1)
     words = bits.view(">u8").astype(np.uint64)  # big-endian: the first pixel is the highest bit
-    words, p = words.reshape(shape[0], shape[1] // 64), prepared
+    words, p = words.reshape(h, -1), prepared
     return _count(words, p.roi_prefix, p.gt_prefix, p.gt_row_start, p.gt_start, p.gt_stop,
                   p.gt_label, p.gt_count, p.gt_owner)  # fmt: skip
 
@@ -133,3 +137,28 @@ def _grow(values, cap):
     larger = np.empty(cap, values.dtype)
     larger[: len(values)] = values
     return larger
+
+
+@numba.njit(nogil=True, cache=True, boundscheck=False)
+def tally(votes, component, hit, gt_owner, gt_hit):
+    """(4, R+1) fp, fn, n_pred, n_gt per owning RoI (column 0: all) from each predicted
+    component's (rows of ``votes`` where ``component``) pixels per RoI and whether it holds a
+    ground-truth pixel, and each ground-truth component's owner and whether it is hit."""
+    r1 = votes.shape[1]
+    per_owner = np.zeros((4, r1), np.int64)
+    for label in range(len(votes)):
+        if not component[label]:
+            continue
+        owner = 0  # the RoI with most pixels; ties to the lowest id
+        for r in range(1, r1):
+            if votes[label, r] > votes[label, owner]:
+                owner = r
+        per_owner[2, owner] += 1
+        per_owner[0, owner] += not hit[label]
+    for g in range(1, len(gt_owner)):
+        per_owner[3, gt_owner[g]] += 1
+        per_owner[1, gt_owner[g]] += not gt_hit[g]
+    counts = per_owner.copy()
+    for row in range(4):
+        counts[row, 0] = per_owner[row].sum()
+    return counts

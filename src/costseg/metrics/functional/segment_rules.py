@@ -2,9 +2,9 @@
 and of the per-image losses (docs/definitions.md §4, §7).
 
 The definition is :func:`~costseg.metrics.functional.segments.mask_segment_errors`, one mask at a
-time. Here the K rules' masks of a class are packed to bits, identical masks (most of a sweep's)
-are labelled once, and where no location maps are wanted the counts come from compiled passes
-(:mod:`costseg.metrics.segment_runs`, :mod:`costseg.metrics.segment_counts`).
+time. Here the K rules' masks of a class are packed to bits and identical masks (most of a sweep's)
+are counted once, by :func:`rule_errors`: with location maps by the definition, without them by
+the compiled pass over the masks' runs (:mod:`costseg.metrics.segment_runs`, tested equal).
 
 >>> rules = torch.tensor([[[[1, 0, 1]], [[1, 0, 1]], [[0, 0, 0]]]])     # (B=1, K=3, 1, 3)
 >>> target = torch.tensor([[[1, 0, 0]]])
@@ -15,7 +15,7 @@ are labelled once, and where no location maps are wanted the counts come from co
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from typing import NamedTuple
 
 import numpy as np
@@ -107,51 +107,33 @@ def rule_errors(
     """
     reps, inverse = distinct_rows(packed)
     shape, size = gt_mask.shape, gt_mask.size
-    if not maps and shape[1] % 64 == 0:  # rows of whole words: the compiled runs
+    if not maps:  # the counts alone: one compiled pass over each distinct mask's runs
         from costseg.metrics.segment_runs import Prepared, run_counts  # numba: imported on need
 
         prepared = Prepared(gt_mask, roi, num_rois, label_segments(gt_mask, roi, num_rois))
         counts = threads().map(lambda m: run_counts(m, shape, prepared), packed[reps])
         return RuleErrors(inverse, np.stack(list(counts)), None, None)
+    # The definition, with the maps: one unpacking and labelling per distinct mask, on threads
+    # (numpy's unpacking and scipy's labelling run without the GIL for the most part).
     unpack = lambda rows: np.unpackbits(rows, axis=-1, count=size).view(bool)  # noqa: E731
     # No segment reaches outside the box around all foreground: cropping to it changes nothing.
     union = unpack(np.bitwise_or.reduce(packed[reps], axis=0)).reshape(shape)
     boxes = ndimage.find_objects((union | gt_mask).view(np.uint8))
     box = boxes[0] if boxes else (slice(0, 0), slice(0, 0))
-    crop = lambda row: unpack(row).reshape(shape)[box]  # noqa: E731  (on the threads)
-    counts, fp, fn = _distinct_errors(
-        packed[reps], crop, gt_mask[box], None if roi is None else roi[box], num_rois, maps
-    )
-    if fp is None or fn is None:
-        return RuleErrors(inverse, counts, None, None)
-    fp_full, fn_full = np.zeros((2, len(reps), *gt_mask.shape), dtype=bool)
-    fp_full[:, box[0], box[1]], fn_full[:, box[0], box[1]] = fp, fn
-    return RuleErrors(inverse, counts, fp_full, fn_full)
-
-
-def _distinct_errors(
-    packed: np.ndarray,
-    crop: Callable[[np.ndarray], np.ndarray],
-    gt_mask: np.ndarray,
-    roi: np.ndarray | None,
-    num_rois: int,
-    maps: bool,
-) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """Counts (U, 4, R+1) and, if ``maps``, FP / FN masks (U, h, w) of U packed masks, each
-    unpacked and cropped to (h, w) by ``crop``; see :func:`rule_errors`."""
-    gt = label_segments(gt_mask, roi, num_rois)  # does not depend on the rule
-    # One unpacking and labelling per mask, on threads: numpy's unpacking, scipy's labelling and
-    # the compiled counting run without the GIL for the most part.
-    if not maps:
-        from costseg.metrics.segment_counts import mask_counts  # numba: imported on need
-
-        counts = threads().map(lambda m: mask_counts(crop(m), gt_mask, roi, num_rois, gt), packed)
-        return np.stack(list(counts)), None, None
+    gt_box, roi_box = gt_mask[box], None if roi is None else roi[box]
+    gt = label_segments(gt_box, roi_box, num_rois)  # does not depend on the rule
     errors = list(
-        threads().map(lambda m: mask_segment_errors(crop(m), gt_mask, roi, num_rois, gt), packed)
+        threads().map(
+            lambda m: mask_segment_errors(
+                unpack(m).reshape(shape)[box], gt_box, roi_box, num_rois, gt
+            ),
+            packed[reps],
+        )
     )
-    counts = np.stack([e.counts for e in errors])
-    return counts, np.stack([e.fp_mask for e in errors]), np.stack([e.fn_mask for e in errors])
+    fp, fn = np.zeros((2, len(reps), *shape), dtype=bool)
+    fp[:, box[0], box[1]] = np.stack([e.fp_mask for e in errors])
+    fn[:, box[0], box[1]] = np.stack([e.fn_mask for e in errors])
+    return RuleErrors(inverse, np.stack([e.counts for e in errors]), fp, fn)
 
 
 def batch_segment_errors(
