@@ -157,3 +157,50 @@ def test_cityscapes_missing_root(tmp_path: Path) -> None:
     dm = CityscapesDataModule(root=str(tmp_path / "none"))
     with pytest.raises(FileNotFoundError, match=r"cityscapes-dataset\.com"):
         dm.setup("fit")
+
+
+@pytest.mark.parametrize(
+    ("module", "class_path"),
+    [
+        (StreetScenesDataModule, "costseg.data.datamodule.StreetScenesDataModule"),
+        (CityscapesDataModule, "costseg.data.datamodule.CityscapesDataModule"),
+    ],
+)
+def test_training_and_evaluation_share_the_data_defaults(module, class_path: str) -> None:
+    """Evaluation reads a checkpoint's data configuration without Lightning: a datamodule's
+    defaults (every argument of its signature) are the settings evaluation fills in."""
+    import dataclasses
+    import inspect
+
+    from costseg.data.from_config import data_settings
+
+    settings = data_settings({"class_path": class_path, "init_args": {}})
+    defaults = {
+        name: p.default
+        for name, p in inspect.signature(module.__init__).parameters.items()
+        if name != "self"
+    }
+    assert defaults == dataclasses.asdict(settings)
+
+
+def test_evaluation_builds_the_datasets_training_validates_on(cityscapes_root: Path) -> None:
+    from costseg.data.from_config import build_dataset, data_settings
+
+    config = {"class_path": "x.StreetScenesDataModule", "init_args": {"size": [64, 128]}}
+    toy = StreetScenesDataModule(size=(64, 128), val_length=3)
+    built = build_dataset({**config, "init_args": {"size": [64, 128], "val_length": 3}}, "val")
+    assert len(built) == len(toy.make_dataset("val", augment=False)) == 3
+    assert torch.equal(built[2][0], toy.make_dataset("val", augment=False)[2][0])
+    settings = data_settings(config)
+    assert (settings.eval_batch_size, settings.num_workers) == (
+        toy.eval_batch_size,
+        toy.num_workers,
+    )
+    city = data_settings({}, root=cityscapes_root)
+    dm = CityscapesDataModule(root=str(cityscapes_root))
+    assert (city.eval_batch_size, city.num_workers) == (dm.eval_batch_size, dm.num_workers)
+    assert build_dataset({}, "test", cityscapes_root).files == dm.make_dataset("test", False).files
+    with pytest.raises(ValueError, match="unknown dataset"):
+        data_settings({"class_path": "x.Other"})
+    with pytest.raises(ValueError, match="unexpected keyword argument 'sizes'"):
+        data_settings({**config, "init_args": {"sizes": [1, 2]}})

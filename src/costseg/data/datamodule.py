@@ -9,7 +9,6 @@ so shuffling and augmentation are reproducible for a given seed and worker count
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from pathlib import Path
 
 import torch
 from lightning.pytorch import LightningDataModule
@@ -21,9 +20,10 @@ from torchvision.transforms import v2
 
 from costseg.classes import CLASS_NAMES, NUM_CLASSES
 from costseg.data.cityscapes import CityscapesSegmentation, train_transform
-from costseg.data.toy import StreetScenes
+from costseg.data.from_config import CityscapesSettings, StreetScenesSettings
 
 Pair = tuple[Tensor, Tensor]
+TOY, CITYSCAPES = StreetScenesSettings(), CityscapesSettings()  # the defaults, declared there
 
 
 class _Augmented(Dataset[Pair]):
@@ -151,14 +151,14 @@ class StreetScenesDataModule(_SegmentationDataModule):
 
     def __init__(
         self,
-        batch_size: int = 8,
-        num_workers: int = 2,
-        size: tuple[int, int] = (256, 512),
-        train_length: int = 2000,
-        val_length: int = 100,
-        test_length: int = 100,
-        seed: int = 0,
-        prior_images: int | None = None,
+        batch_size: int = TOY.batch_size,
+        num_workers: int = TOY.num_workers,
+        size: tuple[int, int] = TOY.size,
+        train_length: int = TOY.train_length,
+        val_length: int = TOY.val_length,
+        test_length: int = TOY.test_length,
+        seed: int = TOY.seed,
+        prior_images: int | None = TOY.prior_images,
     ) -> None:
         super().__init__(batch_size, num_workers, prior_images, eval_batch_size=batch_size)
         if train_length < batch_size:
@@ -167,17 +167,17 @@ class StreetScenesDataModule(_SegmentationDataModule):
                 f"batch is dropped; got {train_length}"
             )
         self.save_hyperparameters()
-        self.size = (int(size[0]), int(size[1]))
-        self.lengths = {"train": train_length, "val": val_length, "test": test_length}
-        self.seed = seed
+        self.settings = StreetScenesSettings(
+            batch_size, num_workers, size, train_length, val_length, test_length, seed, prior_images
+        )
 
     @property
     def label_size(self) -> tuple[int, int]:
         """(H, W) of labels at evaluation resolution."""
-        return self.size
+        return int(self.settings.size[0]), int(self.settings.size[1])
 
     def make_dataset(self, split: str, augment: bool) -> Dataset[Pair]:
-        scenes = StreetScenes(split, self.lengths[split], self.size, self.seed)
+        scenes = self.settings.dataset(split)
         return _Augmented(scenes, v2.RandomHorizontalFlip()) if augment else scenes
 
 
@@ -201,20 +201,22 @@ class CityscapesDataModule(_SegmentationDataModule):
 
     def __init__(
         self,
-        root: str = "data/cityscapes",
-        batch_size: int = 8,
-        num_workers: int = 4,
-        crop_size: int | tuple[int, int] = 768,
-        scale_range: tuple[float, float] = (0.5, 2.0),
-        prior_images: int | None = None,
-        eval_batch_size: int = 2,
-        test_split: str = "val",
+        root: str = CITYSCAPES.root,
+        batch_size: int = CITYSCAPES.batch_size,
+        num_workers: int = CITYSCAPES.num_workers,
+        crop_size: int | tuple[int, int] = CITYSCAPES.crop_size,
+        scale_range: tuple[float, float] = CITYSCAPES.scale_range,
+        prior_images: int | None = CITYSCAPES.prior_images,
+        eval_batch_size: int = CITYSCAPES.eval_batch_size,
+        test_split: str = CITYSCAPES.test_split,
     ) -> None:
         super().__init__(batch_size, num_workers, prior_images, eval_batch_size)
         self.save_hyperparameters()
-        self.root = Path(root)
+        self.settings = CityscapesSettings(
+            str(root), batch_size, num_workers, crop_size, scale_range, prior_images,
+            eval_batch_size, test_split,
+        )  # fmt: skip
         self.transform = train_transform(crop_size, scale_range)
-        self.test_split = test_split
 
     @property
     def label_size(self) -> tuple[int, int]:
@@ -225,5 +227,4 @@ class CityscapesDataModule(_SegmentationDataModule):
             return label.height, label.width
 
     def make_dataset(self, split: str, augment: bool) -> Dataset[Pair]:
-        folder = self.test_split if split == "test" else split
-        return CityscapesSegmentation(self.root, folder, self.transform if augment else None)
+        return self.settings.dataset(split, self.transform if augment else None)

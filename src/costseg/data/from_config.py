@@ -1,23 +1,80 @@
-"""Datasets from a checkpoint's data configuration, without Lightning (fast start-up).
-
-A costseg checkpoint stores how its data was built: the datamodule's class path and init args.
-Evaluation needs only the un-augmented splits, so it builds them here directly.
+"""The data settings, declared once: each datamodule's arguments with their defaults (training
+takes them as its signature's defaults) and the un-augmented datasets they describe (evaluation
+builds these without Lightning, for a fast start-up, from a checkpoint's data configuration: the
+datamodule's class path and init args).
 
 >>> config = {"class_path": "costseg.data.datamodule.StreetScenesDataModule",
 ...           "init_args": {"size": [64, 128], "val_length": 2}}
 >>> len(build_dataset(config, "val")), image_stems(build_dataset(config, "val"), [1])
 (2, ['val_000001'])
+>>> data_settings(config).eval_batch_size, data_settings(config).num_workers
+(8, 2)
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from torch.utils.data import Dataset
 
 SPLITS = ("train", "val", "test")
+
+
+@dataclass(frozen=True)
+class StreetScenesSettings:
+    """The arguments of :class:`~costseg.data.datamodule.StreetScenesDataModule` (see there)."""
+
+    batch_size: int = 8
+    num_workers: int = 2
+    size: tuple[int, int] = (256, 512)
+    train_length: int = 2000
+    val_length: int = 100
+    test_length: int = 100
+    seed: int = 0
+    prior_images: int | None = None
+
+    @property
+    def eval_batch_size(self) -> int:
+        """Images per validation / test batch: the training batch size."""
+        return self.batch_size
+
+    def dataset(self, split: str) -> Dataset:
+        """The un-augmented scenes of ``split``."""
+        from costseg.data.toy import StreetScenes
+
+        length = {"train": self.train_length, "val": self.val_length, "test": self.test_length}
+        return StreetScenes(split, length[split], (int(self.size[0]), int(self.size[1])), self.seed)
+
+
+@dataclass(frozen=True)
+class CityscapesSettings:
+    """The arguments of :class:`~costseg.data.datamodule.CityscapesDataModule` (see there)."""
+
+    root: str = "data/cityscapes"
+    batch_size: int = 8
+    num_workers: int = 4
+    crop_size: int | tuple[int, int] = 768
+    scale_range: tuple[float, float] = (0.5, 2.0)
+    prior_images: int | None = None
+    eval_batch_size: int = 2
+    test_split: str = "val"
+
+    def dataset(self, split: str, transform=None) -> Dataset:
+        """The images of ``split`` (``test``: of ``test_split``), un-augmented without
+        ``transform``."""
+        from costseg.data.cityscapes import CityscapesSegmentation  # torchvision: only here
+
+        folder = self.test_split if split == "test" else split
+        return CityscapesSegmentation(self.root, folder, transform)
+
+
+SETTINGS = {
+    "StreetScenesDataModule": StreetScenesSettings,
+    "CityscapesDataModule": CityscapesSettings,
+}
 
 
 def cityscapes_config(root: str | Path) -> dict[str, Any]:
@@ -27,6 +84,29 @@ def cityscapes_config(root: str | Path) -> dict[str, Any]:
         "class_path": "costseg.data.datamodule.CityscapesDataModule",
         "init_args": {"root": str(root)},
     }
+
+
+def data_settings(
+    config: dict[str, Any], root: str | Path | None = None
+) -> StreetScenesSettings | CityscapesSettings:
+    """The settings a data configuration describes, defaults filled in.
+
+    Args:
+        config: ``{"class_path": ..., "init_args": {...}}`` as stored in a costseg checkpoint.
+        root: a Cityscapes root that replaces the configured dataset.
+
+    Raises:
+        ValueError: an unknown dataset or argument.
+    """
+    if root is not None:
+        return CityscapesSettings(root=str(root))
+    kind = SETTINGS.get(config.get("class_path", "").rpartition(".")[2])
+    if kind is None:
+        raise ValueError(f"unknown dataset {config.get('class_path')!r} in the data configuration")
+    try:
+        return kind(**config.get("init_args", {}))
+    except TypeError as err:  # an argument the datamodule does not take
+        raise ValueError(f"data configuration of {kind.__name__}: {err}") from None
 
 
 def build_dataset(config: dict[str, Any], split: str, root: str | Path | None = None) -> Dataset:
@@ -43,29 +123,7 @@ def build_dataset(config: dict[str, Any], split: str, root: str | Path | None = 
     """
     if split not in SPLITS:
         raise ValueError(f"split must be one of {', '.join(SPLITS)}; got {split!r}")
-    kind = config.get("class_path", "").rpartition(".")[2]
-    args = dict(config.get("init_args", {}))
-    if root is not None:
-        kind, args = "CityscapesDataModule", {"root": str(root)}
-    if kind == "StreetScenesDataModule":
-        from costseg.data.toy import StreetScenes
-
-        length = args.get(f"{split}_length", {"train": 2000, "val": 100, "test": 100}[split])
-        return StreetScenes(split, length, tuple(args.get("size", (256, 512))), args.get("seed", 0))
-    if kind == "CityscapesDataModule":
-        from costseg.data.cityscapes import CityscapesSegmentation  # torchvision: only here
-
-        folder = args.get("test_split", "val") if split == "test" else split
-        return CityscapesSegmentation(args.get("root", "data/cityscapes"), folder)
-    raise ValueError(f"unknown dataset {config.get('class_path')!r} in the data configuration")
-
-
-def eval_batch_size(config: dict[str, Any], root: str | Path | None = None) -> int:
-    """Images per evaluation batch the configuration asks for (Cityscapes: 2 full images)."""
-    args = config.get("init_args", {})
-    if root is not None or "root" in args:
-        return int(args.get("eval_batch_size", 2)) if root is None else 2
-    return int(args.get("batch_size", 8))
+    return data_settings(config, root).dataset(split)
 
 
 def image_stems(dataset: Dataset, indices: Sequence[int]) -> list[str]:

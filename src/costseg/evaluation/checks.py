@@ -128,7 +128,7 @@ def source_priors(source, opts: EvalOptions, config: dict, cache_dir: Path) -> t
     (next to the outputs)."""
     if source.priors is not None:
         return source.priors
-    from costseg.data.from_config import build_dataset
+    from costseg.data.from_config import build_dataset, data_settings
     from costseg.data.priors_cache import cached_priors
 
     try:
@@ -136,7 +136,7 @@ def source_priors(source, opts: EvalOptions, config: dict, cache_dir: Path) -> t
     except FileNotFoundError:
         print("no training labels found: no pixel-wise priors, no RoI map")
         return None
-    root = str(Path(opts.data_root or config.get("init_args", {}).get("root", "")).resolve())
+    root = str(Path(getattr(data_settings(config, opts.data_root), "root", "")).resolve())
     key = hashlib.sha1(root.encode()).hexdigest()[:12]
     read = getattr(train, "read_label", None) or (lambda i: train[i][1])
     found = cached_priors(

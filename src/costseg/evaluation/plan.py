@@ -14,7 +14,7 @@ import torch.distributed as dist
 from torch.utils.data import Dataset
 
 from costseg.classes import CLASS_NAMES, class_indices
-from costseg.data.from_config import build_dataset, eval_batch_size
+from costseg.data.from_config import build_dataset, data_settings
 from costseg.data.prior_maps import PriorMaps, heatmap_canvas
 from costseg.evaluation.checks import (
     check_calibration_size,
@@ -61,6 +61,7 @@ def plan(opts: EvalOptions) -> EvalPlan:
     if source.data_config is None and opts.data_root is None:
         raise ValueError(f"{source.description} names no dataset: pass --data_root")
     config = source.data_config or {}
+    settings = data_settings(config, opts.data_root)
     dataset = build_dataset(config, opts.split, opts.data_root)
     count = len(dataset) if opts.limit is None else min(opts.limit, len(dataset))
     if count == 0:
@@ -69,6 +70,7 @@ def plan(opts: EvalOptions) -> EvalPlan:
     if calibration is not None:
         candidates = next((g for g in groups if g.candidates), named_group(groups))
         check_calibration_size(opts, len(calibration[1]), len(candidates.names))
+    batch_size = opts.batch_size or settings.eval_batch_size
     base = source.default_output("evaluation", "eval")
     cache = (Path(opts.output_dir).resolve().parent if opts.output_dir else base.parent) / "priors"
     priors = PriorMaps(source_priors(source, opts, config, cache), CLASS_NAMES, device)
@@ -82,8 +84,8 @@ def plan(opts: EvalOptions) -> EvalPlan:
         indices=reported[rank() :: world_size()],
         num_reported=len(reported),
         calibration=calibration,
-        batch_size=opts.batch_size or eval_batch_size(config, opts.data_root),
-        num_workers=int(config.get("init_args", {}).get("num_workers", 2)),
+        batch_size=batch_size,
+        num_workers=min(settings.num_workers, -(-count // batch_size)),  # no idle workers
         groups=groups,
         class_ids=class_indices(opts.classes),
         priors=priors,
