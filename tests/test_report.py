@@ -19,7 +19,6 @@ from costseg.report import files
 from costseg.report.cost_matrix import plot_cost_matrix
 from costseg.report.figures import (
     masks_side_by_side,
-    plot_heatmap,
     plot_heatmap_grid,
     plot_masks,
 )
@@ -27,7 +26,7 @@ from costseg.report.files import save_figure, write_csv, write_json, write_text
 from costseg.report.priors import plot_priors, plot_roi_map
 from costseg.report.tables import compare_with_paper, console_table, markdown_table, paper_table
 from costseg.report.tensorboard import log_figures, log_masks, log_scalars, log_table
-from costseg.report.ternary import barycentric_to_cartesian, plot_edge_tradeoffs, plot_ternary
+from costseg.report.ternary import plot_edge_tradeoffs, plot_ternary
 
 NAN = float("nan")
 H, W = 8, 16
@@ -109,7 +108,7 @@ def test_csv_round_trip(tmp_path):
 
 
 def test_save_figure_png_has_figsize_times_dpi_pixels(tmp_path):
-    fig = plot_heatmap(np.ones((H, W)), "FP")
+    fig = plot_heatmap_grid({("ml", "person"): np.ones((H, W))})
     fig.set_size_inches(4, 3)
     path = save_figure(fig, tmp_path / "deep" / "f.png", dpi=50)
     assert Image.open(path).size == (200, 150)
@@ -221,19 +220,11 @@ def test_compare_with_paper_carries_spec_numbers():
 # ---------------------------------------------------------------- ternary
 
 
-def test_barycentric_to_cartesian_hand_computed():
-    xy = barycentric_to_cartesian(
-        np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [1 / 3, 1 / 3, 1 / 3], [0, 0.5, 0.5]])
-    )
-    s = math.sqrt(3) / 2
-    np.testing.assert_allclose(
-        xy, [[0, 0], [1, 0], [0.5, s], [0.5, s / 3], [0.75, s / 2]], atol=1e-12
-    )
-    assert np.linalg.norm(xy[0] - xy[2]) == pytest.approx(1.0)  # equilateral
+def test_ternary_weights_must_be_barycentric():
     with pytest.raises(ValueError, match="sum to 1"):
-        barycentric_to_cartesian([[0.5, 0.2, 0.2]])
+        plot_ternary([[0.5, 0.2, 0.2]], [1.0])
     with pytest.raises(ValueError, match=r"\(K, 3\)"):
-        barycentric_to_cartesian([[0.5, 0.5]])
+        plot_ternary([[0.5, 0.5]], [1.0])
 
 
 def test_plot_ternary_colours_high_blue_low_red_nan_grey():
@@ -333,7 +324,6 @@ ROI = np.repeat(np.arange(1, 5), H * W // 4).reshape(H, W)
 PRIORS = np.full((len(CLASS_NAMES), H, W), 1 / len(CLASS_NAMES))
 FIGURES = {
     "masks": lambda: plot_masks(IMAGE, TARGET, PREDS),
-    "heatmap": lambda: plot_heatmap(RNG.random((H, W)), "FP person"),
     "grid": lambda: plot_heatmap_grid({("ml", "person"): np.ones((H, W))}),
     "cost": lambda: plot_cost_matrix(np.ones((19, 19)) - np.eye(19), CLASS_NAMES, "robotistic"),
     "roi": lambda: plot_roi_map(ROI),

@@ -179,28 +179,6 @@ def _heat(heat: ArrayLike) -> np.ndarray:
     return arr
 
 
-def plot_heatmap(heat: ArrayLike, title: str, vmax: float | None = None) -> Figure:
-    """How often each location lies in a false positive / negative segment, with a colour bar.
-
-    Args:
-        heat: (h, w) counts or frequencies.
-        title: e.g. "FP person, egoistic".
-        vmax: top of the colour scale (default: the map's maximum); the bottom is 0.
-
-    >>> plot_heatmap(np.eye(4), "FP person").axes[0].get_title()
-    'FP person'
-    """
-    arr = _heat(heat)
-    height, width = arr.shape
-    fig = Figure(figsize=(6.0, 6.0 * height / width + 0.6), layout="constrained")
-    ax = fig.subplots()
-    im = ax.imshow(arr, cmap="inferno", vmin=0, vmax=vmax, interpolation="nearest")
-    ax.set_title(title)
-    ax.set_axis_off()
-    fig.colorbar(im, ax=ax, label="frequency", shrink=0.9)
-    return fig
-
-
 def plot_heatmap_grid(maps: Mapping[tuple[str, str], ArrayLike], kind: str = "FP") -> Figure:
     """Heatmaps of ``kind`` segments as in the paper: one row per class, one column per rule.
 

@@ -52,21 +52,6 @@ def _values(values: ArrayLike, k: int, name: str) -> np.ndarray:
     return v
 
 
-def barycentric_to_cartesian(weights: ArrayLike) -> np.ndarray:
-    """Project barycentric weights onto the equilateral triangle of side 1 with :data:`CORNERS`.
-
-    Args:
-        weights: (K, 3) rows (α, β, γ), non-negative, summing to 1.
-
-    Returns:
-        (K, 2) cartesian points ``weights @ CORNERS``.
-
-    >>> barycentric_to_cartesian([[1, 0, 0], [1 / 3, 1 / 3, 1 / 3]]).round(4).tolist()
-    [[0.0, 0.0], [0.5, 0.2887]]
-    """
-    return _weights(weights) @ CORNERS
-
-
 def _cells(xy: np.ndarray) -> np.ndarray:
     # Each point gets the hexagon of the triangular lattice around it (its Voronoi cell);
     # the spacing is the nearest-neighbour distance, i.e. the grid step h on the unit triangle.
