@@ -20,6 +20,7 @@ import torch
 import yaml
 
 from costseg import CONFIGS
+from costseg.atomic import write_bytes
 from costseg.classes import CLASS_NAMES
 
 if TYPE_CHECKING:
@@ -127,7 +128,7 @@ def save_cost(
     """Write ``cost`` as a full-matrix YAML file that :func:`load_cost` reads back exactly."""
     cost = validate_cost(cost, class_names)
     spec = {"name": name, "classes": list(class_names), "matrix": cost.tolist()}
-    Path(path).write_text(yaml.safe_dump(spec, sort_keys=False, width=1000))
+    write_bytes(path, yaml.safe_dump(spec, sort_keys=False, width=1000).encode("utf-8"))
 
 
 def _read_yaml(path: Path | Traversable) -> dict:
