@@ -56,3 +56,15 @@ def test_a_folder_that_cannot_be_made_is_named(tmp_path: Path) -> None:
     with pytest.raises(OSError) as caught:
         write_bytes(tmp_path / "file" / "x.bin", b"")
     assert str(tmp_path / "file") in str(caught.value)
+
+
+def test_files_get_the_umask_permissions(tmp_path: Path) -> None:
+    """As a plain ``open`` would give them (a private temporary file would leave 0o600)."""
+    import os
+
+    old = os.umask(0o022)
+    try:
+        path = write_bytes(tmp_path / "shared.png", b"x")
+    finally:
+        os.umask(old)
+    assert path.stat().st_mode & 0o777 == 0o644

@@ -16,7 +16,7 @@ while writing names the destination, not the temporary file.
 from __future__ import annotations
 
 import os
-import tempfile
+import uuid
 from pathlib import Path
 
 
@@ -33,17 +33,15 @@ class AtomicFile:
 
     def __init__(self, path: str | os.PathLike) -> None:
         self.path = Path(path)
-        self.tmp: Path | None = None
+        self.tmp = self.path.with_name(
+            f".{self.path.stem}.{uuid.uuid4().hex[:8]}.tmp{self.path.suffix}"
+        )
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(
-                prefix=f".{self.path.stem}.", suffix=f".tmp{self.path.suffix}", dir=self.path.parent
-            )
+            self.tmp.touch(exist_ok=False)  # a name of its own; the umask's permissions
         except OSError as error:
             self.name(error)
             raise
-        os.close(fd)
-        self.tmp = Path(tmp)
 
     def commit(self) -> Path:
         """Rename the finished temporary file to the destination; return the destination."""
