@@ -80,5 +80,5 @@ def test_hf_errors(segformer_dir: Path, tmp_path: Path, monkeypatch: pytest.Monk
     with pytest.raises(FileNotFoundError, match="model folder not found"):
         load_network(f"hf:{tmp_path / 'nothing'}")
     monkeypatch.setitem(sys.modules, "transformers", None)  # as if the extra were not installed
-    with pytest.raises(ValueError, match=r'pip install -e "\.\[hf\]"'):
+    with pytest.raises(ValueError, match=r"pip install 'costseg\[hf\]'"):
         load_network(f"hf:{segformer_dir}")

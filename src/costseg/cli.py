@@ -15,6 +15,7 @@ import contextlib
 import dataclasses
 import os
 import sys
+import threading
 import types
 import typing
 from collections.abc import Iterator, Sequence
@@ -45,9 +46,26 @@ def interrupted(message: str = "") -> NoReturn:
 @contextlib.contextmanager
 def user_errors(*extra: type[BaseException]) -> Iterator[None]:
     """Turn a user mistake (ValueError, OSError and ``extra``) into one line and exit status 2,
-    and Ctrl-C into one line (the interrupt's message: where partial outputs are) and 130."""
+    and Ctrl-C into one line (the interrupt's message: where partial outputs are) and 130.
+
+    An OSError in another thread (a full disk under TensorBoard's writer thread) prints no
+    traceback there: it ends the job here, in one line, unless the main thread has already
+    raised it (TensorBoard's writer does at its next call).
+    """
+    in_threads: list[OSError] = []
+    default_hook = threading.excepthook
+
+    def hook(args: threading.ExceptHookArgs) -> None:
+        if isinstance(args.exc_value, OSError) and not os.environ.get("COSTSEG_DEBUG"):
+            in_threads.append(args.exc_value)
+        else:
+            default_hook(args)
+
+    threading.excepthook = hook
     try:
         yield
+        if in_threads:
+            raise in_threads[0]
     except KeyboardInterrupt as err:
         if os.environ.get("COSTSEG_DEBUG"):
             raise
@@ -56,6 +74,8 @@ def user_errors(*extra: type[BaseException]) -> Iterator[None]:
         if os.environ.get("COSTSEG_DEBUG"):
             raise
         fail(str(err) or err.__class__.__name__, isinstance(err, argparse.ArgumentError))
+    finally:
+        threading.excepthook = default_hook
 
 
 def train_main(args: Sequence[str] | None = None) -> tuple[Any, Any]:
@@ -77,7 +97,7 @@ def train_main(args: Sequence[str] | None = None) -> tuple[Any, Any]:
         sys.exit(0)
     if "--help_all" in args:  # LightningCLI's own help: every option of every class (slow)
         args[args.index("--help_all")] = "--help"
-    with user_errors(ImportError):
+    with user_errors():
         from jsonargparse import ArgumentError
         from lightning.fabric.utilities.exceptions import MisconfigurationException
 
@@ -228,3 +248,17 @@ def predict_main(args: Sequence[str] | None = None) -> Path:
         from costseg.prediction import predict
 
         return predict(opts)
+
+
+# The console scripts (`costseg-train`, ...): a console script exits with its function's return
+# value, so these return None (exit status 0) where the *_main functions return their results.
+def train_script() -> None:
+    train_main()
+
+
+def evaluate_script() -> None:
+    evaluate_main()
+
+
+def predict_script() -> None:
+    predict_main()

@@ -152,7 +152,8 @@ def evaluate(opts: EvalOptions) -> EvalResults:
         partial = f"the partial outputs in {out} are marked {INCOMPLETE}"
         if isinstance(err, KeyboardInterrupt):
             raise KeyboardInterrupt(partial) from None
-        raise OSError(f"{err.strerror or err}: {err.filename or ''}; {partial}") from err
+        # a full disk under TensorBoard's writer thread names no file: the folder it writes in
+        raise OSError(f"{err.strerror or err}: {err.filename or out}; {partial}") from err
     except BaseException:
         if early:
             early.cancel()

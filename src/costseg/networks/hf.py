@@ -1,6 +1,6 @@
 """``transformers`` semantic-segmentation models (SegFormer, ...) from a local folder.
 
-``transformers`` is an optional extra (``pip install -e ".[hf]"``), imported only here and only
+``transformers`` is an optional extra (``pip install 'costseg[hf]'``), imported only here and only
 when such a model is loaded.
 """
 
@@ -51,7 +51,7 @@ def load_hf(folder: str | Path) -> ImageNetwork:
     try:
         from transformers import AutoModelForSemanticSegmentation
     except ImportError:
-        raise ValueError('hf: networks need transformers: pip install -e ".[hf]"') from None
+        raise ValueError("hf: networks need transformers: pip install 'costseg[hf]'") from None
     if not (folder / "config.json").is_file():
         raise ValueError(f"{folder} is not a transformers model folder (no config.json)")
     try:
