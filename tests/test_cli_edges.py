@@ -6,14 +6,13 @@ import errno
 import io
 import json
 import os
-import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 from conftest import TINY_TRAIN
+from interrupts import ENV, ROOT, interrupt_when, start_job
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from costseg.checkpoints import find_checkpoint
@@ -21,9 +20,6 @@ from costseg.cli import evaluate_main, evaluate_parser, train_main
 from costseg.options import EvalOptions
 from costseg.progress import Progress
 from costseg.report.outputs import INCOMPLETE
-
-ROOT = Path(__file__).resolve().parents[1]
-ENV = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
 
 
 @pytest.fixture(scope="module")
@@ -58,7 +54,7 @@ def test_every_option_is_declared_once_and_shown_in_help():
 def test_one_evaluation_writes_few_scalar_cards(ckpt, tmp_path):
     out = tmp_path / "out"
     args = ["--ckpt_path", ckpt, "--cost", "robotistic", "altruistic", "egoistic", "ml"]
-    args += ["--sweep", "0.5", "--alpha_sweep", "0.5", "--limit", "2", "--num_examples", "1"]
+    args += ["--sweep", "0.5", "--alpha_sweep", "0.5", "--limit", "2", "--num_examples", "0"]
     evaluate_main([*args, "--output_dir", str(out), "--no-progress"])
     tags = _scalar_tags(out)
     assert len(tags) <= 30, sorted(tags)
@@ -111,40 +107,12 @@ def test_a_full_disk_is_one_line_and_the_folder_stays_incomplete(
     assert (out / INCOMPLETE).is_file()
 
 
-def _start(command: list[str]) -> subprocess.Popen:
-    """The job in a process group of its own, with Ctrl-C's default handling even when the tests
-    run in the background (a shell starts background jobs with SIGINT ignored)."""
-    return subprocess.Popen(
-        command,
-        env=ENV,
-        start_new_session=True,
-        text=True,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-    )
-
-
-def _interrupt_when(job: subprocess.Popen, ready, seconds: float = 240) -> tuple[str, str]:
-    """SIGINT to the job's process group (as Ctrl-C in a terminal) once ``ready()``."""
-    deadline = time.monotonic() + seconds
-    while not ready():
-        assert job.poll() is None and time.monotonic() < deadline, job.communicate()
-        time.sleep(0.05)
-    os.killpg(job.pid, signal.SIGINT)
-    try:
-        return job.communicate(timeout=120)
-    except subprocess.TimeoutExpired:
-        os.killpg(job.pid, signal.SIGKILL)  # leave no job behind a failed test
-        raise
-
-
 def test_ctrl_c_during_evaluation(ckpt, tmp_path):
     out = tmp_path / "out"
     command = [sys.executable, str(ROOT / "evaluate.py"), "--ckpt_path", ckpt, "--no-progress"]
     command += ["--sweep", "0.05", "--output_dir", str(out)]
-    job = _start(command)
-    output, err = _interrupt_when(job, (out / "figures").exists)  # drawing while scoring
+    job = start_job(command)
+    output, err = interrupt_when(job, (out / "figures").exists)  # drawing while scoring
     assert job.returncode == 130, (output, err)
     assert err.strip().splitlines() == [
         f"interrupted: the partial outputs in {out} are marked {INCOMPLETE}"
@@ -159,8 +127,8 @@ def test_ctrl_c_during_training(tmp_path):
     run = tmp_path / "toy" / "version_0"
     command = [sys.executable, str(ROOT / "train.py"), *TINY_TRAIN, "--trainer.max_steps=100000"]
     command += [f"--trainer.logger.init_args.save_dir={tmp_path}"]
-    job = _start(command)
-    output, err = _interrupt_when(job, lambda: any(run.glob("events.out.tfevents.*")))
+    job = start_job(command)
+    output, err = interrupt_when(job, lambda: any(run.glob("events.out.tfevents.*")))
     assert job.returncode == 130, (output, err)
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
     assert err.strip().splitlines()[-1].startswith("interrupted: "), err
@@ -175,15 +143,36 @@ def test_progress_in_a_log_file_is_a_line_every_five_percent():
     assert len(lines) == 20 and lines[-1].startswith("train: 1000/1000 (100%)"), lines[:3]
 
 
-def test_training_progress_counts_steps():
-    from lightning.pytorch import Trainer
+def test_training_progress_counts_steps(capsys):
+    """Optimiser steps (not batches, not epochs) towards max_steps: a line every 5 % in a log."""
+    import torch
+    from lightning.pytorch import LightningModule, Trainer
 
-    from costseg.training.progress import StepProgress
     from costseg.training.run import _use_step_progress
 
-    trainer = Trainer(max_steps=10, logger=False, enable_checkpointing=False)
-    _use_step_progress(trainer)
-    assert isinstance(trainer.progress_bar_callback, StepProgress)
+    class Line(LightningModule):  # y = w x on random batches: the smallest model that trains
+        def __init__(self) -> None:
+            super().__init__()
+            self.w = torch.nn.Linear(1, 1)
+
+        def training_step(self, batch, batch_idx):
+            return self.w(batch).square().mean()
+
+        def train_dataloader(self):
+            return torch.utils.data.DataLoader(torch.randn(64, 1), batch_size=2)
+
+        def configure_optimizers(self):
+            return torch.optim.SGD(self.parameters(), lr=0.01)
+
+    trainer = Trainer(
+        max_steps=40, accumulate_grad_batches=2, logger=False, enable_checkpointing=False,
+        enable_model_summary=False,
+    )  # fmt: skip
+    _use_step_progress(trainer)  # in place of Lightning's bar, which counts epochs
+    trainer.fit(Line())
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("train:")]
+    assert [line.split()[1] for line in lines] == [f"{n}/40" for n in range(2, 41, 2)], lines
+    assert trainer.global_step == 40  # after 80 batches in 3 epochs
 
 
 def test_result_json_is_written_once_complete(ckpt, tmp_path):

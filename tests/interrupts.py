@@ -1,0 +1,44 @@
+"""Ctrl-C for the tests: a job started as a terminal would, interrupted once it is busy."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+
+
+def start_job(command: list[str]) -> subprocess.Popen:
+    """The job in a process group of its own, with Ctrl-C's default handling even when the tests
+    run in the background (a shell starts background jobs with SIGINT ignored)."""
+    return subprocess.Popen(
+        command,
+        env=ENV,
+        start_new_session=True,
+        text=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+
+
+def interrupt_when(
+    job: subprocess.Popen, ready: Callable[[], bool], seconds: float = 240
+) -> tuple[str, str]:
+    """SIGINT to the job's process group (as Ctrl-C in a terminal) once ``ready()``; returns
+    the job's (stdout, stderr)."""
+    deadline = time.monotonic() + seconds
+    while not ready():
+        assert job.poll() is None and time.monotonic() < deadline, job.communicate()
+        time.sleep(0.05)
+    os.killpg(job.pid, signal.SIGINT)
+    try:
+        return job.communicate(timeout=120)
+    except subprocess.TimeoutExpired:
+        os.killpg(job.pid, signal.SIGKILL)  # leave no job behind a failed test
+        raise
