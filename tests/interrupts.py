@@ -28,17 +28,18 @@ def start_job(command: list[str]) -> subprocess.Popen:
 
 
 def interrupt_when(
-    job: subprocess.Popen, ready: Callable[[], bool], seconds: float = 240
+    job: subprocess.Popen, ready: Callable[[], bool], seconds: float = 600
 ) -> tuple[str, str]:
     """SIGINT to the job's process group (as Ctrl-C in a terminal) once ``ready()``; returns
-    the job's (stdout, stderr)."""
+    the job's (stdout, stderr). A job that ends first or is not ready in time fails the test."""
     deadline = time.monotonic() + seconds
-    while not ready():
-        assert job.poll() is None and time.monotonic() < deadline, job.communicate()
-        time.sleep(0.05)
-    os.killpg(job.pid, signal.SIGINT)
     try:
+        while not ready():
+            assert job.poll() is None, job.communicate()
+            assert time.monotonic() < deadline, f"not ready after {seconds} s"
+            time.sleep(0.05)
+        os.killpg(job.pid, signal.SIGINT)
         return job.communicate(timeout=120)
-    except subprocess.TimeoutExpired:
-        os.killpg(job.pid, signal.SIGKILL)  # leave no job behind a failed test
-        raise
+    finally:
+        if job.poll() is None:
+            os.killpg(job.pid, signal.SIGKILL)  # leave no job behind a failed test
