@@ -3,7 +3,6 @@ triangle equal the float64 reference on the embedded float16 probabilities, pixe
 
 from __future__ import annotations
 
-import base64
 import hashlib
 import html
 import json
@@ -15,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from explorer_page import embedded_probs
 
 from costseg.costs import barycentric_grid, mix_costs
 from costseg.decision import decide_reference
@@ -49,21 +49,6 @@ def page_state(page: Path, weights: str, dom: str | None = None) -> dict:
     found = re.search(r'<pre id="costseg-state"[^>]*>(.*?)</pre>', dom)
     assert found, "the page holds no costseg-state element"
     return json.loads(html.unescape(found.group(1)))
-
-
-def embedded_probs(page: Path) -> dict[str, torch.Tensor]:
-    """name → (N, H, W) float16 probabilities, decoded from the page's own data."""
-    text = page.read_text()
-    data = re.search(r'<script type="application/json" id="costseg-data">(.*?)</script>', text)
-    examples = json.loads(data.group(1).replace("<\\/", "</"))["examples"]
-    return {
-        ex["name"]: torch.from_numpy(
-            np.frombuffer(base64.b64decode(ex["probs"]), dtype="<f2")
-            .reshape(-1, ex["height"], ex["width"])
-            .copy()
-        )
-        for ex in examples
-    }
 
 
 def reference_sha(probs: torch.Tensor, weights: list[float]) -> str:
