@@ -21,6 +21,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from costseg.checkpoints import read_torch_file
 from costseg.models.aspp import ASPP
 from costseg.models.resnet import ResNetTrunk
 
@@ -235,12 +236,7 @@ def load_backbone_weights(backbone: nn.Module, path: str | Path) -> None:
 def _read_state_dict(path: Path) -> dict[str, torch.Tensor]:
     if not path.is_file():
         raise FileNotFoundError(f"backbone weights file not found: {path}")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as err:
-        # torch's unpickling messages span many lines; keep the first.
-        first = (str(err).splitlines() or [""])[0]
-        raise ValueError(f"{path} is not a readable torch state dict: {first}") from err
+    state = read_torch_file(path)
     if not isinstance(state, dict):
         raise ValueError(f"{path} should hold a state dict; got a {type(state).__name__}")
     return state
