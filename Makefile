@@ -15,8 +15,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: setup
-	$(BIN)/python train.py
-	$(BIN)/python evaluate.py --cost robotistic altruistic egoistic ml --sweep 0.1
+	$(BIN)/python scripts/demo.py
 
 lint: setup
 	$(BIN)/ruff check .

@@ -1,11 +1,14 @@
-"""CPU training-step throughput of DeepLabv3+ configurations, in images/s.
+"""CPU training-step throughput of the packaged toy recipes, in images/s, side by side.
 
-One step = forward (fp32 or bf16 autocast, channels-last as in training), cross-entropy,
-backward, SGD update. Every configuration is warmed up once, then the timed steps go round-robin
-over the configurations so that a change in the load of a shared machine hits all of them
-alike; the median step time is reported.
+Each recipe is read from its packaged config (``toy``: the demo; ``toy_long``: the longer recipe)
+and timed in float32; ``toy_long`` also in bf16 autocast, to show what bf16 costs on this CPU
+(emulated, and many times slower, where the CPU has no native bf16). One step
+= forward, cross-entropy, backward, AdamW update, on a fixed random batch of the config's size and
+batch size, in the memory format the training module uses. Every configuration is warmed up
+once, then the timed steps go round-robin over the configurations, so that a change in the load
+of a shared machine hits all of them alike; the median step time is reported.
 
-    python scripts/bench_model.py [--threads 2] [--steps 3] [--batch 8]
+    python scripts/bench_model.py [--threads 2] [--steps 3] [--no-bf16]
 """
 
 from __future__ import annotations
@@ -17,55 +20,64 @@ import time
 from dataclasses import dataclass
 
 import torch
+import yaml
 from torch.nn import functional as F
 
+from costseg import CONFIGS
 from costseg.classes import IGNORE_INDEX, NUM_CLASSES
 from costseg.models.deeplabv3plus import DeepLabV3Plus
 
 
 @dataclass(frozen=True)
-class Config:
-    """One network and input size to time."""
+class Recipe:
+    """One config's network, input size and batch, in one precision."""
 
+    config: str
     backbone: str
     output_stride: int
     decoder_channels: int
     size: tuple[int, int]
+    batch: int
     bf16: bool = False
+
+    @classmethod
+    def read(cls, config: str, bf16: bool = False) -> Recipe:
+        text = yaml.safe_load((CONFIGS / f"{config}.yaml").read_text())
+        model, data = text["model"], text["data"]["init_args"]
+        return cls(
+            config,
+            model["backbone"],
+            model["output_stride"],
+            model["decoder_channels"],
+            tuple(data["size"]),
+            data["batch_size"],
+            bf16,
+        )
 
     def __str__(self) -> str:
         h, w = self.size
         dtype = "bf16" if self.bf16 else "fp32"
         return (
-            f"{self.backbone:<18} os{self.output_stride} dc{self.decoder_channels:<3} {h}x{w} "
-            f"{dtype}"
+            f"{self.config:<9} {self.backbone} os{self.output_stride} dc{self.decoder_channels:<3}"
+            f" {h}x{w} batch {self.batch} {dtype}"
         )
 
 
-CONFIGS = (
-    Config("resnet18", 16, 256, (128, 256)),
-    Config("resnet18", 16, 256, (256, 512)),
-    Config("resnet18", 16, 128, (128, 256)),
-    Config("resnet18", 16, 128, (128, 256), bf16=True),
-    Config("mobilenet_v3_large", 16, 256, (128, 256)),
-)
-
-
-class Trainer:
+class Step:
     """A model, its optimiser and one fixed random batch."""
 
-    def __init__(self, config: Config, batch: int) -> None:
-        self.bf16 = config.bf16
+    def __init__(self, recipe: Recipe) -> None:
+        self.bf16 = recipe.bf16
         self.net = DeepLabV3Plus(
-            NUM_CLASSES, config.backbone, config.output_stride, None, config.decoder_channels
+            NUM_CLASSES, recipe.backbone, recipe.output_stride, None, recipe.decoder_channels
         ).to(memory_format=torch.channels_last)
-        self.optimizer = torch.optim.SGD(self.net.parameters(), lr=0.01, momentum=0.9)
-        images = torch.randn(batch, 3, *config.size)
+        self.optimizer = torch.optim.AdamW(self.net.parameters(), lr=1e-3)
+        images = torch.randn(recipe.batch, 3, *recipe.size)
         self.images = images.contiguous(memory_format=torch.channels_last)
-        self.labels = torch.randint(0, NUM_CLASSES, (batch, *config.size))
+        self.labels = torch.randint(0, NUM_CLASSES, (recipe.batch, *recipe.size))
         self.labels[:, :8] = IGNORE_INDEX  # some ignored pixels, as in real labels
 
-    def step(self) -> float:
+    def __call__(self) -> float:
         """Run one training step; return its wall time in seconds."""
         start = time.perf_counter()
         self.optimizer.zero_grad(set_to_none=True)
@@ -78,28 +90,35 @@ class Trainer:
 
 
 def main() -> None:
-    """Time every configuration and print one line each."""
+    """Time every recipe and print one line each, with its speed relative to the first."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--threads", type=int, default=2, help="torch intra-op threads")
     parser.add_argument("--steps", type=int, default=3, help="timed steps per configuration")
-    parser.add_argument("--batch", type=int, default=8, help="images per step")
+    parser.add_argument("--no-bf16", action="store_true", help="skip the bf16 autocast step")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
+    recipes = [Recipe.read("toy_long"), Recipe.read("toy")]
+    if not args.no_bf16:
+        recipes.insert(0, Recipe.read("toy_long", bf16=True))
     print(
-        f"threads {args.threads}, batch {args.batch}, {args.steps} timed steps, "
+        f"threads {args.threads}, {args.steps} timed steps, "
         f"load average before {os.getloadavg()[0]:.1f}"
     )
-    trainers = [Trainer(config, args.batch) for config in CONFIGS]
-    for trainer in trainers:
-        trainer.step()  # warm-up: allocator and kernel selection
-    times: list[list[float]] = [[] for _ in trainers]
+    steps = [Step(recipe) for recipe in recipes]
+    for step in steps:
+        step()  # warm-up: allocator and kernel selection
+    times: list[list[float]] = [[] for _ in steps]
     for _ in range(args.steps):
-        for trainer, record in zip(trainers, times, strict=True):
-            record.append(trainer.step())
-    for config, record in zip(CONFIGS, times, strict=True):
+        for step, record in zip(steps, times, strict=True):
+            record.append(step())
+    rates = [r.batch / statistics.median(t) for r, t in zip(recipes, times, strict=True)]
+    for recipe, record, rate in zip(recipes, times, rates, strict=True):
         seconds = statistics.median(record)
-        print(f"{config}: {args.batch / seconds:6.2f} images/s ({seconds:.2f} s/step)")
+        print(
+            f"{recipe}: {rate:6.2f} images/s ({seconds:.2f} s/step), "
+            f"{rate / rates[0]:.2f}x the first"
+        )
     print(f"load average after {os.getloadavg()[0]:.1f}")
 
 

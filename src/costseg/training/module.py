@@ -25,6 +25,7 @@ from costseg.models.deeplabv3plus import DeepLabV3Plus
 from costseg.networks.base import IMAGENET_MEAN, IMAGENET_STD
 from costseg.rules import parse_rules, rules_group
 
+
 class SegmentationModule(L.LightningModule):
     """DeepLabv3+ for semantic segmentation with cost-based validation.
 
@@ -39,6 +40,8 @@ class SegmentationModule(L.LightningModule):
         momentum: SGD momentum.
         weight_decay: L2 / decoupled weight decay.
         poly_power: exponent of the poly schedule.
+        warmup_steps: steps over which the learning rate rises linearly to ``lr`` before the
+            poly decay (0 = none); lets a short schedule start at a high rate.
         val_costs: decision rules applied in validation (names as for ``evaluate.py --cost``).
         prior_sigma: Gaussian smoothing (pixels) of the pixel-wise priors; None = the
             default 80 · H / 1024 (docs/definitions.md §3) for labels of height H.
@@ -58,12 +61,13 @@ class SegmentationModule(L.LightningModule):
         momentum: float = 0.9,
         weight_decay: float = 1e-4,
         poly_power: float = 0.9,
+        warmup_steps: int = 0,
         val_costs: tuple[str, ...] = ("robotistic",),
         prior_sigma: float | None = None,
         channels_last: bool = True,
     ) -> None:
         super().__init__()
-        _check_hyperparameters(lr, momentum, weight_decay, poly_power)
+        _check_hyperparameters(lr, momentum, weight_decay, poly_power, warmup_steps)
         self.save_hyperparameters()
         self.net = DeepLabV3Plus(
             num_classes, backbone, output_stride, backbone_weights, decoder_channels
@@ -138,10 +142,13 @@ class SegmentationModule(L.LightningModule):
         else:
             opt = torch.optim.AdamW(self.parameters(), lr=h.lr, weight_decay=h.weight_decay)
         total = max(1, int(self.trainer.estimated_stepping_batches))
-        poly = torch.optim.lr_scheduler.LambdaLR(
-            opt, lambda step: max(0.0, 1 - step / total) ** h.poly_power
-        )
-        return {"optimizer": opt, "lr_scheduler": {"scheduler": poly, "interval": "step"}}
+
+        def factor(step: int) -> float:
+            warmup = min(1.0, (step + 1) / h.warmup_steps) if h.warmup_steps else 1.0
+            return warmup * max(0.0, 1 - step / total) ** h.poly_power
+
+        schedule = torch.optim.lr_scheduler.LambdaLR(opt, factor)
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": schedule, "interval": "step"}}
 
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         checkpoint[CHECKPOINT_KEY] = {
@@ -158,7 +165,9 @@ class SegmentationModule(L.LightningModule):
         self.priors_info = extra.get("priors_info")
 
 
-def _check_hyperparameters(lr: float, momentum: float, weight_decay: float, power: float) -> None:
+def _check_hyperparameters(
+    lr: float, momentum: float, weight_decay: float, power: float, warmup_steps: int
+) -> None:
     """Refuse values no optimiser accepts, before anything is computed (one line each)."""
     if not lr > 0:
         raise ValueError(f"--model.lr must be > 0, got {lr}")
@@ -168,3 +177,5 @@ def _check_hyperparameters(lr: float, momentum: float, weight_decay: float, powe
         raise ValueError(f"--model.weight_decay must be >= 0, got {weight_decay}")
     if not power >= 0:
         raise ValueError(f"--model.poly_power must be >= 0, got {power}")
+    if not (isinstance(warmup_steps, int) and warmup_steps >= 0):
+        raise ValueError(f"--model.warmup_steps must be an integer >= 0, got {warmup_steps}")

@@ -6,9 +6,12 @@
 from __future__ import annotations
 
 import contextlib
+import hashlib
+import json
 import logging
 import shutil
 import sys
+import tempfile
 import warnings
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -21,8 +24,9 @@ from lightning.pytorch.callbacks import RichProgressBar, TQDMProgressBar
 from lightning.pytorch.cli import LightningCLI
 
 from costseg.checkpoints import find_checkpoint, read_checkpoint
-from costseg.data.priors import default_sigma, pixel_priors, roi_map, save_priors
+from costseg.data.priors import roi_map, save_priors
 from costseg.training.module import SegmentationModule
+from costseg.training.precision import choose_precision, cpu_has_native_bf16
 from costseg.training.progress import StepProgress
 
 
@@ -36,6 +40,16 @@ class TrainCLI(LightningCLI):
             default=None,
             help="resume training from this checkpoint ('last': newest runs/**/last.ckpt)",
         )
+
+    def before_instantiate_classes(self) -> None:
+        """Fill in the precision when neither the config nor the command line sets it."""
+        precision = self.config.get("trainer.precision")
+        if precision is None:
+            precision, why = choose_precision(self.config.get("trainer.accelerator", "auto"))
+            self.config["trainer.precision"] = precision
+        else:
+            why = "set by the config or --trainer.precision"
+        self.precision_line = f"precision: {precision} ({why})"
 
 
 @contextlib.contextmanager
@@ -75,6 +89,7 @@ def run_training(args: Sequence[str]) -> tuple[SegmentationModule, Trainer]:
         if ckpt_path:
             ckpt_path = str(find_checkpoint(ckpt_path))
             read_checkpoint(ckpt_path, data.class_names)
+    print(cli.precision_line)
     _warn_slow_bf16(trainer)
     _use_step_progress(trainer)
     logging.getLogger("lightning.pytorch.utilities.rank_zero").addFilter(_no_interrupt_note)
@@ -177,7 +192,7 @@ def _warn_slow_bf16(trainer: Trainer) -> None:
     times slower than float32. Say so before hours are lost."""
     on_cpu = trainer.accelerator.__class__.__name__ == "CPUAccelerator"
     bf16 = on_cpu and "bf16" in str(trainer.precision)
-    if bf16 and not torch.ops.mkldnn._is_mkldnn_bf16_supported():
+    if bf16 and not cpu_has_native_bf16():
         print(
             f"warning: this CPU ({torch.backends.cpu.get_cpu_capability()}) has no native "
             "bf16, so bf16 autocast is emulated and slow: pass --trainer.precision 32-true",
@@ -191,21 +206,36 @@ def _data_config(cli: LightningCLI) -> dict[str, Any]:
 
 
 def _compute_priors(model: SegmentationModule, data, trainer: Trainer) -> torch.Tensor:
-    """Pixel-wise priors from the training labels, saved (with figures) in the run folder."""
+    """Pixel-wise priors from the training labels, saved (with figures) in the run folder.
+
+    They are computed once per data settings and kept in ``<save_dir>/priors_cache/`` (the
+    logger's folder, e.g. ``runs/``); delete a file there to count its labels again."""
+    from costseg.data.priors_cache import cached_priors
     from costseg.report.files import save_figure
     from costseg.report.priors import plot_priors, plot_roi_map
 
-    labels = data.prior_labels()
-    sigma = model.hparams.prior_sigma
-    priors = pixel_priors(labels, data.num_classes, sigma=sigma, progress=True)
+    settings = {"data": type(data).__qualname__, **data.hparams}
+    key = hashlib.sha1(json.dumps(settings, sort_keys=True, default=str).encode()).hexdigest()
+    save_dir = getattr(trainer.logger, "save_dir", None)
+    with tempfile.TemporaryDirectory() as scratch:  # no logger folder (fast_dev_run): no cache
+        found = cached_priors(
+            data.prior_labels,
+            Path(save_dir or scratch) / "priors_cache" / f"{key[:12]}.pt",
+            settings,
+            num_classes=data.num_classes,
+            sigma=model.hparams.prior_sigma,
+            class_names=data.class_names,
+        )
+    verb = "reused" if found.reused else "computed"
+    print(f"priors {verb} from {found.num_labels} training labels (σ = {found.sigma:g} px)")
     model.priors_info = {
-        "labels": len(labels),
-        "sigma_px": default_sigma(priors.shape[1]) if sigma is None else sigma,
-        "size": list(priors.shape[1:]),
+        "labels": found.num_labels,
+        "sigma_px": found.sigma,
+        "size": list(found.priors.shape[1:]),
     }
     if trainer.is_global_zero and trainer.log_dir:
         run = Path(trainer.log_dir)
-        save_priors(run / "priors.pt", priors, data.class_names)
-        save_figure(plot_priors(priors, data.class_names), run / "priors.png")
-        save_figure(plot_roi_map(roi_map(priors, data.class_names)), run / "roi_map.png")
-    return priors
+        save_priors(run / "priors.pt", found.priors, data.class_names)
+        save_figure(plot_priors(found.priors, data.class_names), run / "priors.png")
+        save_figure(plot_roi_map(roi_map(found.priors, data.class_names)), run / "roi_map.png")
+    return found.priors

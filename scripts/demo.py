@@ -1,0 +1,59 @@
+"""``make demo``: train the default model, evaluate it under the paper's rules, say how long each took.
+
+    python scripts/demo.py [--runs runs]
+
+Runs ``train.py`` and then ``evaluate.py --cost robotistic altruistic egoistic ml --sweep 0.1`` on
+the checkpoint it wrote, each in its own process with its output shown as it comes, and ends with
+the wall time of both and the folder of results. A failing step ends the demo with its status.
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+EVALUATE = ["--cost", "robotistic", "altruistic", "egoistic", "ml", "--sweep", "0.1"]
+
+
+def _run(args: list[str]) -> float:
+    """Run ``python ARGS`` in the repository root; its wall time in seconds (exit on failure)."""
+    start = time.perf_counter()
+    status = subprocess.call([sys.executable, *args], cwd=Path(__file__).resolve().parents[1])
+    if status != 0:
+        sys.exit(status)
+    return time.perf_counter() - start
+
+
+def _minutes(seconds: float) -> str:
+    return f"{int(seconds // 60)}:{seconds % 60:04.1f}"
+
+
+def _newest(pattern: str, runs: Path) -> Path:
+    return max(runs.glob(pattern), key=lambda p: p.stat().st_mtime)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", default="runs", help="the runs folder (train.py's save_dir)")
+    runs = Path(parser.parse_args().runs)
+    try:
+        train = _run(["train.py", f"--trainer.logger.init_args.save_dir={runs}"])
+        checkpoint = _newest("*/version_*/checkpoints/last.ckpt", runs)
+        evaluate = _run(["evaluate.py", "--ckpt_path", str(checkpoint), *EVALUATE])
+    except KeyboardInterrupt:
+        print("demo interrupted", file=sys.stderr)
+        sys.exit(130)
+    results = _newest("*/version_*/evaluate/version_*/results.json", runs).parent
+    print(
+        f"demo: training {_minutes(train)}, evaluation {_minutes(evaluate)}, "
+        f"in all {_minutes(train + evaluate)} (min:s)\n"
+        f"results: {results}\n"
+        f"everything logged: tensorboard --logdir {runs}"
+    )
+
+
+if __name__ == "__main__":
+    main()
