@@ -1,4 +1,4 @@
-"""``make demo``: train the default model, evaluate it under the paper's rules, say how long each took.
+"""``make demo``: train the default model, evaluate it under the paper's rules, time both halves.
 
     python scripts/demo.py [--runs runs]
 

@@ -1,4 +1,4 @@
-"""The training precision, chosen by the machine when neither the config nor the command line sets it.
+"""The training precision, chosen by the machine unless the config or command line sets it.
 
 bf16 autocast pays only where the hardware computes in bf16: a CUDA GPU that supports it, or a
 CPU with AVX512-BF16 or AMX. Elsewhere (AVX2 laptops and most cloud VMs) PyTorch emulates bf16 and
