@@ -105,3 +105,19 @@ def tiny_run(tmp_path_factory: pytest.TempPathFactory):
     runs = tmp_path_factory.mktemp("runs")
     module, trainer = train_main([*TINY_TRAIN, f"--trainer.logger.init_args.save_dir={runs}"])
     return module, trainer, runs
+
+
+@pytest.fixture(scope="session")
+def vainf(tmp_path_factory) -> tuple[torch.nn.Module, Path]:
+    """A VainF ResNet-50 OS16 DeepLabv3+ with random weights (BN statistics of random images),
+    in eval mode, and the checkpoint file VainF's code would write for it."""
+    from costseg.networks import export_vainf_state
+    from costseg.networks.vainf import vainf_deeplabv3plus
+
+    torch.manual_seed(0)
+    net = vainf_deeplabv3plus(19, "resnet50", 16)
+    with torch.no_grad():
+        net.train()(torch.randn(2, 3, 64, 64))  # BN statistics that depend on the input
+    path = tmp_path_factory.mktemp("vainf") / "best_deeplabv3plus_resnet50_cityscapes_os16.pth"
+    torch.save({"model_state": export_vainf_state(net.eval())}, path)
+    return net, path

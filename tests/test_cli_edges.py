@@ -11,8 +11,10 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 from conftest import TINY_TRAIN
 from interrupts import ENV, ROOT, interrupt_when, start_job
+from lightning.pytorch import LightningModule, Trainer  # imported at collection (log handler)
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from costseg.checkpoints import find_checkpoint
@@ -145,9 +147,6 @@ def test_progress_in_a_log_file_is_a_line_every_five_percent():
 
 def test_training_progress_counts_steps(capsys):
     """Optimiser steps (not batches, not epochs) towards max_steps: a line every 5 % in a log."""
-    import torch
-    from lightning.pytorch import LightningModule, Trainer
-
     from costseg.training.run import _use_step_progress
 
     class Line(LightningModule):  # y = w x on random batches: the smallest model that trains

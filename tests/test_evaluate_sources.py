@@ -6,27 +6,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 from conftest import write_cityscapes_item
 
 from costseg.classes import CLASS_NAMES
 from costseg.cli import evaluate_main
-from costseg.networks import export_vainf_state
-from costseg.networks.vainf import vainf_deeplabv3plus
 
 ARGS = ["--no-progress", "--num_examples", "1", "--cost", "robotistic", "egoistic", "ml"]
 
 
 @pytest.fixture(scope="module")
-def vainf_file(tmp_path_factory) -> Path:
-    """A VainF ResNet-50 OS16 checkpoint with random weights (BN statistics of random images)."""
-    torch.manual_seed(0)
-    net = vainf_deeplabv3plus(19, "resnet50", 16)
-    with torch.no_grad():
-        net.train()(torch.randn(2, 3, 64, 64))  # BN statistics that depend on the input
-    path = tmp_path_factory.mktemp("vainf") / "best_deeplabv3plus_resnet50_cityscapes_os16.pth"
-    torch.save({"model_state": export_vainf_state(net.eval())}, path)
-    return path
+def vainf_file(vainf) -> Path:
+    return vainf[1]
 
 
 def _json(folder: Path, name: str) -> dict:

@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import csv
 import json
+import sys
 from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from interrupts import ROOT, interrupt_when, start_job
 from PIL import Image
 from scipy import ndimage
 
@@ -20,6 +22,7 @@ from costseg.costs import load_cost
 from costseg.data.priors import resize_priors
 from costseg.decision import decide_reference
 from costseg.networks import load_costseg_checkpoint
+from costseg.report.outputs import INCOMPLETE
 
 RULES = ["robotistic", "altruistic", "egoistic", "ml"]
 
@@ -132,14 +135,18 @@ def test_bad_inputs_end_in_one_line_before_the_network_loads(tmp_path, capsys, k
     assert err[0].startswith("error: ") and str(path) in err[0], err
 
 
-def test_ctrl_c_ends_in_one_line_and_status_130(tmp_path, capsys, monkeypatch):
-    import costseg.prediction
-
-    def interrupted(opts):
-        raise KeyboardInterrupt
-
-    monkeypatch.setattr(costseg.prediction, "predict", interrupted)
-    with pytest.raises(SystemExit) as exit_:
-        predict_main(["--input", str(tmp_path)])
-    assert exit_.value.code == 130
-    assert capsys.readouterr().err.strip().splitlines() == ["interrupted"]
+def test_ctrl_c_ends_in_one_line_and_status_130(checkpoint, tmp_path):
+    """A real predict.py interrupted while it writes: one line, 130, the folder unfinished."""
+    folder, out = tmp_path / "images", tmp_path / "out"
+    folder.mkdir()
+    Image.fromarray(_picture(48, 80, 0)).save(first := folder / "000.png")
+    for i in range(1, 400):  # far more than are written before the interrupt arrives
+        (folder / f"{i:03d}.png").hardlink_to(first)
+    command = [sys.executable, str(ROOT / "predict.py"), "--input", str(folder), "--ckpt_path",
+               str(checkpoint), "--output_dir", str(out), "--no-progress"]  # fmt: skip
+    job = start_job(command)
+    _, err = interrupt_when(job, lambda: any((out / "panels").glob("*.png")))
+    assert job.returncode == 130, err
+    assert len(err.strip().splitlines()) == 1 and err.startswith("interrupted"), err
+    assert 0 < len(list((out / "panels").glob("*.png"))) < 400
+    assert (out / INCOMPLETE).is_file() and not (out / "counts.json").exists()
