@@ -12,11 +12,11 @@ from costseg.checkpoints import find_checkpoint
 from costseg.classes import LABEL_ID_TO_TRAIN_ID
 from costseg.cli import evaluate_main
 from costseg.costs import load_cost, mix_costs, save_cost
-from costseg.data.prior_maps import PriorMaps
+from costseg.data.priors import resize_priors
 from costseg.data.toy import StreetScenes
+from costseg.decision import decide_reference
 from costseg.evaluation.run import evaluate
 from costseg.options import EvalOptions
-from costseg.rules import apply_rules, parse_rules
 
 
 @pytest.fixture(scope="module")
@@ -72,19 +72,21 @@ def test_tensorboard_holds_scalars_images_and_table(evaluated):
 
 
 def test_prediction_pngs_decode_to_the_same_labels(evaluated):
+    """The label-id PNGs decode to the float64 reference rule on the network's probabilities."""
     ckpt, out = evaluated
     from costseg.training.module import SegmentationModule
 
     module = SegmentationModule.load_from_checkpoint(ckpt, map_location="cpu").eval()
     image, label = StreetScenes("val", 3, (64, 128))[1]
-    rules = parse_rules(["altruistic", "ml"])
     with torch.no_grad():
         probs = module(image[None]).softmax(1)
-    priors, _ = PriorMaps(module.priors).at(tuple(label.shape))
-    expected = apply_rules(probs, rules, priors)[0]
-    for k, name in enumerate(("altruistic", "ml")):
+    expected = {
+        "altruistic": decide_reference(probs, load_cost("altruistic"))[0],
+        "ml": decide_reference(probs, None, resize_priors(module.priors, tuple(label.shape)))[0],
+    }
+    for name, labels in expected.items():
         label_ids = np.array(Image.open(out / "predictions" / name / "val_000001.png"))
-        assert torch.equal(torch.from_numpy(LABEL_ID_TO_TRAIN_ID[label_ids]).long(), expected[k])
+        assert torch.equal(torch.from_numpy(LABEL_ID_TO_TRAIN_ID[label_ids]).long(), labels)
 
 
 def test_sweep_points_equal_single_rule_evaluations(tiny_run, tmp_path):
