@@ -16,7 +16,12 @@ trap 'rm -rf "$work"' EXIT
 step() { printf '\n== %s (%d s so far)\n' "$*" "$SECONDS"; }
 
 step "build the wheel"
-"$python" -m pip wheel --quiet --no-deps --wheel-dir "$work/dist" "$repo"
+# from a copy of the files git sees (tracked or not ignored): no stale build/ folder ships
+mkdir "$work/tree"
+git -C "$repo" ls-files -z --cached --others --exclude-standard |
+    tar -C "$repo" --null --files-from=- --ignore-failed-read --warning=no-failed-read -cf - |
+    tar -C "$work/tree" -xf -
+"$python" -m pip wheel --quiet --no-deps --wheel-dir "$work/dist" "$work/tree"
 wheel="$(ls "$work"/dist/costseg-*.whl)"
 "$python" -c 'import sys, zipfile; names = zipfile.ZipFile(sys.argv[1]).namelist()
 print(sys.argv[1].rsplit("/", 1)[-1] + ":", *sorted(n for n in names if n.endswith(".yaml")))' "$wheel"

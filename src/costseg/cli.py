@@ -104,7 +104,15 @@ def train_main(args: Sequence[str] | None = None) -> tuple[Any, Any]:
         from costseg.training.run import run_training
 
         with user_errors(ArgumentError, MisconfigurationException):
-            return run_training(args)
+            try:
+                return run_training(args)
+            except ModuleNotFoundError as err:
+                # Lightning's "Requirement 'torch_xla>=1.13' not met. HINT: pip install ...": a
+                # package the chosen option needs (--trainer.accelerator tpu) is the user's to
+                # install; any other failed import is a bug, with its traceback.
+                if str(err).startswith("Requirement '"):
+                    raise ValueError(str(err)) from None
+                raise
 
 
 def config_path(value: str) -> str:
