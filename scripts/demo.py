@@ -46,7 +46,7 @@ def main() -> None:
     except KeyboardInterrupt:
         print("demo interrupted", file=sys.stderr)
         sys.exit(130)
-    results = _newest("*/version_*/evaluate/version_*/results.json", runs).parent
+    results = _newest("*/version_*/evaluation/version_*/results.json", runs).parent
     print(
         f"demo: training {_minutes(train)}, evaluation {_minutes(evaluate)}, "
         f"in all {_minutes(train + evaluate)} (min:s)\n"
