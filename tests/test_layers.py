@@ -1,4 +1,4 @@
-"""The import structure of DESIGN.md: no module imports one higher in the chain, no cycles, and
+"""The import structure of docs/design.md: no module imports one higher in the chain, no cycles, and
 the decision-level code and the reports import neither Lightning nor the model."""
 
 import ast

@@ -63,3 +63,20 @@ def test_a_broken_import_of_costseg_is_not_a_user_mistake(monkeypatch):
     monkeypatch.setitem(sys.modules, "costseg.training.run", None)  # import fails
     with pytest.raises(ImportError, match=r"costseg\.training\.run"):
         train_main(["--trainer.max_steps=1"])
+
+
+def test_a_full_disk_during_training_is_one_line_naming_the_run(tmp_path, monkeypatch, capsys):
+    from conftest import TINY_TRAIN
+
+    from costseg.training.logger import RunLogger
+
+    def full(self, metrics, step=None):
+        raise OSError(28, "No space left on device")  # as TensorBoard raises it: no file name
+
+    monkeypatch.setattr(RunLogger, "log_metrics", full)
+    with pytest.raises(SystemExit) as exit_info:
+        train_main([*TINY_TRAIN, f"--trainer.logger.init_args.save_dir={tmp_path}"])
+    assert exit_info.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: [Errno 28] No space left on device: ")
+    assert str(tmp_path / "toy" / "version_0") in lines[0]

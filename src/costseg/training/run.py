@@ -161,6 +161,8 @@ def _after_failure(trainer: Trainer, new_run: Path | None, err: BaseException) -
         isinstance(err, SystemExit) and trainer.interrupted
     )
     if not interrupted:
+        if isinstance(err, OSError) and not err.filename:  # e.g. a full disk under TensorBoard
+            err.filename = trainer.log_dir
         raise err
     last = _newest_last(trainer)
     if last is None:
