@@ -83,7 +83,8 @@ def test_a_run_that_fails_before_training_leaves_no_folder(tmp_path, monkeypatch
         train_main([*TINY_TRAIN, f"--trainer.logger.init_args.save_dir={tmp_path}"])
     assert exit_info.value.code == 2
     assert capsys.readouterr().err.strip().splitlines()[-1] == "error: no optimiser today"
-    assert not list(tmp_path.rglob("*")), list(tmp_path.rglob("*"))
+    # only the priors, cached for the next run with the same data; no run folder
+    assert [p.name for p in tmp_path.iterdir()] == ["priors_cache"], list(tmp_path.rglob("*"))
 
 
 def test_a_full_disk_is_one_line_and_the_folder_stays_incomplete(
@@ -91,14 +92,14 @@ def test_a_full_disk_is_one_line_and_the_folder_stays_incomplete(
 ):
     import costseg.report.files as files
 
-    write = files._atomic_write
+    write = files.write_bytes
 
     def full(path, data):
         if str(path).endswith(".png"):
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
         return write(path, data)
 
-    monkeypatch.setattr(files, "_atomic_write", full)  # drawing processes fork: they see it too
+    monkeypatch.setattr(files, "write_bytes", full)  # drawing processes fork: they see it too
     out = tmp_path / "out"
     args = ["--ckpt_path", ckpt, "--cost", "robotistic", "--limit", "1", "--output_dir", str(out)]
     with pytest.raises(SystemExit) as exit_info:

@@ -129,7 +129,10 @@ def test_unknown_backbone_lists_valid_ones() -> None:
 
 @pytest.mark.parametrize(
     ("backbone", "stride", "message"),
-    [("resnet18", 32, "must be 8 or 16; got 32"), ("mobilenet_v3_large", 8, "must be 16; got 8")],
+    [
+        ("resnet18", 4, "must be 8 or 16 or 32; got 4"),
+        ("mobilenet_v3_large", 8, "must be 16; got 8"),
+    ],
 )
 def test_unsupported_stride(backbone: str, stride: int, message: str) -> None:
     with pytest.raises(ValueError, match=message):
