@@ -40,7 +40,11 @@ def test_train_py_uses_the_choice_unless_told(
     args = [*UNSET, "--trainer.accelerator=cpu", "--trainer.fast_dev_run=true"]
     if given is not None:
         args.append(f"--trainer.precision={given}")
-    _, trainer = train_main([*args, f"--trainer.logger.init_args.save_dir={tmp_path}"])
+    save = [
+        f"--trainer.default_root_dir={tmp_path}",
+        f"--trainer.logger.init_args.save_dir={tmp_path}",
+    ]
+    _, trainer = train_main([*args, *save])
     assert trainer.precision == expected
     lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("precision")]
     assert lines == [lines[0]] and lines[0].startswith(f"precision: {expected} (")
