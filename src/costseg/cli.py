@@ -142,8 +142,8 @@ def print_train_help(args: Sequence[str]) -> None:
         else next(a.split("=", 1)[1] for a in args if a.startswith("--config="))
     )
     print(
-        "usage: train.py [--config FILE|toy|cityscapes] [--KEY VALUE ...] [--ckpt_path PATH|last] "
-        "[--print_config] [--help_all]\n\n"
+        "usage: train.py [--config FILE|toy|toy_long|cityscapes] [--KEY VALUE ...] "
+        "[--ckpt_path PATH|last] [--print_config] [--help_all]\n\n"
         "Train DeepLabv3+ with LightningCLI. Every key of the config can be overridden, e.g.\n"
         "  python train.py --trainer.max_steps 3000 --model.backbone resnet34\n"
         "  python train.py --config cityscapes --data.init_args.root DIR\n"

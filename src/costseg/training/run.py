@@ -100,7 +100,10 @@ def run_training(args: Sequence[str]) -> tuple[SegmentationModule, Trainer]:
             print(f"resuming from {ckpt_path}")
         else:
             model.priors = _compute_priors(model, data, trainer)
-        trainer.fit(model, data, ckpt_path=ckpt_path)
+        with warnings.catch_warnings():
+            # Lightning's pytree helpers call an API that torch deprecates, at every start
+            warnings.filterwarnings("ignore", r"`isinstance\(treespec, LeafSpec\)`", FutureWarning)
+            trainer.fit(model, data, ckpt_path=ckpt_path)
     except BaseException as err:
         _after_failure(trainer, new_run, err)
     if trainer.checkpoint_callback is not None:
