@@ -121,10 +121,25 @@ def test_backbone_weights_round_trip(tmp_path: Path, backbone: str, head: str) -
 
 
 def test_unknown_backbone_lists_valid_ones() -> None:
-    valid = "resnet18, resnet34, resnet50, resnet101, mobilenet_v3_large"
-    with pytest.raises(ValueError, match=valid):
+    names = ("resnet18", "resnet18_w32", "resnet34", "resnet50", "resnet101", "mobilenet_v3_large")
+    with pytest.raises(ValueError, match=", ".join(names)):
         DeepLabV3Plus(num_classes=19, backbone="xception")
-    assert BACKBONES == ("resnet18", "resnet34", "resnet50", "resnet101", "mobilenet_v3_large")
+    assert names == BACKBONES
+
+
+def test_half_width_resnet18_has_a_quarter_of_the_convolution_weights() -> None:
+    """Every conv of ResNet-18 at base width 32 has half the input and output channels of
+    torchvision's (the stem's input: 3), so its conv weights are a quarter (the stem's a half)."""
+    from torchvision.models import resnet18
+
+    from costseg.models.resnet import ResNetTrunk
+
+    def conv_weights(net: torch.nn.Module) -> list[int]:
+        return [m.weight.numel() for m in net.modules() if isinstance(m, torch.nn.Conv2d)]
+
+    full, half = conv_weights(resnet18()), conv_weights(ResNetTrunk("resnet18", 32, width=32))
+    assert half[0] * 2 == full[0]
+    assert [4 * n for n in half[1:]] == full[1:]
 
 
 @pytest.mark.parametrize(
