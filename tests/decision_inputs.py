@@ -69,3 +69,40 @@ def probabilities(draw, max_classes=6):
     raw = torch.tensor(raw, dtype=torch.float32).view(b, n, h, w) + 1e-3
     dtype = draw(st.sampled_from(LOW_PRECISION))
     return (raw / raw.sum(1, keepdim=True)).to(dtype)
+
+
+def defer_ties(cost, count, seed):
+    """(1, N, 1, P) float32 probabilities where a class and deferring (the last row of an
+    (N + 1, N) ``cost``) are the two best candidates and lie within a few float32 ulps.
+
+    From certainty in a random class a towards random probabilities p1, a stays the best until
+    the first other candidate catches up (each at a ``t`` solved in float64): where that is
+    deferring, the pixel is kept, with p_a stepped by -3 .. 3 ulps as in :func:`near_ties`.
+    """
+    gen = torch.Generator().manual_seed(seed)
+    n = cost.shape[1]
+    pixels = []
+    for _ in range(100 * count):
+        if len(pixels) >= count:
+            break
+        a = int(torch.randint(n, (1,), generator=gen))
+        p1 = torch.rand(n, generator=gen, dtype=torch.float64) ** 8
+        p1 /= p1.sum()
+        at_p1 = cost @ p1  # along the way, row r minus row a: C[r, a] - t (C[r, a] + x_a - x_r)
+        rate = cost[:, a] + at_p1[a] - at_p1
+        t = torch.where(rate > 0, cost[:, a] / rate, torch.inf)
+        t[a] = torch.inf
+        first, second = t.sort().values[:2].tolist()
+        if t.argmin() != n or not 0 < first < 1 or second < first * (1 + 1e-6):
+            continue
+        tie = first * p1
+        tie[a] += 1 - first
+        p = tie.float()
+        for step in range(-3, 4):
+            q = p.clone()
+            for _ in range(abs(step)):
+                q[a] = torch.nextafter(q[a], torch.tensor(2.0 if step > 0 else 0.0))
+            pixels.append(q)
+    if len(pixels) < count:
+        raise ValueError("deferring is rarely a best candidate here: lower the defer costs")
+    return torch.stack(pixels, 1).view(1, n, 1, -1)

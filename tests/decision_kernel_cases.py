@@ -14,9 +14,9 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).parent))
-from decision_inputs import VERTICES, near_ties, smooth
+from decision_inputs import VERTICES, defer_ties, near_ties, smooth
 
-from costseg.costs import barycentric_grid, mix_costs
+from costseg.costs import barycentric_grid, mix_costs, symmetric_cost, with_defer
 from costseg.decision import decide, decide_mixtures
 from costseg.decision import decide_reference as reference
 from costseg.decision.certificate import reference_eps
@@ -52,6 +52,23 @@ def check(device: str, every_case: bool = True) -> None:
     probs = smooth((1, 19, 16, 32), 6)
     got = decide_mixtures(probs.to(device), VERTICES, weights).long().cpu()
     assert torch.equal(got, torch.stack([reference(probs, c) for c in matrices], 1))
+    # A defer row: one more candidate, labelled 255 (N = 16: 17 rows, other tiles)
+    deferring = with_defer(VERTICES[1], torch.linspace(0.5, 20, 19, dtype=torch.float64))
+    deferred = []
+    for probs, cost, pri in [
+        (cases[0], deferring, priors),
+        (defer_ties(deferring, 28, seed=8), deferring, None),
+        (smooth((1, 16, 16, 16), 9, scale=2), with_defer(symmetric_cost(16), 0.6), None),
+    ]:
+        got = decide(probs.to(device), cost, pri).cpu()
+        assert torch.equal(got, reference(probs, cost, pri)), (cost.shape, pri)
+        deferred.append((got == 255).float().mean().item())
+    assert all(0 < share < 1 for share in deferred), deferred
+    defer_costs = [0.4, 3.0, 30.0]
+    vertices = torch.stack([with_defer(v, c) for v, c in zip(VERTICES, defer_costs, strict=True)])
+    got = decide_mixtures(cases[0].to(device), vertices, weights).long().cpu()
+    loop = torch.stack([reference(cases[0], c) for c in mix_costs(vertices, weights)], 1)
+    assert torch.equal(got, loop) and (loop == 255).any()
     probs = smooth((1, 19, 16, 16), 5)
     fast = CertifiedCosts(VERTICES[2:3].double(), probs.to(device), None, reference_eps(19, False))
     labels = torch.empty(1, 256, dtype=torch.long, device=device)

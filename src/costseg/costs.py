@@ -1,7 +1,8 @@
 """Confusion cost matrices: load, validate, build (symmetric, aggregates, sky), mix, grid.
 
 A cost matrix ``C`` is (N, N) with **rows = predicted class, columns = true class**
-(docs/definitions.md §1).
+(docs/definitions.md §1), or (N + 1, N) with a last row of defer costs ``c_defer[j] >= 0``, the
+cost of deferring a pixel whose true class is j (docs/definitions.md §14).
 Matrices are float64 tensors so that YAML values and mixtures stay exact.
 
 >>> C = load_cost("egoistic")
@@ -33,12 +34,12 @@ PRESETS = ("robotistic", "altruistic", "egoistic")
 def validate_cost(cost: torch.Tensor, class_names: Sequence[str] = CLASS_NAMES) -> torch.Tensor:
     """Check that ``cost`` is a valid confusion cost matrix for ``class_names``.
 
-    Valid (docs/definitions.md §1): shape (N, N) with N = len(class_names), finite, zero diagonal,
-    positive
-    off-diagonal entries.
+    Valid (docs/definitions.md §1, §14): shape (N, N) with N = len(class_names), or (N + 1, N)
+    with a defer row; finite, zero diagonal, positive off-diagonal entries, defer costs >= 0.
 
     Args:
-        cost: (N, N) matrix, rows = predicted class, columns = true class.
+        cost: (N, N) or (N + 1, N) matrix, rows = predicted class (then defer), columns = true
+            class.
         class_names: the model's classes, used for the shape and in error messages.
 
     Returns:
@@ -53,27 +54,79 @@ def validate_cost(cost: torch.Tensor, class_names: Sequence[str] = CLASS_NAMES) 
     Traceback (most recent call last):
     ...
     ValueError: cost matrix entry [0, 1] (predicted 'a', true 'b') is -1.0: off-diagonal ...
+    >>> validate_cost(torch.tensor([[0.0, 1], [1, 0], [0.5, -1]]), ["a", "b"])  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    ValueError: cost matrix entry [2, 1] (defer, true 'b') is -1.0: defer costs must be >= 0
     """
     cost = torch.as_tensor(cost, dtype=torch.float64)
     n = len(class_names)
-    if cost.shape != (n, n):
+    if cost.shape not in ((n, n), (n + 1, n)):
         raise ValueError(
-            f"cost matrix must be {n}x{n} for {n} classes, got shape {tuple(cost.shape)}"
+            f"cost matrix must be {n}x{n} for {n} classes, got shape {tuple(cost.shape)}; with a "
+            f"defer row it is {n + 1}x{n}"
         )
-    off = ~torch.eye(n, dtype=torch.bool)
+    diagonal = torch.eye(len(cost), n, dtype=torch.bool)
+    defer = torch.zeros_like(diagonal)
+    defer[n:] = True
     checks = (
         (~torch.isfinite(cost), "costs must be finite"),
-        ((cost != 0) & ~off, "the diagonal must be 0"),
-        ((cost <= 0) & off, "off-diagonal costs must be > 0"),
+        ((cost != 0) & diagonal, "the diagonal must be 0"),
+        ((cost <= 0) & ~diagonal & ~defer, "off-diagonal costs must be > 0"),
+        ((cost < 0) & defer, "defer costs must be >= 0"),
     )
     for bad, rule in checks:
         if bad.any():
             i, j = (int(v) for v in bad.nonzero()[0])
+            row = "defer" if i == n else f"predicted {class_names[i]!r}"
             raise ValueError(
-                f"cost matrix entry [{i}, {j}] (predicted {class_names[i]!r}, true "
-                f"{class_names[j]!r}) is {cost[i, j].item()}: {rule}"
+                f"cost matrix entry [{i}, {j}] ({row}, true {class_names[j]!r}) is "
+                f"{cost[i, j].item()}: {rule}"
             )
     return cost
+
+
+def has_defer_row(cost: torch.Tensor) -> bool:
+    """Whether (..., R, N) matrices carry a defer row (R = N + 1; R = N: none)."""
+    return cost.shape[-2] == cost.shape[-1] + 1
+
+
+def with_defer(
+    cost: torch.Tensor, defer: float | torch.Tensor, class_names: Sequence[str] | None = None
+) -> torch.Tensor:
+    """``cost`` with a defer row: (N, N) → (N + 1, N) (docs/definitions.md §14).
+
+    Args:
+        cost: (N, N) cost matrix.
+        defer: the cost of deferring, for every true class (a number) or per true class ((N,)).
+        class_names: names of the true classes in error messages (None: their indices).
+
+    Raises:
+        ValueError: ``cost`` is not square, ``defer`` has another shape, or a defer cost is
+            negative, NaN or infinite.
+
+    >>> with_defer(symmetric_cost(2), 0.25)
+    tensor([[0.0000, 1.0000],
+            [1.0000, 0.0000],
+            [0.2500, 0.2500]], dtype=torch.float64)
+    """
+    cost = torch.as_tensor(cost, dtype=torch.float64)
+    n = cost.shape[-1]
+    if cost.shape != (n, n):
+        raise ValueError(f"a defer row extends an NxN cost matrix, got shape {tuple(cost.shape)}")
+    row = torch.as_tensor(defer, dtype=torch.float64, device=cost.device)
+    if row.shape not in ((), (n,)):
+        raise ValueError(f"defer costs must be a number or {n} numbers, got {tuple(row.shape)}")
+    row = row.expand(n)
+    bad = ~(torch.isfinite(row) & (row >= 0))
+    if bad.any():
+        j = int(bad.nonzero()[0])
+        name = repr(class_names[j]) if class_names is not None else j
+        raise ValueError(
+            f"the defer cost of true class {name} is {row[j].item()}: defer costs must be "
+            "finite and >= 0"
+        )
+    return torch.cat([cost, row[None]])
 
 
 def load_cost(name_or_path: str | Path, class_names: Sequence[str] = CLASS_NAMES) -> torch.Tensor:
@@ -86,8 +139,13 @@ def load_cost(name_or_path: str | Path, class_names: Sequence[str] = CLASS_NAMES
     * ``aggregates`` + ``order`` + ``matrix`` (A×A) + ``epsilon``, ``suppressed_row_cost`` (M),
       ``suppressed_column_cost`` (s) — expanded to N×N as in docs/definitions.md §2.
 
+    Each may add ``defer`` (docs/definitions.md §14): a number, the cost of deferring whatever the
+    true class, or a mapping from class names, aggregate names (files with aggregates) and
+    ``default`` (every class not named otherwise) to the cost of deferring that true class; a
+    class's own entry wins over its aggregate's.
+
     Returns:
-        (N, N) float64 matrix, validated.
+        (N, N) float64 matrix, or (N + 1, N) with ``defer``, validated.
 
     Raises:
         ValueError: unknown preset, malformed file, unknown class or aggregate name, invalid matrix.
@@ -119,15 +177,21 @@ def load_cost(name_or_path: str | Path, class_names: Sequence[str] = CLASS_NAMES
         cost = _full_matrix(spec, class_names)
     else:
         raise ValueError(f"{path}: expected a key 'off_diagonal', 'aggregates' or 'classes'")
+    if "defer" in spec:
+        cost = with_defer(cost, _defer_costs(spec, folder, class_names), class_names)
     return validate_cost(cost, class_names)
 
 
 def save_cost(
     path: str | Path, cost: torch.Tensor, name: str, class_names: Sequence[str] = CLASS_NAMES
 ) -> None:
-    """Write ``cost`` as a full-matrix YAML file that :func:`load_cost` reads back exactly."""
+    """Write ``cost`` as a full-matrix YAML file (a defer row as ``defer`` per class) that
+    :func:`load_cost` reads back exactly."""
     cost = validate_cost(cost, class_names)
-    spec = {"name": name, "classes": list(class_names), "matrix": cost.tolist()}
+    n = len(class_names)
+    spec = {"name": name, "classes": list(class_names), "matrix": cost[:n].tolist()}
+    if has_defer_row(cost):
+        spec["defer"] = dict(zip(class_names, cost[n].tolist(), strict=True))
     write_bytes(path, yaml.safe_dump(spec, sort_keys=False, width=1000).encode("utf-8"))
 
 
@@ -178,13 +242,18 @@ def _full_matrix(spec: dict, class_names: Sequence[str]) -> torch.Tensor:
     return cost
 
 
-def _expand_aggregates(
-    spec: dict, folder: Path | Traversable, class_names: Sequence[str]
-) -> torch.Tensor:
+def _aggregate_table(spec: dict, folder: Path | Traversable) -> tuple[dict, list]:
+    """The aggregates' classes by name, and the suppressed classes, of an aggregate cost file."""
     table = spec["aggregates"]
     if isinstance(table, str):
         table = _read_yaml(folder / table)
-    groups, suppressed = dict(table["aggregates"]), list(table.get("suppressed", []))
+    return dict(table["aggregates"]), list(table.get("suppressed", []))
+
+
+def _expand_aggregates(
+    spec: dict, folder: Path | Traversable, class_names: Sequence[str]
+) -> torch.Tensor:
+    groups, suppressed = _aggregate_table(spec, folder)
     order = list(spec["order"])
     if sorted(order) != sorted(groups):
         raise ValueError(
@@ -209,6 +278,41 @@ def _expand_aggregates(
     return cost.fill_diagonal_(0.0)
 
 
+def _defer_costs(
+    spec: dict, folder: Path | Traversable, class_names: Sequence[str]
+) -> float | torch.Tensor:
+    """A cost file's ``defer``: a number, or (N,) from its mapping (see :func:`load_cost`)."""
+    value = spec["defer"]
+    if isinstance(value, bool) or not isinstance(value, (int, float, dict)):
+        raise ValueError(
+            "cost file: 'defer' must be a number or a mapping from class names, aggregate names "
+            f"or 'default' to numbers, got {value!r}"
+        )
+    if not isinstance(value, dict):
+        return float(value)
+    groups = _aggregate_table(spec, folder)[0] if "aggregates" in spec else {}
+    row = torch.full((len(class_names),), math.nan, dtype=torch.float64)
+    # the default, then aggregates, then classes: the more specific entry wins
+    keys = sorted(value, key=lambda key: (key != "default", key not in groups))
+    for key in keys:
+        number = value[key]
+        if isinstance(number, bool) or not isinstance(number, (int, float)):
+            raise ValueError(f"cost file: 'defer' of {key!r} must be a number, got {number!r}")
+        if key == "default":
+            row[:] = number
+        elif key in groups:
+            row[_positions(groups[key], class_names, f"aggregate {key!r}")] = float(number)
+        else:
+            row[_positions([key], class_names, "cost file: 'defer'")] = float(number)
+    if row.isnan().any():
+        missing = class_names[int(row.isnan().nonzero()[0])]
+        raise ValueError(
+            f"cost file: 'defer' gives no cost for class {missing!r} (name it, its aggregate, "
+            "or 'default')"
+        )
+    return row
+
+
 def symmetric_cost(
     n: int, dtype: torch.dtype = torch.float64, device: torch.device | str | None = None
 ) -> torch.Tensor:
@@ -231,17 +335,20 @@ def symmetric_cost(
 
 
 def rescale(cost: torch.Tensor) -> torch.Tensor:
-    """Scale ``cost`` to unit mean off-diagonal cost (same decisions, different mixtures).
+    """Scale ``cost`` to unit mean off-diagonal cost (same decisions, different mixtures); a
+    defer row is scaled alike.
 
     >>> rescale(4 * load_cost("robotistic")).max().item()
     1.0
     """
-    off = ~torch.eye(cost.shape[-1], dtype=torch.bool, device=cost.device)
-    return cost / cost[..., off].mean(-1)[..., None, None]
+    n = cost.shape[-1]
+    off = ~torch.eye(n, dtype=torch.bool, device=cost.device)
+    return cost / cost[..., :n, :][..., off].mean(-1)[..., None, None]
 
 
 def mix_costs(vertices: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
-    """Mixtures ``Σ_v w_v C_v``: vertices (V, N, N), weights (K, V) → (K, N, N).
+    """Mixtures ``Σ_v w_v C_v``: vertices (V, R, N), weights (K, V) → (K, R, N) (R = N, or N + 1
+    with defer rows).
 
     >>> mix_costs(torch.stack([load_cost("robotistic")] * 2), torch.tensor([[0.5, 0.5]])).shape
     torch.Size([1, 19, 19])

@@ -1,7 +1,8 @@
 """The decision layer: the per-pixel argmin of expected cost, fast and exact.
 
 ``d(x; C) = argmin_k' Σ_k C[k', k] · p(k|x) / π(k)``, ties to the lowest class index
-(docs/definitions.md §1). Read in this order:
+(docs/definitions.md §1); a matrix with a defer row adds deferring, labelled ``DEFERRED`` (255),
+as the last candidate (§14). Read in this order:
 
 * :mod:`.reference` -- the rule itself in plain float64 torch (:func:`decide_reference`), the
   definition every fast path equals on every pixel, bit for bit;
@@ -16,6 +17,14 @@
 
 from costseg.decision.api import decide, decide_mixtures
 from costseg.decision.dispatch import explain
+from costseg.decision.label_maps import DEFERRED
 from costseg.decision.reference import decide_mixtures_reference, decide_reference
 
-__all__ = ["decide", "decide_mixtures", "decide_mixtures_reference", "decide_reference", "explain"]
+__all__ = [
+    "DEFERRED",
+    "decide",
+    "decide_mixtures",
+    "decide_mixtures_reference",
+    "decide_reference",
+    "explain",
+]

@@ -9,6 +9,7 @@ import torch
 from costseg.decision import dispatch
 from costseg.decision import inputs as checks
 from costseg.decision.inputs import Inputs
+from costseg.decision.label_maps import labels_of
 
 
 def _exact_precision(fn):
@@ -32,29 +33,31 @@ def decide(
     path: str | None = None,
 ) -> torch.Tensor:
     """Cost-based decision for every pixel, equal to :func:`~.reference.decide_reference` on
-    every pixel (docs/definitions.md §1).
+    every pixel (docs/definitions.md §1; deferring: §14).
 
     Args:
         probs: (B, N, H, W) class probabilities >= 0 (float16/bfloat16/32/64, any device).
         cost: (N, N) cost matrix, rows = predicted class, columns = true class; ``None`` means the
-            symmetric matrix (argmax, or maximum likelihood when priors are given).
+            symmetric matrix (argmax, or maximum likelihood when priors are given). (N + 1, N)
+            with a defer row (N <= 255): deferring is one more option, after the classes.
         priors: ``None``, (N,) global or (N, H, W) pixel-wise priors π > 0: the rule is applied to
             ``p / π`` (a per-pixel column scaling).
         path: force a path (``triton``, ``numba``, ``torch``, ``reference``; see
             :mod:`~.dispatch`); default: ``$COSTSEG_DECISION_PATH``, else the fastest that fits.
 
     Returns:
-        (B, H, W) int64 class indices.
+        (B, H, W) int64 class indices; 255 where deferring costs least.
 
     >>> p = torch.tensor([0.5, 0.3, 0.2]).view(1, 3, 1, 1)
     >>> C = torch.tensor([[0.0, 10, 1], [1, 0, 1], [1, 1, 0]])
-    >>> decide(p, None).item(), decide(p, C).item()
-    (0, 1)
+    >>> decide(p, None).item(), decide(p, C).item(), decide(p, torch.cat([C, C[1:2]])).item()
+    (0, 1, 1)
     """
     n = checks.check_probs(probs)
     cost = checks.check_cost(cost, n)
     priors = checks.check_priors(priors, n, probs)
-    return dispatch.choose(Inputs.of(probs, priors), path).decide(probs, cost, priors)
+    chosen = dispatch.choose(Inputs.of(probs, priors, cost), path)
+    return labels_of(chosen.decide(probs, cost, priors), cost)
 
 
 @_exact_precision
@@ -75,13 +78,14 @@ def decide_mixtures(
 
     Args:
         probs: (B, N, H, W) class probabilities >= 0.
-        vertices: (V, N, N) cost matrices.
+        vertices: (V, N, N) cost matrices, or (V, N + 1, N) with defer rows (N <= 255).
         weights: (K, V) mixture weights >= 0, each row with a positive entry
             (e.g. :func:`costseg.costs.barycentric_grid`).
         priors, path: as in :func:`decide`.
 
     Returns:
-        (B, K, H, W) class indices, uint8 when N <= 256 (K label maps are large), else int64.
+        (B, K, H, W) class indices, uint8 when N <= 256 (K label maps are large), else int64;
+        255 where deferring costs least.
 
     >>> from costseg.costs import barycentric_grid, load_cost
     >>> V = torch.stack([load_cost(n) for n in ("robotistic", "altruistic", "egoistic")])
@@ -92,5 +96,5 @@ def decide_mixtures(
     checks.check_mixtures(vertices, weights, n)
     vertices, weights = vertices.detach(), weights.detach()  # decisions have no gradient
     priors = checks.check_priors(priors, n, probs)
-    chosen = dispatch.choose(Inputs.of(probs, priors, len(vertices), len(weights)), path)
-    return chosen.decide_mixtures(probs, vertices, weights, priors)
+    chosen = dispatch.choose(Inputs.of(probs, priors, vertices, len(weights)), path)
+    return labels_of(chosen.decide_mixtures(probs, vertices, weights, priors), vertices)

@@ -29,8 +29,9 @@ SETTLE_BLOCK = 1 << 16  # (mixture, pixel) pairs re-checked at once: (block x V 
 class CertifiedCosts:
     """Float32 costs of V matrices for one call, with their certified rounding bound.
 
-    ``costs(q)``: (V, N + 1, P) = ``weight @ q`` for (N, P) float32 q. Rows ``:N`` use
-    ``W = (C - C.min(0)) / π >= 0`` (global priors folded into the columns; argmin), row N is
+    ``costs(q)``: (V, M + 1, P) = ``weight @ q`` for (N, P) float32 q, M rows of C (M = N, or
+    N + 1 with a defer row: one more candidate). Rows ``:M`` use
+    ``W = (C - C.min(0)) / π >= 0`` (global priors folded into the columns; argmin), row M is
     ``T = Σ_k R_k q_k`` with ``R = (C.max(0) - C.min(0) + |C|.max(0)) / π``, at least the
     magnitude of every reference cost. All terms are nonnegative, so each result errs by at most
     ``γ`` times its own value (plus underflow), the reference by at most ``eps · T``. ``γ``
@@ -38,7 +39,7 @@ class CertifiedCosts:
     float32 (a power-of-2 scale keeps it in range).
 
     Args:
-        matrices: (V, N, N) float64 cost matrices; probs: (B, N, H, W);
+        matrices: (V, M, N) float64 cost matrices; probs: (B, N, H, W);
         priors: None, (N,) or (N, H·W); eps: the reference's rounding per T.
     """
 
@@ -63,8 +64,9 @@ class CertifiedCosts:
         self.eps, self.folded = eps, weight  # folded: on the CPU, for the Triton kernel
         self.weight = single.reshape(-1, n).to(probs.device)
         self.weight64 = self.weight64.to(probs.device)
-        low = (1 << max(1, (n - 1).bit_length())) - 1  # the bits that carry a class in top()
-        self.code = torch.arange(n, dtype=torch.int32, device=probs.device).view(n, 1), low
+        m = self.rows[1] - 1  # candidates: classes (and deferring)
+        low = (1 << max(1, (m - 1).bit_length())) - 1  # the bits that carry a row in top()
+        self.code = torch.arange(m, dtype=torch.int32, device=probs.device).view(m, 1), low
         self.pixel_priors = None if priors is None or self.priors.ndim == 1 else self.priors
 
     @property
@@ -74,7 +76,7 @@ class CertifiedCosts:
         return self.probs.dtype == torch.float32 and self.pixel_priors is None
 
     def costs(self, q: torch.Tensor) -> torch.Tensor:
-        """(N, P) float32 → (V, N + 1, P) float32: N costs (smaller = better), then T."""
+        """(N, P) float32 → (V, M + 1, P) float32: M costs (smaller = better), then T."""
         return (self.weight @ q).view(*self.rows, -1)
 
     def exact_q(self, image: int, pixels: torch.Tensor) -> torch.Tensor:
@@ -100,7 +102,7 @@ class CertifiedCosts:
 
         Args:
             q: (U, N) float64 ``p / π`` of the pixels (:meth:`exact_q`).
-            shifted: (1, N, N) the reference's shifted matrix, or (K, N, N) with ``grid``.
+            shifted: (1, M, N) the reference's shifted matrix, or (K, M, N) with ``grid``.
             grid, inverse: None (R = U), or (R,) the mixture and the pixel of each label;
             weights: (K, V) float64 mixture weights.
         """
@@ -116,7 +118,7 @@ class CertifiedCosts:
         return labels
 
     def _settle(self, q, costs, gamma: float, shifted, grid=None):
-        """Stage 2 then 3 for (R, N) float64 q and their (R, N + 1) float64 costs and T."""
+        """Stage 2 then 3 for (R, N) float64 q and their (R, M + 1) float64 costs and T."""
         labels, unsure = top64(costs, gamma, self.eps)
         unsure = unsure.nonzero()[:, 0]
         if len(unsure):
@@ -151,8 +153,8 @@ def _template(matrices: bytes, shape, priors: bytes | None, eps: float, device, 
 
 
 def single_rule(probs: torch.Tensor, cost: torch.Tensor, priors) -> tuple:
-    """A single rule's certified costs, its (B, H·W) int64 labels to fill, and a function that
-    returns the reference's (1, N, N) shifted matrix (built once, where one is needed)."""
+    """A single rule's certified costs, its (B, H·W) int64 rows to fill, and a function that
+    returns the reference's (1, M, N) shifted matrix (built once, where one is needed)."""
     fast = prepare(cost, probs, priors, cert.reference_eps(probs.shape[1], mixtures=False))
     b, _, h, w = probs.shape
     out = empty_labels(b, h * w, dtype=torch.long, device=probs.device)
@@ -160,9 +162,10 @@ def single_rule(probs: torch.Tensor, cost: torch.Tensor, priors) -> tuple:
 
 
 def mixtures(probs: torch.Tensor, vertices: torch.Tensor, weights: torch.Tensor, priors) -> tuple:
-    """The vertices' certified costs, (B, K, H·W) labels to fill (uint8 for N <= 256: K label maps
-    add up, else int64), and functions that return the mixed matrices' (K, N, N) shifted
-    matrices and the (K, V) float64 weights on the probabilities' device (built where needed)."""
+    """The vertices' certified costs, (B, K, H·W) rows to fill (uint8 for N <= 256: K label maps
+    add up, else int64; a defer row, N, fits: N <= 255), and functions that return the mixed
+    matrices' (K, M, N) shifted matrices and the (K, V) float64 weights on the probabilities'
+    device (built where needed)."""
     n = probs.shape[1]
     fast = prepare(vertices.double().cpu(), probs, priors, cert.reference_eps(n, mixtures=True))
     b, _, h, w = probs.shape
@@ -181,7 +184,7 @@ def decide_in_chunks(
 
     Args:
         out: (B, H·W) labels, written; step: pixels per chunk (None: the default);
-        shifted: returns the reference's (1, N, N) shifted matrix (built where one is needed).
+        shifted: returns the reference's (1, M, N) shifted matrix (built where one is needed).
     """
     for i in range(len(out)):
         redo, q64 = [], []
@@ -237,7 +240,7 @@ def top(
 
 
 def top64(costs: torch.Tensor, gamma: float, eps: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """``top`` for (R, N + 1) float64 costs (argmin over dim 1, last column T), in floats, with
+    """``top`` for (R, M + 1) float64 costs (argmin over dim 1, last column T), in floats, with
     :func:`~.certificate.certified64`; returns labels (R,) and open (R,)."""
     if costs.shape[1] == 2:  # one class
         return torch.zeros_like(costs[:, 0], dtype=torch.long), torch.zeros_like(costs[:, 0] > 0)

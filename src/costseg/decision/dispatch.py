@@ -7,6 +7,7 @@ Each path module says why it cannot take an input (``not_supported_reasons``) an
 could but would not pay off, why it is not chosen (``not_preferred_reasons``); the first path
 with neither takes the input. ``COSTSEG_DECISION_PATH`` or ``path=`` forces one (tests, bug
 reports): the preferences are then ignored, and a path that cannot take the input is an error.
+Paths return the argmin's rows (a defer row: N); :func:`~.label_maps.labels_of` makes them labels.
 """
 
 from __future__ import annotations
@@ -21,20 +22,20 @@ from costseg.decision import tensor_ops
 from costseg.decision.cpu import numba_path
 from costseg.decision.gpu import triton_path
 from costseg.decision.inputs import Inputs
-from costseg.decision.reference import decide_mixtures_reference, decide_reference
+from costseg.decision.reference import reference_mixture_rows, reference_rows
 
 ENV = "COSTSEG_DECISION_PATH"
 
 
 def _reference_mixtures(probs, vertices, weights, priors) -> torch.Tensor:
-    labels = decide_mixtures_reference(probs, vertices, weights, priors)
-    return labels.to(torch.uint8 if probs.shape[1] <= 256 else torch.long)  # as the others
+    rows = reference_mixture_rows(probs, vertices, weights, priors)
+    return rows.to(torch.uint8 if probs.shape[1] <= 256 else torch.long)  # as the others
 
 
 REFERENCE = SimpleNamespace(
     NAME="reference",
     not_supported_reasons=lambda inputs: [],
-    decide=lambda probs, cost, priors: decide_reference(probs, cost[0], priors),
+    decide=lambda probs, cost, priors: reference_rows(probs, cost[0], priors),
     decide_mixtures=_reference_mixtures,
 )
 PATHS = {path.NAME: path for path in (triton_path, numba_path, tensor_ops, REFERENCE)}
@@ -70,7 +71,8 @@ def choose(inputs: Inputs, path: str | None = None) -> SimpleNamespace:
 def explain(probs, cost=None, priors=None, weights=None, path: str | None = None) -> str:
     """Which path ``decide(probs, cost, priors)`` takes and why the others do not (for bug
     reports); with ``weights``, that of ``decide_mixtures(probs, cost, weights, priors)``
-    (``cost``: the (V, N, N) vertices). The inputs are checked as those functions check them.
+    (``cost``: the (V, N, N) or (V, N + 1, N) vertices). The inputs are checked as those
+    functions check them.
 
     >>> print(explain(torch.rand(1, 3, 4, 4)))  # doctest: +ELLIPSIS
     decide on (1, 3, 4, 4) torch.float32 probabilities on cpu, ...: path 'torch'
@@ -82,11 +84,10 @@ def explain(probs, cost=None, priors=None, weights=None, path: str | None = None
     n = checks.check_probs(probs)
     priors = checks.check_priors(priors, n, probs)
     if weights is None:
-        checks.check_cost(cost, n)
-        inputs = Inputs.of(probs, priors)
+        inputs = Inputs.of(probs, priors, checks.check_cost(cost, n))
     else:
         checks.check_mixtures(cost, weights, n)
-        inputs = Inputs.of(probs, priors, len(cost), len(weights))
+        inputs = Inputs.of(probs, priors, cost, len(weights))
     chosen = choose(inputs, path).NAME
     forced = " (forced by path=)" if path else f" (forced by {ENV})" if os.environ.get(ENV) else ""
     lines = [f"{inputs.describe()}: path {chosen!r}{forced}"]

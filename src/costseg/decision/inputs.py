@@ -6,7 +6,8 @@ from dataclasses import dataclass
 
 import torch
 
-from costseg.costs import symmetric_cost
+from costseg.costs import has_defer_row, symmetric_cost
+from costseg.decision.label_maps import DEFERRED
 
 
 @dataclass(frozen=True)
@@ -17,6 +18,7 @@ class Inputs:
         shape: (B, N, H, W) of the probabilities; device, dtype: theirs.
         pixel_priors: whether priors are pixel-wise (N, H, W).
         vertices: V matrices (1 for ``decide``); mixtures: K (None for ``decide``).
+        defer: whether the matrices carry a defer row ((N + 1, N), docs/definitions.md §14).
     """
 
     shape: tuple[int, ...]
@@ -25,11 +27,14 @@ class Inputs:
     pixel_priors: bool = False
     vertices: int = 1
     mixtures: int | None = None
+    defer: bool = False
 
     @classmethod
-    def of(cls, probs: torch.Tensor, priors, vertices: int = 1, mixtures: int | None = None):
+    def of(cls, probs: torch.Tensor, priors, matrices: torch.Tensor, mixtures: int | None = None):
+        """What the dispatcher sees of ``probs``, ``priors`` and (V, R, N) ``matrices``."""
         pixel_priors = priors is not None and priors.ndim > 1
-        return cls(tuple(probs.shape), probs.device, probs.dtype, pixel_priors, vertices, mixtures)
+        shape, defer = tuple(probs.shape), has_defer_row(matrices)
+        return cls(shape, probs.device, probs.dtype, pixel_priors, len(matrices), mixtures, defer)
 
     @property
     def pixels(self) -> int:
@@ -40,6 +45,7 @@ class Inputs:
         rule = "decide" if self.mixtures is None else f"decide_mixtures ({self.mixtures} mixtures"
         rule += "" if self.mixtures is None else f" of {self.vertices} vertices)"
         priors = "pixel-wise priors" if self.pixel_priors else "no or global priors"
+        priors += ", a defer row" if self.defer else ""
         return f"{rule} on {self.shape} {self.dtype} probabilities on {self.device}, {priors}"
 
 
@@ -53,22 +59,39 @@ def check_probs(probs: torch.Tensor) -> int:
 
 
 def check_cost(cost: torch.Tensor | None, n: int) -> torch.Tensor:
-    """(1, N, N) float64 on the CPU (small: prepared there); None: the symmetric matrix."""
+    """(1, N, N) float64 on the CPU (small: prepared there), (1, N + 1, N) with a defer row; None:
+    the symmetric matrix."""
     cost = symmetric_cost(n) if cost is None else cost
-    if cost.shape != (n, n):
-        raise ValueError(f"cost matrix must be {n}x{n} for {n} classes, got {tuple(cost.shape)}")
+    if cost.shape not in ((n, n), (n + 1, n)):
+        raise ValueError(
+            f"cost matrix must be {n}x{n} for {n} classes, got {tuple(cost.shape)}; with a defer "
+            f"row it is {n + 1}x{n}"
+        )
+    check_defer(cost, n)
     return cost.detach().to(torch.float64).cpu()[None]
 
 
 def check_mixtures(vertices: torch.Tensor, weights: torch.Tensor, n: int) -> None:
-    """(V, N, N) vertex matrices and (K, V) weights >= 0, each row with a positive entry."""
-    if vertices.shape[1:] != (n, n) or weights.ndim != 2 or weights.shape[1] != len(vertices):
+    """(V, N, N) or, with defer rows, (V, N + 1, N) vertex matrices and (K, V) weights >= 0,
+    each row with a positive entry."""
+    shapes = ((n, n), (n + 1, n))
+    if vertices.shape[1:] not in shapes or weights.ndim != 2 or weights.shape[1] != len(vertices):
         raise ValueError(
-            f"expected vertices ({n} x {n} matrices) and weights (K, V), got "
-            f"{tuple(vertices.shape)} and {tuple(weights.shape)}"
+            f"expected vertices ({n} x {n} matrices, or {n + 1} x {n} with defer rows) and "
+            f"weights (K, V), got {tuple(vertices.shape)} and {tuple(weights.shape)}"
         )
+    check_defer(vertices, n)
     if not bool((weights >= 0).all() and (weights > 0).any(1).all()):
         raise ValueError("mixture weights must be >= 0 with a positive entry in each row")
+
+
+def check_defer(matrices: torch.Tensor, n: int) -> None:
+    """A defer row needs N <= 255 classes: a deferred pixel's label, 255, is then no class."""
+    if has_defer_row(matrices) and n > DEFERRED:
+        raise ValueError(
+            f"a defer row needs at most {DEFERRED} classes (a deferred pixel is labelled "
+            f"{DEFERRED}), got {n}"
+        )
 
 
 def check_priors(priors, n: int, probs: torch.Tensor) -> torch.Tensor | None:

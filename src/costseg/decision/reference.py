@@ -1,7 +1,8 @@
 """The decision rule itself, in plain float64 torch: the definition every fast path equals.
 
-See docs/definitions.md §1. :func:`decide_reference` is slow and simple on purpose; the fast
-paths behind :func:`costseg.decision.decide` give its decision on every pixel, bit for bit.
+See docs/definitions.md §1 and §14 (a defer row). :func:`decide_reference` is slow and simple
+on purpose; the fast paths behind :func:`costseg.decision.decide` give its decision on every
+pixel, bit for bit.
 """
 
 from __future__ import annotations
@@ -9,6 +10,8 @@ from __future__ import annotations
 import torch
 
 from costseg.costs import mix_costs, symmetric_cost
+from costseg.decision.inputs import check_defer
+from costseg.decision.label_maps import labels_of
 
 
 def decide_reference(
@@ -22,21 +25,35 @@ def decide_reference(
     the sum over k in ascending order (one rounded product and one rounded sum at a time), the
     argmin with ties to the lowest class index.
 
+    A defer row (an (N + 1, N) matrix, docs/definitions.md §14) is one more candidate, last: the
+    same shift (over all N + 1 rows), q and sums; the argmin over the N + 1 rows, so a class wins
+    a tie with deferring; a deferred pixel gets the label 255.
+
     Args:
         probs: (B, N, H, W) class probabilities >= 0, any float type and device.
-        cost: (N, N) cost matrix (rows: predicted class, columns: true class); None: symmetric.
+        cost: (N, N) cost matrix (rows: predicted class, columns: true class), or (N + 1, N) with
+            a defer row (N <= 255); None: symmetric.
         priors: None, (N,) global or (N, H, W) pixel-wise priors π > 0.
 
     Returns:
-        (B, H, W) int64 class indices.
+        (B, H, W) int64 class indices, 255 where deferring costs least.
 
     >>> p = torch.tensor([0.5, 0.3, 0.2]).view(1, 3, 1, 1)
     >>> C = torch.tensor([[0.0, 10, 1], [1, 0, 1], [1, 1, 0]])
     >>> decide_reference(p).item(), decide_reference(p, C).item()
     (0, 1)
+    >>> decide_reference(p, torch.cat([C, torch.full((1, 3), 0.4)])).item()  # 0.4 < 0.7
+    255
     """
-    b, n, h, w = probs.shape
-    cost = symmetric_cost(n) if cost is None else cost
+    cost = symmetric_cost(probs.shape[1]) if cost is None else cost
+    check_defer(cost, probs.shape[1])
+    return labels_of(reference_rows(probs, cost, priors), cost)
+
+
+def reference_rows(probs: torch.Tensor, cost: torch.Tensor, priors) -> torch.Tensor:
+    """(B, H, W) int64 rows of :func:`decide_reference`'s argmin (a defer row: N), before they
+    become labels (the ``reference`` path of :mod:`.dispatch`)."""
+    b, _, h, w = probs.shape
     shifted = shift(cost.detach().to(probs.device, torch.float64))
     return reference_labels(_q(probs, priors), shifted[None]).view(b, h, w)
 
@@ -48,10 +65,18 @@ def decide_mixtures_reference(
     priors: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """(B, K, H, W) int64: :func:`decide_reference` on each mixed matrix ``mix_costs(vertices,
-    weights)[k]`` (:func:`costseg.costs.mix_costs`), what ``decide_mixtures`` equals."""
+    weights)[k]`` (:func:`costseg.costs.mix_costs`), what ``decide_mixtures`` equals. Vertices
+    (V, N + 1, N) carry defer rows: 255 marks the deferred pixels."""
+    check_defer(vertices, probs.shape[1])
+    return labels_of(reference_mixture_rows(probs, vertices, weights, priors), vertices)
+
+
+def reference_mixture_rows(probs, vertices, weights, priors) -> torch.Tensor:
+    """(B, K, H, W) int64 rows of :func:`decide_mixtures_reference`'s argmins (a defer row: N),
+    before they become labels (the ``reference`` path of :mod:`.dispatch`)."""
     b, _, h, w = probs.shape
     matrices = mix_costs(vertices.detach(), weights.detach())
-    shifted = shift(matrices.to(probs.device, torch.float64))[:, None]  # (K, 1, N, N)
+    shifted = shift(matrices.to(probs.device, torch.float64))[:, None]  # (K, 1, M, N)
     q = _q(probs, priors)
     step = max(1, (1 << 24) // q.numel())  # mixtures at once: (step, B·H·W, N) float64 costs
     labels = torch.cat(
@@ -71,15 +96,15 @@ def _q(probs: torch.Tensor, priors) -> torch.Tensor:
 
 
 def shift(costs: torch.Tensor) -> torch.Tensor:
-    """(..., N, N) matrices minus their columns' largest entries (a column constant changes every
-    row's cost alike, hence no decision)."""
+    """(..., R, N) matrices minus their columns' largest entries, over all R rows (a column
+    constant changes every row's cost alike, hence no decision)."""
     return costs - costs.amax(dim=-2, keepdim=True)
 
 
 def reference_labels(q: torch.Tensor, shifted: torch.Tensor) -> torch.Tensor:
-    """The reference's sums and argmin: (R, N) float64 q and (..., R or 1, N, N) shifted matrices
-    → (..., R) int64 labels."""
+    """The reference's sums and argmin: (R, N) float64 q and (..., R or 1, M, N) shifted matrices
+    (M = N, or N + 1 with a defer row) → (..., R) int64 rows of the argmin."""
     costs = torch.zeros((), dtype=torch.float64, device=q.device)
     for k in range(q.shape[1]):  # ascending k, product and sum each rounded once
-        costs = costs + shifted[..., k] * q[:, k, None]  # broadcasts to (..., R, N)
+        costs = costs + shifted[..., k] * q[:, k, None]  # broadcasts to (..., R, M)
     return costs.min(-1).indices  # the first minimum: ties to the lowest index

@@ -7,7 +7,8 @@ are computed once and mixed (:class:`Mixer`). Where every vertex picks the same 
 certified gap, so does every mixture. Elsewhere only classes that no vertex winner beats in
 every vertex can win; two or three such candidates are decided by the signs of mixed cost
 differences, more by mixing their costs; the pairs left open go to
-:meth:`~.certified.CertifiedCosts.settle` on the mixed matrices of ``mix_costs``.
+:meth:`~.certified.CertifiedCosts.settle` on the mixed matrices of ``mix_costs``. A defer row
+(docs/definitions.md §14) is one more candidate, after the classes, everywhere.
 """
 
 from __future__ import annotations
@@ -30,7 +31,8 @@ def not_supported_reasons(inputs) -> list[str]:
 
 
 def decide(probs: torch.Tensor, cost: torch.Tensor, priors) -> torch.Tensor:
-    """(B, H, W) labels of one (1, N, N) float64 matrix (inputs checked by ``decide``)."""
+    """(B, H, W) rows of the argmin of one (1, M, N) float64 matrix, M = N or N + 1 with a defer
+    row (inputs checked by ``decide``)."""
     fast, out, shifted = certified.single_rule(probs, cost, priors)
 
     def chunk(q: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
@@ -42,7 +44,7 @@ def decide(probs: torch.Tensor, cost: torch.Tensor, priors) -> torch.Tensor:
 
 
 def decide_mixtures(probs, vertices, weights, priors) -> torch.Tensor:
-    """(B, K, H, W) labels of K mixtures (inputs checked by ``decide_mixtures``)."""
+    """(B, K, H, W) rows of the argmins of K mixtures (inputs checked by ``decide_mixtures``)."""
     fast, out, mixed, weights64 = certified.mixtures(probs, vertices, weights, priors)
     mix = Mixer(weights64(), fast, mixed())
     for i in range(len(probs)):
@@ -63,7 +65,7 @@ class Mixer:
         self.slack = cert.signs_slack(fast.gamma, fast.u_in, v, fast.eps)  # of signs()
 
     def chunk(self, costs: torch.Tensor, exact_q: Callable, labels: torch.Tensor) -> None:
-        """Vertex costs (V, N + 1, P) of a chunk → its (K, P) labels."""
+        """Vertex costs (V, M + 1, P) of a chunk (M rows, then T) → its (K, P) rows."""
         fast, k, p = self.fast, len(self.weights), costs.shape[2]
         winner, open_ = top(costs, fast.gamma, fast.eps, *fast.code)
         contested = ((winner != winner[:1]).any(0) | open_.any(0)).nonzero()[:, 0]

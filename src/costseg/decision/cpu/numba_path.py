@@ -27,6 +27,11 @@ def not_supported_reasons(inputs: Inputs) -> list[str]:
         reasons.append(f"probabilities on {inputs.device}: numba's kernels run on the CPU")
     if inputs.mixtures is not None and inputs.vertices > VERTICES:
         reasons.append(f"{inputs.vertices} vertex matrices: the kernel mixes at most {VERTICES}")
+    if inputs.defer:
+        reasons.append(
+            "a defer row: the kernels take square matrices (their row groups, candidate bits and "
+            "compiled reference have one row per class)"
+        )
     return reasons
 
 
@@ -43,7 +48,8 @@ def not_preferred_reasons(inputs: Inputs) -> list[str]:
 
 
 def decide(probs: torch.Tensor, cost: torch.Tensor, priors) -> torch.Tensor:
-    """(B, H, W) labels of one (1, N, N) float64 matrix (inputs checked by ``decide``)."""
+    """(B, H, W) rows of the argmin of one (1, N, N) float64 matrix (inputs checked by
+    ``decide``)."""
     from costseg.decision.cpu.sparse_rule import SparseRule  # numba: loaded where used
 
     fast, out, shifted = certified.single_rule(probs, cost, priors)
@@ -53,7 +59,7 @@ def decide(probs: torch.Tensor, cost: torch.Tensor, priors) -> torch.Tensor:
 
 
 def decide_mixtures(probs, vertices, weights, priors) -> torch.Tensor:
-    """(B, K, H, W) labels of K mixtures (inputs checked by ``decide_mixtures``)."""
+    """(B, K, H, W) rows of the argmins of K mixtures (inputs checked by ``decide_mixtures``)."""
     from costseg.decision.cpu.mixer import NumbaMixer  # numba: loaded where used
 
     fast, out, mixed, weights64 = certified.mixtures(probs, vertices, weights, priors)

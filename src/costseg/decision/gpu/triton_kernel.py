@@ -1,13 +1,14 @@
 """Stage 1 of the decision layer on a GPU: one Triton kernel, one read of the probabilities.
 
-Each program takes a block of pixels, sums the cost rows of V vertex matrices (N costs and the
-bound T, ``CertifiedCosts``' nonnegative weights, global priors folded in) in registers, then
+Each program takes a block of pixels, sums the cost rows of V vertex matrices (M costs: N
+classes, and deferring where the matrices have a defer row; then the bound T,
+``CertifiedCosts``' nonnegative weights, global priors folded in) in registers, then
 for each of K mixtures ``Σ_v w_kv x_v`` (``decide``: K = V = 1, w = 1) finds the argmin ``a``,
 the runner-up ``x_b`` and the certificate ``x_b - x_a - g (x_a + x_b) > 2 eps T (1 + g)``
 (``g = γ / (1 - γ)``, with its margins; the test in float64, T finite). It writes one label and
 one open flag per pixel and mixture, and counts the open pairs; no cost map reaches memory.
 
-The N + 1 rows are held as two tiles of power-of-2 sizes (16 + 4 for N = 19), not one of 32.
+The M + 1 rows are held as two tiles of power-of-2 sizes (16 + 4 for M = 19), not one of 32.
 Where every vertex's winner is the same and certified with the mixtures' margins on every pixel
 of a block, each mixture's certificate holds too (it is linear in the vertex costs, the weights
 are nonnegative), and the block writes that winner for all K without mixing. Costs are summed in
@@ -33,13 +34,13 @@ CONFIG = [(256, 2), (32, 1)]
 
 
 @triton.jit
-def _best_two(costs_a, costs_b, RA: tl.constexpr, RB: tl.constexpr, N: tl.constexpr):
-    """Argmin, best, runner-up and T (row N) of costs held as (RA, BLOCK) and (RB, BLOCK)."""
+def _best_two(costs_a, costs_b, RA: tl.constexpr, RB: tl.constexpr, M: tl.constexpr):
+    """Argmin, best, runner-up and T (row M) of costs held as (RA, BLOCK) and (RB, BLOCK)."""
     rows_a, rows_b = tl.arange(0, RA)[:, None], tl.arange(0, RB)[:, None]
-    total = tl.sum(tl.where(rows_a == N, costs_a, 0.0), 0)
-    total += tl.sum(tl.where(rows_b + RA == N, costs_b, 0.0), 0)
-    costs_a = tl.where(rows_a < N, costs_a, float("inf"))
-    costs_b = tl.where(rows_b + RA < N, costs_b, float("inf"))
+    total = tl.sum(tl.where(rows_a == M, costs_a, 0.0), 0)
+    total += tl.sum(tl.where(rows_b + RA == M, costs_b, 0.0), 0)
+    costs_a = tl.where(rows_a < M, costs_a, float("inf"))
+    costs_b = tl.where(rows_b + RA < M, costs_b, float("inf"))
     best_a, arg_a = tl.min(costs_a, 0), tl.argmin(costs_a, 0)
     best_b, arg_b = tl.min(costs_b, 0), tl.argmin(costs_b, 0)
     second_a = tl.min(tl.where(rows_a == arg_a[None, :], float("inf"), costs_a), 0)
@@ -80,6 +81,7 @@ def _certified_argmin(
     P,
     K,
     N: tl.constexpr,
+    M: tl.constexpr,
     RA: tl.constexpr,
     RB: tl.constexpr,
     V: tl.constexpr,
@@ -103,7 +105,7 @@ def _certified_argmin(
         for k in tl.static_range(N):
             costs_a, costs_b = _add_column(costs_a, costs_b, row + k * P, weight, k, rows_a, rows_b,
                                            inside, dtype, VP * (RA + RB))  # fmt: skip
-    else:  # several: a loop keeps V x (N + 1) x BLOCK costs, not the weights, in registers
+    else:  # several: a loop keeps V x (M + 1) x BLOCK costs, not the weights, in registers
         for k in range(N):
             costs_a, costs_b = _add_column(costs_a, costs_b, row + k * P, weight, k, rows_a, rows_b,
                                            inside, dtype, VP * (RA + RB))  # fmt: skip
@@ -112,13 +114,13 @@ def _certified_argmin(
     # smallest sum of a mixture's weights) certifies it for every mixture.
     first, best, second, total = _best_two(
         tl.sum(tl.where(verts[:, :, None] == 0, costs_a, 0.0), 0),
-        tl.sum(tl.where(verts[:, :, None] == 0, costs_b, 0.0), 0), RA, RB, N,
+        tl.sum(tl.where(verts[:, :, None] == 0, costs_b, 0.0), 0), RA, RB, M,
     )  # fmt: skip
     agree = inside & _certified(best, second, total, g, slack, vertex_tiny)
     for v in tl.static_range(1, V):
         vertex_a = tl.sum(tl.where(verts[:, :, None] == v, costs_a, 0.0), 0)
         vertex_b = tl.sum(tl.where(verts[:, :, None] == v, costs_b, 0.0), 0)
-        arg, best, second, total = _best_two(vertex_a, vertex_b, RA, RB, N)
+        arg, best, second, total = _best_two(vertex_a, vertex_b, RA, RB, M)
         agree &= _certified(best, second, total, g, slack, vertex_tiny) & (arg == first)
     if tl.min(tl.where(inside, agree, True).to(tl.int32), 0) == 1:
         for _ in range(K):
@@ -131,7 +133,7 @@ def _certified_argmin(
         for m in range(K):
             w = tl.load(mix + m * VP + verts)[:, :, None]
             mixed_a, mixed_b = tl.sum(w * costs_a, 0), tl.sum(w * costs_b, 0)
-            arg, best, second, total = _best_two(mixed_a, mixed_b, RA, RB, N)
+            arg, best, second, total = _best_two(mixed_a, mixed_b, RA, RB, M)
             ok = _certified(best, second, total, g, slack, tiny) | ~inside
             tl.store(out, arg.to(labels.dtype.element_ty), mask=inside)
             tl.store(flag, (~ok).to(tl.int8), mask=inside)
@@ -170,7 +172,7 @@ class Rule:
         self.scalars = torch.tensor(params, dtype=torch.float64).to(device)
         self.weight = padded.permute(2, 0, 1).contiguous().to(device)
         self.mix = mixing.to(device)
-        self.shape = dict(N=n, RA=ra, RB=rb, V=v, VP=vp, FLOAT64=float64, UNROLL=v == 1)
+        self.shape = dict(N=n, M=rows - 1, RA=ra, RB=rb, V=v, VP=vp, FLOAT64=float64, UNROLL=v == 1)
 
     def __call__(self, probs: torch.Tensor, labels: torch.Tensor):
         opened = torch.empty(labels.shape, dtype=torch.int8, device=probs.device)
@@ -192,7 +194,7 @@ def _cached(weight: bytes, shape: tuple, mix: bytes, k: int, eps: float, float64
 
 
 def rule(weight: torch.Tensor, mix: torch.Tensor, eps: float, device, float64: bool = True) -> Rule:
-    """The prepared kernel for (V, N + 1, N) float64 nonnegative rows and T
+    """The prepared kernel for (V, M + 1, N) float64 nonnegative rows and T
     (``CertifiedCosts.folded``: priors folded, scaled; on the CPU) and (K, V) float64 mixture
     weights >= 0 (``[[1.0]]`` for one matrix), cached per matrix, weights and device: preparing
     it copies to the GPU."""

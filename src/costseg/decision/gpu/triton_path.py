@@ -2,7 +2,8 @@
 
 The kernel (:mod:`.triton_kernel`) sums the costs in float64 in registers and certifies them,
 K mixtures in the same read of the probabilities; the pairs it leaves open go to
-``CertifiedCosts.settle``. It runs on CUDA tensors, or on the CPU under Triton's interpreter
+``CertifiedCosts.settle``. A defer row is one more candidate row (docs/definitions.md §14). It
+runs on CUDA tensors, or on the CPU under Triton's interpreter
 (``TRITON_INTERPRET=1``, set before Triton is imported: tests). Triton is optional, imported on
 first use.
 """
@@ -41,7 +42,8 @@ def interpreted() -> bool:
 
 
 def decide(probs: torch.Tensor, cost: torch.Tensor, priors) -> torch.Tensor:
-    """(B, H, W) labels of one (1, N, N) float64 matrix (inputs checked by ``decide``)."""
+    """(B, H, W) rows of the argmin of one (1, M, N) float64 matrix, M = N or N + 1 with a defer
+    row (inputs checked by ``decide``)."""
     from costseg.decision.gpu import triton_kernel  # optional: imported where used
 
     fast, out, shifted = certified.single_rule(probs, cost, priors)
@@ -57,7 +59,7 @@ def decide(probs: torch.Tensor, cost: torch.Tensor, priors) -> torch.Tensor:
 
 
 def decide_mixtures(probs, vertices, weights, priors) -> torch.Tensor:
-    """(B, K, H, W) labels of K mixtures (inputs checked by ``decide_mixtures``)."""
+    """(B, K, H, W) rows of the argmins of K mixtures (inputs checked by ``decide_mixtures``)."""
     from costseg.decision.gpu import triton_kernel  # optional: imported where used
 
     fast, out, mixed, weights64 = certified.mixtures(probs, vertices, weights, priors)
