@@ -27,6 +27,7 @@ from costseg.decision import (
 )
 from costseg.decision.dispatch import ENV, choose, reasons
 from costseg.decision.inputs import Inputs
+from costseg.rules.named import parse_rules
 from costseg.rules.triangle import vertex_matrices
 
 PATHS = ["torch", "reference"]  # the CPU paths that take a defer row (numba: refused, below)
@@ -313,14 +314,13 @@ def test_rescale_scales_the_defer_row_alike():
     assert torch.equal(rescale(cost[None].expand(2, -1, -1))[1], rescale(cost))
 
 
-def test_sweep_vertices_have_defer_rows_on_all_or_none(tmp_path):
-    names = [str(write(tmp_path, {"off_diagonal": 1.0, "defer": 0.5}, "r.yaml")), "altruistic"]
-    with pytest.raises(ValueError, match=r"defer rows on all three or none; \['r'\]"):
-        vertex_matrices([*names, "egoistic"])
-    deferring = [
-        str(write(tmp_path, {**spec, "defer": 9}, f"{i}.yaml"))
-        for i, spec in enumerate(
-            [{"off_diagonal": 1.0}, {"off_diagonal": 2.0}, {"off_diagonal": 3.0}]
-        )
-    ]
-    assert vertex_matrices(deferring, "mean").shape == (3, 20, 19)
+def test_the_command_line_rules_refuse_a_defer_row_in_one_line(tmp_path):
+    deferring = str(write(tmp_path, {"off_diagonal": 1.0, "defer": 0.5}, "r.yaml"))
+    for build in (
+        lambda: parse_rules([deferring]),
+        lambda: vertex_matrices([deferring, "altruistic", "egoistic"]),
+    ):
+        with pytest.raises(
+            ValueError, match=r"r.yaml: a cost with a defer row .* take N x N costs"
+        ):
+            build()

@@ -19,7 +19,7 @@ from pathlib import Path
 import torch
 
 from costseg.classes import CLASS_NAMES
-from costseg.costs import PRESETS, load_cost, symmetric_cost
+from costseg.costs import PRESETS, has_defer_row, load_cost, symmetric_cost
 from costseg.decision import decide
 from costseg.decision.label_maps import empty_labels
 from costseg.rules.base import Rule, RuleGroup, adapted_priors
@@ -31,14 +31,21 @@ def parse_rules(names: Sequence[str], class_names: Sequence[str] = CLASS_NAMES) 
     """Rules from names: the presets, ``ml``, or paths to YAML cost files.
 
     Raises:
-        ValueError: an unknown name (listing the valid ones) or an invalid cost file.
+        ValueError: an unknown name (listing the valid ones), an invalid cost file, or one with a
+            defer row (``costseg.decision.decide`` takes those; the rules here name a class).
     """
     rules = []
     for name in names:
         if name == "ml":
             rules.append(Rule("ml", None, 1.0))
         elif name in PRESETS or Path(name).suffix in (".yaml", ".yml"):
-            rules.append(Rule(Path(name).stem, load_cost(name, class_names)))
+            cost = load_cost(name, class_names)
+            if has_defer_row(cost):
+                raise ValueError(
+                    f"{name}: a cost with a defer row (docs/definitions.md §14) is for "
+                    "costseg.decision.decide; evaluate.py, predict.py and train.py take N x N costs"
+                )
+            rules.append(Rule(Path(name).stem, cost))
         else:
             raise ValueError(
                 f"unknown cost {name!r}: expected one of {', '.join(RULE_NAMES)} "

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import torch
 
 from costseg.classes import CLASS_NAMES
-from costseg.costs import barycentric_grid, has_defer_row, rescale
+from costseg.costs import barycentric_grid, rescale
 from costseg.decision import decide_mixtures
 from costseg.rules.base import RuleGroup
 from costseg.rules.named import cost_or_symmetric, parse_rules
@@ -38,8 +38,7 @@ class Mixtures:
 def vertex_matrices(
     names: Sequence[str], scaling: str = "none", class_names: Sequence[str] = CLASS_NAMES
 ) -> torch.Tensor:
-    """The three vertex cost matrices (3, N, N), or (3, N + 1, N) when each has a defer row,
-    optionally rescaled to unit mean cost."""
+    """The three vertex cost matrices (3, N, N), optionally rescaled to unit mean cost."""
     if len(names) != 3:
         raise ValueError(f"a sweep needs exactly 3 vertex costs, got {len(names)}: {list(names)}")
     if scaling not in ("none", "mean"):
@@ -47,13 +46,7 @@ def vertex_matrices(
     rules = parse_rules(names, class_names)
     if any(r.priors_alpha for r in rules):
         raise ValueError("'ml' uses pixel-wise priors and is no matrix: it cannot be a vertex")
-    costs = [cost_or_symmetric(r.cost, len(class_names)) for r in rules]
-    if len({has_defer_row(cost) for cost in costs}) > 1:
-        with_row = [r.name for r, cost in zip(rules, costs, strict=True) if has_defer_row(cost)]
-        raise ValueError(
-            f"vertex costs mix only with defer rows on all three or none; {with_row} have one"
-        )
-    vertices = torch.stack(costs)
+    vertices = torch.stack([cost_or_symmetric(r.cost, len(class_names)) for r in rules])
     return rescale(vertices) if scaling == "mean" else vertices
 
 
