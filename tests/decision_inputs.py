@@ -44,12 +44,7 @@ def near_ties(cost, count, seed):
         tie = p0 + (c0[b] - c0[a]) / (slope[a] - slope[b]) * e
         if (tie < 0).any() or (cost @ tie).argsort()[:2].sort().values.tolist() != sorted([a, b]):
             continue
-        p = tie.float()
-        for step in range(-3, 4):
-            q = p.clone()
-            for _ in range(abs(step)):
-                q[a] = torch.nextafter(q[a], torch.tensor(2.0 if step > 0 else 0.0))
-            pixels.append(q)
+        pixels += ulp_steps(tie.float(), a)
     return torch.stack(pixels, 1).view(1, n, 1, -1)  # groups of 7 consecutive pixels
 
 
@@ -69,6 +64,17 @@ def probabilities(draw, max_classes=6):
     raw = torch.tensor(raw, dtype=torch.float32).view(b, n, h, w) + 1e-3
     dtype = draw(st.sampled_from(LOW_PRECISION))
     return (raw / raw.sum(1, keepdim=True)).to(dtype)
+
+
+def ulp_steps(p: torch.Tensor, a: int) -> list[torch.Tensor]:
+    """Seven copies of (N,) ``p`` with ``p[a]`` stepped by -3 .. 3 float ulps."""
+    steps = []
+    for step in range(-3, 4):
+        q = p.clone()
+        for _ in range(abs(step)):
+            q[a] = torch.nextafter(q[a], torch.tensor(2.0 if step > 0 else 0.0))
+        steps.append(q)
+    return steps
 
 
 def defer_ties(cost, count, seed):
@@ -97,12 +103,7 @@ def defer_ties(cost, count, seed):
             continue
         tie = first * p1
         tie[a] += 1 - first
-        p = tie.float()
-        for step in range(-3, 4):
-            q = p.clone()
-            for _ in range(abs(step)):
-                q[a] = torch.nextafter(q[a], torch.tensor(2.0 if step > 0 else 0.0))
-            pixels.append(q)
+        pixels += ulp_steps(tie.float(), a)
     if len(pixels) < count:
         raise ValueError("deferring is rarely a best candidate here: lower the defer costs")
     return torch.stack(pixels, 1).view(1, n, 1, -1)
