@@ -32,7 +32,7 @@ class SegmentationModule(L.LightningModule):
     Args:
         num_classes: output classes (19 Cityscapes train classes).
         backbone: a backbone name (see ``costseg.models.deeplabv3plus.BACKBONES``).
-        output_stride: 16 or 8.
+        output_stride: 32, 16 or 8.
         decoder_channels: width of ASPP and decoder (256 in the paper's model).
         backbone_weights: optional local file with ImageNet weights for the backbone.
         optimizer: ``sgd`` (momentum, Nesterov off) or ``adamw``.
