@@ -7,25 +7,26 @@ import sys
 from pathlib import Path
 
 from costseg.checkpoints import find_checkpoint
+from costseg.cli import evaluate_main
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _evaluate(launcher: list[str], ckpt: Path, out: Path) -> dict:
-    args = ["--ckpt_path", str(ckpt), "--output_dir", str(out), "--no-progress"]
-    args += ["--cost", "robotistic", "egoistic", "ml", "--num_examples", "0", "--batch_size", "1"]
-    done = subprocess.run(
-        [*launcher, str(ROOT / "evaluate.py"), *args], capture_output=True, text=True, timeout=600
-    )
-    assert done.returncode == 0, done.stderr[-3000:]
-    return json.loads((out / "results.json").read_text())
+def _arguments(ckpt: Path, out: Path) -> list[str]:
+    costs = ["--cost", "robotistic", "egoistic", "ml"]
+    rest = ["--num_examples", "0", "--batch_size", "1", "--no-progress"]
+    return ["--ckpt_path", str(ckpt), "--output_dir", str(out), *costs, *rest]
 
 
 def test_two_processes_equal_one(tiny_run, tmp_path):
     ckpt = find_checkpoint(None, runs_dir=tiny_run[2])
-    single = _evaluate([sys.executable], ckpt, tmp_path / "one")
+    evaluate_main(_arguments(ckpt, tmp_path / "one"))  # the single process: this one
+    single = json.loads((tmp_path / "one" / "results.json").read_text())
     torchrun = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2"]
-    double = _evaluate(torchrun, ckpt, tmp_path / "two")
+    command = [*torchrun, str(ROOT / "evaluate.py"), *_arguments(ckpt, tmp_path / "two")]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    double = json.loads((tmp_path / "two" / "results.json").read_text())
     assert single["rows"] == double["rows"]
     assert single["confusion_matrix"] == double["confusion_matrix"]
     assert single["miou"] == double["miou"]
