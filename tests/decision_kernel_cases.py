@@ -26,7 +26,8 @@ from costseg.decision.gpu import triton_kernel
 
 
 def check(device: str, every_case: bool = True) -> None:
-    """Every case, or (``every_case`` False) the shortcut's: no priors, no near ties of one rule."""
+    """Every case, or (``every_case`` False) the shortcut's: two inputs, no priors, no near ties,
+    no defer row."""
     gen = torch.Generator().manual_seed(0)
     cases = [smooth((2, 19, 12, 16), 1), smooth((1, 19, 12, 16), 2, scale=1)]
     cases += [smooth((1, 19, 12, 16), 3).half(), smooth((1, 19, 12, 16), 4).bfloat16()]
@@ -35,7 +36,7 @@ def check(device: str, every_case: bool = True) -> None:
     ties[0, [0, 11, 13], 0, [0, 1, 2]] = 0.2
     cases += [ties, torch.full((1, 19, 2, 2), 1 / 19).half()]
     priors = torch.rand(19, generator=gen) + 0.01
-    for probs in cases:
+    for probs in cases if every_case else (cases[0], cases[3]):
         for cost in VERTICES:
             for pri in (None, priors) if every_case else (None,):
                 got = decide(probs.to(device), cost, pri).cpu()
@@ -45,30 +46,12 @@ def check(device: str, every_case: bool = True) -> None:
         assert torch.equal(decide(probs.to(device), cost).cpu(), reference(probs, cost))
     weights = barycentric_grid(0.25)
     matrices = mix_costs(VERTICES, weights)
-    for probs in (cases[0], cases[3], near_ties(matrices[7], 70, seed=7)):
+    mixed = [cases[0], cases[3], near_ties(matrices[7], 70, seed=7), smooth((1, 19, 16, 32), 6)]
+    for probs in mixed if every_case else mixed[::3]:
         got = decide_mixtures(probs.to(device), VERTICES, weights).long().cpu()
-        loop = torch.stack([reference(probs, c) for c in matrices], 1)
-        assert torch.equal(got, loop)
-    probs = smooth((1, 19, 16, 32), 6)
-    got = decide_mixtures(probs.to(device), VERTICES, weights).long().cpu()
-    assert torch.equal(got, torch.stack([reference(probs, c) for c in matrices], 1))
-    # A defer row: one more candidate, labelled 255 (N = 16: 17 rows, other tiles)
-    deferring = with_defer(VERTICES[1], torch.linspace(0.5, 20, 19, dtype=torch.float64))
-    deferred = []
-    for probs, cost, pri in [
-        (cases[0], deferring, priors),
-        (defer_ties(deferring, 28, seed=8), deferring, None),
-        (smooth((1, 16, 16, 16), 9, scale=2), with_defer(symmetric_cost(16), 0.6), None),
-    ]:
-        got = decide(probs.to(device), cost, pri).cpu()
-        assert torch.equal(got, reference(probs, cost, pri)), (cost.shape, pri)
-        deferred.append((got == 255).float().mean().item())
-    assert all(0 < share < 1 for share in deferred), deferred
-    defer_costs = [0.4, 3.0, 30.0]
-    vertices = torch.stack([with_defer(v, c) for v, c in zip(VERTICES, defer_costs, strict=True)])
-    got = decide_mixtures(cases[0].to(device), vertices, weights).long().cpu()
-    loop = torch.stack([reference(cases[0], c) for c in mix_costs(vertices, weights)], 1)
-    assert torch.equal(got, loop) and (loop == 255).any()
+        assert torch.equal(got, torch.stack([reference(probs, c) for c in matrices], 1))
+    if every_case:
+        check_defer(device, cases[0], priors, weights)
     probs = smooth((1, 19, 16, 16), 5)
     fast = CertifiedCosts(VERTICES[2:3].double(), probs.to(device), None, reference_eps(19, False))
     labels = torch.empty(1, 256, dtype=torch.long, device=device)
@@ -76,6 +59,26 @@ def check(device: str, every_case: bool = True) -> None:
     opened = rule(fast.probs[0], labels)
     assert opened is None or opened.float().mean() < 0.01, opened.float().mean()
     print("all cases equal the float64 reference")
+
+
+def check_defer(device: str, probs: torch.Tensor, priors: torch.Tensor, weights: torch.Tensor):
+    """A defer row: one more candidate, labelled 255 (N = 16: 17 rows, other tiles)."""
+    deferring = with_defer(VERTICES[1], torch.linspace(0.5, 20, 19, dtype=torch.float64))
+    deferred = []
+    for case, cost, pri in [
+        (probs, deferring, priors),
+        (defer_ties(deferring, 28, seed=8), deferring, None),
+        (smooth((1, 16, 16, 16), 9, scale=2), with_defer(symmetric_cost(16), 0.6), None),
+    ]:
+        got = decide(case.to(device), cost, pri).cpu()
+        assert torch.equal(got, reference(case, cost, pri)), (cost.shape, pri)
+        deferred.append((got == 255).float().mean().item())
+    assert all(0 < share < 1 for share in deferred), deferred
+    defer_costs = [0.4, 3.0, 30.0]
+    vertices = torch.stack([with_defer(v, c) for v, c in zip(VERTICES, defer_costs, strict=True)])
+    got = decide_mixtures(probs.to(device), vertices, weights).long().cpu()
+    loop = torch.stack([reference(probs, c) for c in mix_costs(vertices, weights)], 1)
+    assert torch.equal(got, loop) and (loop == 255).any()
 
 
 if __name__ == "__main__":

@@ -314,13 +314,15 @@ def test_rescale_scales_the_defer_row_alike():
     assert torch.equal(rescale(cost[None].expand(2, -1, -1))[1], rescale(cost))
 
 
-def test_the_command_line_rules_refuse_a_defer_row_in_one_line(tmp_path):
+def test_named_rules_take_a_defer_row_from_the_file_or_from_defer(tmp_path):
     deferring = str(write(tmp_path, {"off_diagonal": 1.0, "defer": 0.5}, "r.yaml"))
-    for build in (
-        lambda: parse_rules([deferring]),
-        lambda: vertex_matrices([deferring, "altruistic", "egoistic"]),
-    ):
-        with pytest.raises(
-            ValueError, match=r"r.yaml: a cost with a defer row .* take N x N costs"
-        ):
-            build()
+    assert torch.equal(parse_rules([deferring])[0].cost, with_defer(symmetric_cost(19), 0.5))
+    rules = parse_rules(["egoistic", "ml"], defer=0.25)
+    assert [r.defers for r in rules] == [True, True]
+    assert torch.equal(rules[0].cost, with_defer(load_cost("egoistic"), 0.25))
+    assert rules[1].priors_alpha == 1.0
+    assert torch.equal(rules[1].cost, with_defer(symmetric_cost(19), 0.25))
+    with pytest.raises(ValueError, match=r"r\.yaml has a defer row of its own; leave out --defer"):
+        parse_rules([deferring], defer=0.25)
+    with pytest.raises(ValueError, match="a vertex of the triangle cannot have a defer row"):
+        vertex_matrices([deferring, "altruistic", "egoistic"])

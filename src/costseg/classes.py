@@ -101,12 +101,21 @@ def class_indices(names: Iterable[str], classes: Sequence[str] = CLASS_NAMES) ->
     return [class_index(n, classes) for n in names]
 
 
-def colorize(labels: np.ndarray) -> np.ndarray:
-    """(H, W) train ids → (H, W, 3) uint8 RGB in Cityscapes' palette; 255 is black.
+DEFERRED_COLOUR = (255, 255, 255)
+"""RGB of a deferred pixel in a decision's colour map (white: no class of the palette is)."""
+
+
+def colorize(labels: np.ndarray, deferred: bool = False) -> np.ndarray:
+    """(H, W) train ids → (H, W, 3) uint8 RGB in Cityscapes' palette; 255 is black (ignored),
+    or :data:`DEFERRED_COLOUR` when ``deferred`` (a decision's 255 is a deferred pixel).
 
     >>> colorize(np.array([[0, 255]])).tolist()
     [[[128, 64, 128], [0, 0, 0]]]
+    >>> colorize(np.array([[255]]), deferred=True).tolist()
+    [[[255, 255, 255]]]
     """
     lut = np.zeros((256, 3), dtype=np.uint8)
     lut[:NUM_CLASSES] = PALETTE
+    if deferred:
+        lut[255] = DEFERRED_COLOUR
     return lut[np.asarray(labels, dtype=np.int64).clip(0, 255)]

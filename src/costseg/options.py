@@ -61,6 +61,21 @@ def step_size(text: str) -> float:
     return value
 
 
+def defer_cost(text: str) -> float:
+    """Value type: a cost for deferring, a finite number >= 0.
+
+    >>> defer_cost("0.3")
+    0.3
+    """
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not 0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a defer cost >= 0 such as 0.3, got {text!r}")
+    return value
+
+
 def option(default: Any = None, help: str | None = None, **metadata: Any) -> Any:
     """A dataclass field that is also a command-line option.
 
@@ -82,6 +97,11 @@ class NetworkOptions:
     on which device, where outputs go, and which examples the figures and the explorer show."""
 
     cost: list[str] = option(RULES, "rules: robotistic, altruistic, egoistic, ml or a .yaml cost")
+    defer: float | None = option(
+        help="every --cost rule may defer a pixel at this cost (docs/definitions.md §14)",
+        type=defer_cost,
+        metavar="C",
+    )
     ckpt_path: str | None = option(help="a costseg checkpoint", group=SOURCE)
     network: str | None = option(
         help="costseg:PATH, vainf:PATH, hf:DIR (alias segformer:DIR)", group=SOURCE

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import torch
 
-from costseg.costs import mix_costs
+from costseg.costs import has_defer_row, mix_costs
 
 Decider = Callable[[torch.Tensor, torch.Tensor | None], torch.Tensor]
 
@@ -24,7 +24,8 @@ class Rule:
 
     Attributes:
         name: shown in tables, files and TensorBoard tags.
-        cost: (N, N) float64 matrix; ``None`` = the symmetric matrix.
+        cost: (N, N) float64 matrix, or (N + 1, N) with a defer row (docs/definitions.md §14);
+            ``None`` = the symmetric matrix.
         priors_alpha: 0 = no priors; α in (0, 1] = the rule on ``p / π_α`` with
             ``π_α = (1 - α) + α π`` (1 = maximum likelihood when ``cost`` is None).
     """
@@ -32,6 +33,11 @@ class Rule:
     name: str
     cost: torch.Tensor | None
     priors_alpha: float = 0.0
+
+    @property
+    def defers(self) -> bool:
+        """Whether the rule may defer a pixel (its matrix has a defer row)."""
+        return self.cost is not None and has_defer_row(self.cost)
 
 
 def adapted_priors(priors: torch.Tensor, alpha: float) -> torch.Tensor:

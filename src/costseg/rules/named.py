@@ -19,7 +19,7 @@ from pathlib import Path
 import torch
 
 from costseg.classes import CLASS_NAMES
-from costseg.costs import PRESETS, has_defer_row, load_cost, symmetric_cost
+from costseg.costs import PRESETS, has_defer_row, load_cost, symmetric_cost, with_defer
 from costseg.decision import decide
 from costseg.decision.label_maps import empty_labels
 from costseg.rules.base import Rule, RuleGroup, adapted_priors
@@ -27,30 +27,41 @@ from costseg.rules.base import Rule, RuleGroup, adapted_priors
 RULE_NAMES = (*PRESETS, "ml")
 
 
-def parse_rules(names: Sequence[str], class_names: Sequence[str] = CLASS_NAMES) -> list[Rule]:
+def parse_rules(
+    names: Sequence[str], class_names: Sequence[str] = CLASS_NAMES, defer: float | None = None
+) -> list[Rule]:
     """Rules from names: the presets, ``ml``, or paths to YAML cost files.
 
+    Args:
+        names: the rules of ``--cost``.
+        class_names: the network's classes.
+        defer: ``--defer``: every rule gains a defer row of this cost (docs/definitions.md §14);
+            a cost file may instead hold its own ``defer:`` section.
+
     Raises:
-        ValueError: an unknown name (listing the valid ones), an invalid cost file, or one with a
-            defer row (``costseg.decision.decide`` takes those; the rules here name a class).
+        ValueError: an unknown name (listing the valid ones), an invalid cost file, or ``defer``
+            given for a cost file that has a defer row of its own.
+
+    >>> parse_rules(["ml"], ["a", "b"], defer=0.25)[0].cost.tolist()
+    [[0.0, 1.0], [1.0, 0.0], [0.25, 0.25]]
     """
     rules = []
     for name in names:
         if name == "ml":
-            rules.append(Rule("ml", None, 1.0))
+            rule = Rule("ml", None, 1.0)
         elif name in PRESETS or Path(name).suffix in (".yaml", ".yml"):
-            cost = load_cost(name, class_names)
-            if has_defer_row(cost):
-                raise ValueError(
-                    f"{name}: a cost with a defer row (docs/definitions.md §14) is for "
-                    "costseg.decision.decide; evaluate.py, predict.py and train.py take N x N costs"
-                )
-            rules.append(Rule(Path(name).stem, cost))
+            rule = Rule(Path(name).stem, load_cost(name, class_names))
         else:
             raise ValueError(
                 f"unknown cost {name!r}: expected one of {', '.join(RULE_NAMES)} "
                 "or a path to a .yaml cost file"
             )
+        if defer is not None:
+            if rule.cost is not None and has_defer_row(rule.cost):
+                raise ValueError(f"{name} has a defer row of its own; leave out --defer")
+            cost = cost_or_symmetric(rule.cost, len(class_names))
+            rule = Rule(rule.name, with_defer(cost, defer), rule.priors_alpha)
+        rules.append(rule)
     if len({r.name for r in rules}) != len(rules):
         raise ValueError(f"cost rules must have distinct names, got {[r.name for r in rules]}")
     return rules

@@ -46,6 +46,8 @@ def vertex_matrices(
     rules = parse_rules(names, class_names)
     if any(r.priors_alpha for r in rules):
         raise ValueError("'ml' uses pixel-wise priors and is no matrix: it cannot be a vertex")
+    if any(r.defers for r in rules):
+        raise ValueError("a vertex of the triangle cannot have a defer row (it is an N x N cost)")
     vertices = torch.stack([cost_or_symmetric(r.cost, len(class_names)) for r in rules])
     return rescale(vertices) if scaling == "mean" else vertices
 
