@@ -1,15 +1,13 @@
 """Instance metrics (docs/definitions.md §9) against a brute-force loop over the instances of
 generated scenes, with crowd regions, instances cut by ignored pixels and instances on RoI
-borders; batches and two DDP processes against one pass."""
+borders; batches against one pass (two DDP processes: tests/test_metrics_ddp.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 import torch
-import torch.multiprocessing as mp
 from instance_reference import SIZES, reference_instances
-from test_metrics_ddp import free_port
 
 from costseg.classes import INSTANCE_CLASSES, LABEL_ID_TO_TRAIN_ID, class_index
 from costseg.data.toy.dataset import StreetScenes
@@ -128,35 +126,6 @@ def test_batches_and_forward_equal_one_pass() -> None:
     recall = a["instance_recall"]
     assert torch.equal(recall.isnan(), a["gt_instances"] == 0)
     assert a["missed_map"].shape == (3, 2, 16, 32) and 0 < a["missed_map"].max() <= 1
-
-
-def _ddp_worker(rank: int, port: int, expected: dict[str, torch.Tensor]) -> None:
-    import os
-
-    import torch.distributed as dist
-
-    os.environ |= {"MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(port)}
-    dist.init_process_group("gloo", rank=rank, world_size=2)
-    try:
-        labels, ids, _ = scenes()
-        preds, roi = predictions(labels), roi_blocks()
-        metric = InstanceMisses(CLASSES, 3, heatmap_size=(8, 16))
-        for part in ([0], [1]) if rank == 0 else ([2, 3],):
-            metric.update(preds[part], labels[part], ids[part], roi)
-        got = metric.compute()
-        for key, want in expected.items():
-            torch.testing.assert_close(got[key], want, rtol=0, atol=0, equal_nan=True)
-    finally:
-        dist.destroy_process_group()
-
-
-def test_two_process_ddp_equals_one_pass() -> None:
-    labels, ids, _ = scenes()
-    metric = InstanceMisses(CLASSES, 3, heatmap_size=(8, 16))
-    metric.update(predictions(labels), labels, ids, roi_blocks())
-    expected = metric.compute()
-    assert expected["missed_instances"].sum() > 0
-    mp.spawn(_ddp_worker, args=(free_port(), expected), nprocs=2, join=True)
 
 
 def test_per_image_loss_is_the_fraction_of_instances_missed() -> None:

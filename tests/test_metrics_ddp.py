@@ -1,4 +1,5 @@
-"""Two CPU processes (gloo), each seeing half of the data, give the single-process metrics."""
+"""Two CPU processes (gloo), each seeing part of the data, give the single-process metrics: the
+pixel and segment metrics, calibration and instance misses."""
 
 from __future__ import annotations
 
@@ -8,8 +9,10 @@ import socket
 import torch
 import torch.distributed as dist
 import torch.multiprocessing as mp
+from test_calibration import run_ece
+from test_instances import CLASSES, predictions, roi_blocks, scenes
 
-from costseg.metrics import RoIPrecisionRecall, SegmentErrors
+from costseg.metrics import InstanceMisses, RoIPrecisionRecall, SegmentErrors
 
 WORLD = 2
 
@@ -41,17 +44,38 @@ def run_metrics(preds, target, roi, batches) -> list[dict[str, torch.Tensor]]:
     return [metric.compute() for metric in metrics]
 
 
-def worker(rank: int, port: int, expected: list[dict[str, torch.Tensor]]) -> None:
+def instance_metrics(batches: list[list[int]]) -> list[dict[str, torch.Tensor]]:
+    labels, ids, _ = scenes()
+    preds, roi = predictions(labels), roi_blocks()
+    metric = InstanceMisses(CLASSES, 3, heatmap_size=(8, 16))
+    for batch in batches:
+        metric.update(preds[batch], labels[batch], ids[batch], roi)
+    return [metric.compute()]
+
+
+def pixel_metrics(batches: list[list[int]]) -> list[dict[str, torch.Tensor]]:
+    return run_metrics(*make_data(), batches)
+
+
+# Each family's metrics of the given batches; rank 0 sees two batches, rank 1 the rest.
+FAMILIES = {
+    "pixels and segments": (pixel_metrics, ([[0], [1]], [[2]])),
+    "calibration": (run_ece, ([[0], [1]], [[2]])),
+    "instances": (instance_metrics, ([[0], [1]], [[2, 3]])),
+}
+
+
+def worker(rank: int, port: int, expected: dict[str, list[dict[str, torch.Tensor]]]) -> None:
     os.environ |= {"MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(port)}
     dist.init_process_group("gloo", rank=rank, world_size=WORLD)
     try:
-        preds, target, roi = make_data()
-        # Rank 0 sees images 0 and 1 (in two batches), rank 1 sees image 2.
-        batches = [[0], [1]] if rank == 0 else [[2]]
-        for got, want in zip(run_metrics(preds, target, roi, batches), expected, strict=True):
-            assert got.keys() == want.keys()
-            for key in want:
-                torch.testing.assert_close(got[key], want[key], rtol=0, atol=0, equal_nan=True)
+        for family, (metrics, shares) in FAMILIES.items():
+            for got, want in zip(metrics(shares[rank]), expected[family], strict=True):
+                assert got.keys() == want.keys(), family
+                for key in want:
+                    torch.testing.assert_close(
+                        got[key], want[key], rtol=0, atol=0, equal_nan=True, msg=family + key
+                    )
     finally:
         dist.destroy_process_group()
 
@@ -63,7 +87,9 @@ def free_port() -> int:
 
 
 def test_two_process_ddp_equals_single_process() -> None:
-    preds, target, roi = make_data()
-    expected = run_metrics(preds, target, roi, [[0, 1, 2]])
-    assert expected[1]["fn"].sum() > 0 and expected[1]["fp"].sum() > 0
+    """One pair of processes checks every family (each spawn costs seconds)."""
+    expected = {family: metrics(a + b) for family, (metrics, (a, b)) in FAMILIES.items()}
+    assert expected["pixels and segments"][1]["fn"].sum() > 0
+    assert expected["pixels and segments"][1]["fp"].sum() > 0
+    assert expected["instances"][0]["missed_instances"].sum() > 0
     mp.spawn(worker, args=(free_port(), expected), nprocs=WORLD, join=True)
