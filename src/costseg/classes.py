@@ -53,6 +53,7 @@ license plate's id -1, which reads as 255 from the uint8 PNGs."""
 TRAIN_ID_TO_LABEL_ID = np.array([label_id for _, label_id, _ in _TRAIN], dtype=np.uint8)
 """(19,) uint8: train id → Cityscapes label id, for files the official evaluator reads."""
 
+
 LABEL_ID_TO_TRAIN_ID = np.full(256, IGNORE_INDEX, dtype=np.uint8)
 """(256,) uint8 lookup: Cityscapes label id → train id (255 for void and ignored classes)."""
 LABEL_ID_TO_TRAIN_ID[TRAIN_ID_TO_LABEL_ID] = np.arange(NUM_CLASSES)
@@ -119,3 +120,15 @@ def colorize(labels: np.ndarray, deferred: bool = False) -> np.ndarray:
     if deferred:
         lut[255] = DEFERRED_COLOUR
     return lut[np.asarray(labels, dtype=np.int64).clip(0, 255)]
+
+
+def label_ids(train_ids: np.ndarray) -> np.ndarray:
+    """Train ids → uint8 Cityscapes label ids, for files the official evaluator reads; 255 (an
+    ignored pixel, or a decision's deferred pixel) stays 255.
+
+    >>> label_ids(np.array([[0, 11, 255]])).tolist()
+    [[7, 24, 255]]
+    """
+    lut = np.full(256, 255, dtype=np.uint8)
+    lut[:NUM_CLASSES] = TRAIN_ID_TO_LABEL_ID
+    return lut[np.asarray(train_ids, dtype=np.int64).clip(0, 255)]
