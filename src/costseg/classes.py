@@ -53,7 +53,6 @@ license plate's id -1, which reads as 255 from the uint8 PNGs."""
 TRAIN_ID_TO_LABEL_ID = np.array([label_id for _, label_id, _ in _TRAIN], dtype=np.uint8)
 """(19,) uint8: train id → Cityscapes label id, for files the official evaluator reads."""
 
-
 LABEL_ID_TO_TRAIN_ID = np.full(256, IGNORE_INDEX, dtype=np.uint8)
 """(256,) uint8 lookup: Cityscapes label id → train id (255 for void and ignored classes)."""
 LABEL_ID_TO_TRAIN_ID[TRAIN_ID_TO_LABEL_ID] = np.arange(NUM_CLASSES)
