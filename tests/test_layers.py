@@ -13,12 +13,12 @@ CHAIN = [
     {"decision"},
     {"rules", "calibration"},
     {"data", "metrics", "models", "networks"},
-    {"report"},
+    {"report", "compile_kernels"},
     {"evaluation", "prediction", "training"},
     {"cli"},
 ]
 NO_LIGHTNING = {"cost_files", "costs", "decision", "rules", "calibration", "metrics", "networks",
-                "report", "evaluation", "prediction", "threads"}  # fmt: skip
+                "report", "evaluation", "prediction", "threads", "compile_kernels"}  # fmt: skip
 NO_MODEL = {"cost_files", "costs", "decision", "rules", "calibration", "metrics", "report"}
 
 
