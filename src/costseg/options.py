@@ -21,6 +21,7 @@ from typing import Any, Literal
 
 SOURCE = "probability source (one of; default: newest runs/**/last.ckpt)"
 CALIBRATION = "calibration and guarantees (fitted on held-out images)"
+PROTOCOL = "inference protocol (docs/definitions.md §13)"
 RULES = ["robotistic", "altruistic", "egoistic"]
 
 
@@ -58,6 +59,21 @@ def step_size(text: str) -> float:
     n = round(1 / value) if 0 < value <= 1 else 0
     if n < 1 or abs(n * value - 1) > 1e-9:
         raise argparse.ArgumentTypeError(f"expected a step 1/n in (0, 1], e.g. 0.1, got {text}")
+    return value
+
+
+def positive_number(text: str) -> float:
+    """Value type: a finite number > 0.
+
+    >>> positive_number("0.75")
+    0.75
+    """
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not 0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a number > 0 such as 0.75, got {text!r}")
     return value
 
 
@@ -113,6 +129,34 @@ class NetworkOptions:
         group=SOURCE,
     )
     seed: int = option(0, "seed of --mc_dropout", type=whole_number(0), group=SOURCE)
+    inference: Literal["whole", "slide"] = option(
+        "whole", "one forward per image, or sliding windows (--crop, --stride)", group=PROTOCOL
+    )
+    crop: list[int] | None = option(
+        help="the windows of --inference slide",
+        type=whole_number(1),
+        nargs=2,
+        metavar=("H", "W"),
+        group=PROTOCOL,
+    )
+    stride: list[int] | None = option(
+        help="the step between windows of --inference slide (at most --crop)",
+        type=whole_number(1),
+        nargs=2,
+        metavar=("H", "W"),
+        group=PROTOCOL,
+    )
+    tta: Literal["flip"] | None = option(
+        help="test-time augmentation: the mean softmax with the horizontally flipped image",
+        group=PROTOCOL,
+    )
+    scales: list[float] | None = option(
+        help="test-time augmentation: the mean softmax over the image resized by each scale "
+        "(default: 1 only)",
+        type=positive_number,
+        metavar="S",
+        group=PROTOCOL,
+    )
     output_dir: str | None = option(help="default: a new numbered folder <run>/<job>/version_<n>")
     device: str = option("auto", "auto, cpu, cuda, cuda:1, ...")
     save_probs: bool = option(

@@ -15,6 +15,7 @@ import torch
 from costseg.classes import CLASS_NAMES, INSTANCE_CLASSES, class_indices
 from costseg.evaluation.held_out import minimum_images
 from costseg.metrics.selection import parse_metric, parse_target, risk_level
+from costseg.networks.protocols import OPTIONS, Protocol
 from costseg.options import EvalOptions
 from costseg.rules import (
     TEMPERATURES,
@@ -36,6 +37,8 @@ def check_options(opts: EvalOptions) -> list[RuleGroup]:
         raise ValueError("--probs needs --data_root: the dataset whose images were scored")
     if opts.mc_dropout is not None and opts.probs is not None:
         raise ValueError("--mc_dropout needs a network: saved probabilities cannot be resampled")
+    if Protocol.from_options(opts) != Protocol() and opts.probs is not None:
+        raise ValueError(f"{OPTIONS} need a network: saved probabilities cannot be rerun")
     if opts.save_probs and opts.probs is not None:
         raise ValueError("--save-probs writes a network's probabilities; with --probs they exist")
     rules = parse_rules(opts.cost)

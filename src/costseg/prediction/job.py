@@ -12,7 +12,8 @@ import torch
 
 from costseg.classes import CLASS_NAMES
 from costseg.data.prior_maps import PriorMaps
-from costseg.networks.sources import Source, open_source, resolve_device, with_mc_dropout
+from costseg.networks.protocols import Protocol, with_protocol
+from costseg.networks.sources import Source, open_source, resolve_device
 from costseg.options import PredictOptions
 from costseg.prediction.inputs import Inputs, find_inputs, read_image, video_frames
 from costseg.prediction.outputs import PredictionWriter
@@ -49,11 +50,11 @@ def plan(opts: PredictOptions) -> PredictPlan:
     inputs = find_inputs(opts.input)
     if opts.ckpt_path is not None and opts.network is not None:
         raise ValueError("give at most one of --ckpt_path and --network")
+    protocol = Protocol.from_options(opts)
     device = resolve_device(opts.device)
     claimed = claim_output_dir(opts.output_dir, False, Path()) if opts.output_dir else None
-    source = with_mc_dropout(
-        open_source(opts.ckpt_path, opts.network, None, device), opts.mc_dropout, opts.seed
-    )
+    source = open_source(opts.ckpt_path, opts.network, None, device)
+    source = with_protocol(source, protocol, opts.mc_dropout, opts.seed)
     if any(r.priors_alpha for r in rules) and source.priors is None:
         raise ValueError("ml needs pixel-wise priors, and this source has none")
     base = source.default_output("prediction", "predict")
