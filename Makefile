@@ -32,6 +32,7 @@ bench: setup
 	$(BIN)/python scripts/bench.py
 	$(BIN)/python scripts/bench_data.py
 	$(BIN)/python scripts/bench_predict.py
+	$(BIN)/python scripts/bench_protocols.py
 
 clean:
 	rm -rf $(VENV) runs eval .pytest_cache .ruff_cache .hypothesis
