@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 import torch
 from scipy.optimize import minimize_scalar
@@ -86,6 +87,39 @@ def test_ece_matches_brute_force(norm: str, n_bins: int) -> None:
     if norm == "class":
         torch.testing.assert_close(got["per_class"], torch.tensor(want["per_class"]).double())
     torch.testing.assert_close(got["edges"], torch.linspace(0, 1, n_bins + 1).double())
+
+
+def test_nll_brier_and_ece_per_predicted_class_equal_numpy_loops() -> None:
+    """docs/definitions.md §13 with a loop over the labelled pixels in NumPy."""
+    probs, target = make_probs(seed=3, shape=(2, 4, 6, 7))
+    probs[1, :, 0, 0] = torch.tensor([0.0, 1.0, 0.0, 0.0])  # p_y = 0: the NLL's floor
+    target[1, 0, 0] = 0
+    metric = CalibrationError(num_classes=4, n_bins=15)
+    for i in range(len(probs)):
+        metric.update(probs[i : i + 1], target[i : i + 1])
+    got = metric.compute()
+    p = probs.double().numpy().transpose(0, 2, 3, 1).reshape(-1, 4)
+    y = target.numpy().reshape(-1)
+    nll, brier, by_class = [], [], {k: [] for k in range(4)}
+    for pixel, label in zip(p, y, strict=True):
+        if label == 255:
+            continue
+        nll.append(-np.log(max(pixel[label], 1e-12)))
+        brier.append(sum((pixel[k] - (k == label)) ** 2 for k in range(4)))
+        k = int(np.argmax(pixel))
+        by_class[k].append((pixel[k], k == label))
+    want = []
+    for entries in by_class.values():
+        bins = [[] for _ in range(15)]
+        for value, hit in entries:
+            bins[min(int(value * 15), 14)].append((value, hit))
+        gaps = [abs(sum(h for _, h in b) - sum(v for v, _ in b)) for b in bins]
+        want.append(sum(gaps) / len(entries) if entries else math.nan)
+    assert got["nll"].item() == pytest.approx(np.mean(nll), rel=1e-6)
+    assert np.mean(nll) > 27.6 / len(nll)  # the floored pixel counts
+    assert got["brier"].item() == pytest.approx(np.mean(brier), rel=1e-6)
+    torch.testing.assert_close(got["per_class"], torch.tensor(want).double(), equal_nan=True)
+    assert got["classwise_ece"].item() == pytest.approx(np.nanmean(want))
 
 
 def test_top_label_ece_agrees_with_torchmetrics() -> None:

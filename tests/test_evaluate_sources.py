@@ -10,6 +10,8 @@ from conftest import write_cityscapes_item
 
 from costseg.classes import CLASS_NAMES
 from costseg.cli import evaluate_main
+from costseg.data.cityscapes import CityscapesSegmentation
+from costseg.networks.probs_files import load_probs
 
 ARGS = ["--no-progress", "--num_examples", "1", "--cost", "robotistic", "egoistic", "ml"]
 
@@ -32,9 +34,19 @@ def test_saved_probabilities_reproduce_the_direct_evaluation(vainf_file, citysca
     evaluate_main([*ARGS, *data, "--probs", str(direct / "probs"), "--sweep", "0.5",
                    "--output_dir", str(again)])  # fmt: skip
     first, second = _json(direct, "results.json"), _json(again, "results.json")
-    for key in ("rows", "confusion_matrix", "miou", "iou"):
+    for key in ("rows", "confusion_matrix", "miou", "iou", "nll", "brier", "ece_per_class"):
         assert first[key] == second[key], key
     assert _json(direct, "sweep.json")["rows"] == _json(again, "sweep.json")["rows"]
+    # NLL and Brier score (docs/definitions.md §13): a loop over the saved files' pixels.
+    nll, brier, dataset = [], [], CityscapesSegmentation(cityscapes_root, "val")
+    for name, (_, label) in zip(dataset.names, dataset, strict=True):
+        probs = load_probs(direct / "probs" / f"{name}.npz").double().numpy()
+        for (y, x), t in np.ndenumerate(label.numpy()):
+            if t != 255:
+                nll.append(-np.log(max(probs[t, y, x], 1e-12)))
+                brier.append(((probs[:, y, x] - np.eye(19)[t]) ** 2).sum())
+    assert first["nll"]["raw"] == pytest.approx(np.mean(nll), rel=1e-6)
+    assert first["brier"]["raw"] == pytest.approx(np.mean(brier), rel=1e-6)
 
 
 def test_probs_folder_missing_an_image_names_it(vainf_file, cityscapes_root, tmp_path, capsys):

@@ -1,7 +1,8 @@
 """Outputs about the probabilities: scaling, ECE and reliability diagrams, the temperature
 sweep, and the value system chosen with a guarantee.
 
-``calibration.json`` (scaling, ECE before / after), ``figures/reliability.png``,
+``calibration.json`` and ``calibration.csv`` (scaling; ECE, class-wise ECE, NLL and Brier score
+before / after), ``figures/reliability.png``,
 ``temperature_sweep.csv|json`` and ``figures/temperature_*.png``, ``guarantee.json`` and
 ``guarantee_cost.yaml``.
 """
@@ -24,18 +25,51 @@ from costseg.report.results import EvalResults
 from costseg.report.sweep import SWEEP_ROIS
 from costseg.rules import RuleGroup
 
+SCORES = ("ece", "classwise_ece", "nll", "brier")  # docs/definitions.md §6, §13
+
+
+def calibration_rows(ece: Mapping[str, Mapping[str, torch.Tensor]]) -> list[dict]:
+    """One row per set of probabilities (raw, scaled): its :data:`SCORES` and the ECE of the
+    pixels predicted as each class (``ece_<class>``; NaN for a class never predicted)."""
+    return [
+        {"probabilities": name}
+        | {score: float(out[score]) for score in SCORES}
+        | {f"ece_{c}": float(v) for c, v in zip(CLASS_NAMES, out["per_class"], strict=False)}
+        for name, out in ece.items()
+    ]
+
+
+def calibration_record(rows: list[dict]) -> dict:
+    """``{score: {probabilities: value}}`` of :func:`calibration_rows`, and "ece_per_class"
+    ``{probabilities: {class: value}}``, for results.json and calibration.json."""
+    record = {score: {r["probabilities"]: r[score] for r in rows} for score in SCORES}
+    record["ece_per_class"] = {
+        r["probabilities"]: {c: r[f"ece_{c}"] for c in CLASS_NAMES if f"ece_{c}" in r} for r in rows
+    }
+    return record
+
+
+def calibration_line(rows: list[dict]) -> str:
+    """``calibration (15 bins): raw ECE 0.1234, class-wise ECE …, NLL …, Brier …; scaled …``."""
+    return "calibration (15 bins): " + "; ".join(
+        f"{r['probabilities']} ECE {r['ece']:.4f}, class-wise ECE {r['classwise_ece']:.4f}, "
+        f"NLL {r['nll']:.4f}, Brier {r['brier']:.4f}"
+        for r in rows
+    )
+
 
 def write_calibration(results: EvalResults) -> list[tuple[str, Batch]]:
-    """ECE, reliability diagrams, temperature sweep and guarantee, as far as evaluated; returns
-    the figures, undrawn, as ``(TensorBoard prefix, batch)`` (:mod:`costseg.report.drawing`)."""
+    """Calibration figures, reliability diagrams, temperature sweep and guarantee, as far as
+    evaluated; returns the figures, undrawn, as ``(TensorBoard prefix, batch)``
+    (:mod:`costseg.report.drawing`)."""
     out, extra = results.output_dir, results.extra
     ece = extra.get("ece", {})
+    rows = calibration_rows(ece)
     record = {"probabilities": results.probabilities, "scaling": extra.get("scaling")}
-    record["ece"] = {k: float(v["ece"]) for k, v in ece.items()}
-    write_json(out / "calibration.json", record)
-    print(
-        "ECE (top label, 15 bins): " + ", ".join(f"{k} {v:.4f}" for k, v in record["ece"].items())
-    )
+    write_json(out / "calibration.json", record | calibration_record(rows))
+    if rows:
+        write_csv(out / "calibration.csv", rows)
+        print(calibration_line(rows))
     if "certificate" in extra:
         _write_certificate(results)
     return [("calibration", _figures(results, ece))]
