@@ -1,4 +1,6 @@
-"""The data an ``explorer.html`` embeds, read back as the page's script reads it."""
+"""The data an ``explorer.html`` embeds, read back as the page's script reads it; a page that
+opens explorer pages one after another and lists what each shows (one browser launch for many
+states)."""
 
 from __future__ import annotations
 
@@ -29,3 +31,60 @@ def embedded_probs(page: Path) -> dict[str, torch.Tensor]:
         )
         for ex in page_json(page)["examples"]
     }
+
+
+STATES_SCRIPT = """
+const steps = %s, states = [];
+let previous = "";
+function run(i) {
+  if (i === steps.length) {
+    document.getElementById("states").textContent = JSON.stringify(states);
+    return;
+  }
+  const step = steps[i], frame = document.createElement("iframe");
+  const url = step.url === null ? previous : step.url;
+  frame.onload = () => {
+    const win = frame.contentWindow, doc = frame.contentDocument;
+    if (step.slider !== null) {
+      const slider = doc.getElementById("defer");
+      slider.value = String(step.slider);
+      slider.dispatchEvent(new win.Event("input"));
+    }
+    const pre = doc.getElementById("costseg-state");
+    previous = url.split("#")[0] + win.location.hash;
+    states.push({hash: win.location.hash, state: pre && JSON.parse(pre.textContent),
+                 shown: doc.getElementById("defer-value").textContent,
+                 metrics: doc.getElementById("metrics").textContent});
+    frame.remove();
+    run(i + 1);
+  };
+  frame.src = url;
+  document.body.appendChild(frame);
+}
+run(0);
+"""
+
+
+def states_page(folder: Path, steps: list[tuple[Path | None, str, int | None]]) -> Path:
+    """A page that opens explorer pages one after another in a frame and lists what each shows.
+
+    Args:
+        folder: where the page is written.
+        steps: ``(page, fragment, slider)`` each: open ``page#fragment`` (``page`` None: the
+            previous step's page at the hash it ended with), then, unless ``slider`` is None,
+            move the defer slider to that position.
+
+    Returns:
+        The page; once its scripts ran (Chromium with ``--allow-file-access-from-files``, so a
+        page may read its frames), its ``<pre id="states">`` holds a JSON list with, per step,
+        ``{"hash", "state" (the costseg-state JSON), "shown" (the defer slider's text),
+        "metrics" (the text of the metrics at the point)}``.
+    """
+    plan = [
+        {"url": None if page is None else f"{page.as_uri()}#{fragment}", "slider": slider}
+        for page, fragment, slider in steps
+    ]
+    path = folder / "states.html"
+    script = STATES_SCRIPT % json.dumps(plan)
+    path.write_text(f'<!DOCTYPE html><pre id="states"></pre><script>{script}</script>')
+    return path

@@ -1,5 +1,6 @@
 """The explorer page in a real browser (headless Chromium): its masks at any point of the
-triangle equal the float64 reference on the embedded float16 probabilities, pixel for pixel."""
+triangle and any defer cost equal the float64 reference on the embedded float16 probabilities,
+pixel for pixel. Chromium starts once per test: one launch opens many states (states_page)."""
 
 from __future__ import annotations
 
@@ -14,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from explorer_page import embedded_probs
+from explorer_page import embedded_probs, states_page
 
-from costseg.costs import barycentric_grid, mix_costs
+from costseg.costs import barycentric_grid, mix_costs, with_defer
 from costseg.decision import decide_reference
 from costseg.report.explorer import Marks, SweepData, embedded, write_explorer
 from costseg.rules import vertex_matrices
@@ -29,11 +30,17 @@ needs_chromium = pytest.mark.skipif(
 )
 VERTEX_NAMES = ["robotistic", "altruistic", "egoistic"]
 WEIGHTS = ["1,0,0", "0,0,1", "0.5,0.25,0.25", "0.123,0.456,0.421", "0.05,0.9,0.05"]
+TIE = 0.5  # robotistic (Chow): deferring at 0.5 costs as much as person or car where both are 0.5
+ULP = 2.0**-53  # 0.5 ± ULP: deferring a hair cheaper / dearer than the tied classes
+DEFER_STATES = [("0.123,0.456,0.421", 0.37), ("0.05,0.9,0.05", 2.5), ("0,0,1", 0.0),
+                ("0.5,0.25,0.25", 1000.0), ("1,0,0", TIE - ULP), ("1,0,0", TIE),
+                ("1,0,0", TIE + ULP)]  # fmt: skip
 
 
 def browser(page: Path, fragment: str, *extra: str) -> str:
     """Chromium's DOM of ``page#fragment`` once its scripts ran (or its output with ``extra``)."""
-    args = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--virtual-time-budget=30000"]
+    args = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--virtual-time-budget=30000",
+            "--allow-file-access-from-files"]  # fmt: skip
     out = subprocess.run(
         [*args, *(extra or ("--dump-dom",)), f"{page.as_uri()}#{fragment}"],
         capture_output=True,
@@ -43,15 +50,16 @@ def browser(page: Path, fragment: str, *extra: str) -> str:
     return out.stdout
 
 
-def page_state(page: Path, weights: str, dom: str | None = None) -> dict:
-    """The JSON of the page's ``costseg-state`` element at ``#w=weights`` (from ``dom``)."""
-    dom = dom or browser(page, f"w={weights}")
-    found = re.search(r'<pre id="costseg-state"[^>]*>(.*?)</pre>', dom)
-    assert found, "the page holds no costseg-state element"
+def page_states(page: Path, steps: list) -> list[dict]:
+    """What each step of :func:`explorer_page.states_page` showed, in one Chromium launch."""
+    dom = browser(states_page(page.parent, steps), "")
+    found = re.search(r'<pre id="states">(.*?)</pre>', dom, re.S)
+    assert found and found.group(1), "the states page listed nothing"
     return json.loads(html.unescape(found.group(1)))
 
 
-def reference_sha(probs: torch.Tensor, weights: list[float]) -> str:
+def reference_labels(probs: torch.Tensor, weights: list[float], defer=None) -> np.ndarray:
+    """decide_reference with the mixed matrix (and a defer row ``defer``) as uint8."""
     vertices = vertex_matrices(VERTEX_NAMES)
     w = torch.tensor([weights], dtype=torch.float64)
     mixed = mix_costs(vertices, w)[0]
@@ -59,8 +67,20 @@ def reference_sha(probs: torch.Tensor, weights: list[float]) -> str:
     assert torch.equal(
         mixed, (w[0, 0] * vertices[0] + w[0, 1] * vertices[1]) + w[0, 2] * vertices[2]
     )
-    labels = decide_reference(probs[None], mixed)[0]
-    return hashlib.sha256(labels.numpy().astype(np.uint8).tobytes()).hexdigest()
+    cost = mixed if defer is None else with_defer(mixed, defer)
+    return decide_reference(probs[None], cost)[0].numpy().astype(np.uint8)
+
+
+def assert_reference_masks(state: dict, probs: dict[str, torch.Tensor]) -> None:
+    """The page's masks (and deferred pixels) of every example equal the reference's."""
+    assert [e["name"] for e in state["examples"]] == list(probs)
+    for example in state["examples"]:
+        p = probs[example["name"]]
+        assert (example["height"], example["width"]) == tuple(p.shape[1:])
+        labels = reference_labels(p, state["w"], state["defer"])
+        sha = hashlib.sha256(labels.tobytes()).hexdigest()
+        assert example["labels_sha256"] == sha, (example["name"], state["w"], state["defer"])
+        assert example["deferred_pixels"] == np.count_nonzero(labels == 255)
 
 
 def synthetic_probs(h: int, w: int, seed: int) -> torch.Tensor:
@@ -99,16 +119,59 @@ def test_large_examples_are_embedded_at_reduced_resolution(page):
 
 
 @needs_chromium
-@pytest.mark.parametrize("weights", WEIGHTS)
-def test_page_masks_equal_the_reference(page, weights):
-    state = page_state(page, weights)
-    assert state["w"] == [float(x) for x in weights.split(",")]
+def test_page_masks_equal_the_reference_with_and_without_deferring(page):
+    steps = [(page, f"w={w}", None) for w in WEIGHTS]
+    steps += [(page, f"w={w}&defer={d!r}", None) for w, d in DEFER_STATES]
+    states = [s["state"] for s in page_states(page, steps)]
     probs = embedded_probs(page)
-    assert [e["name"] for e in state["examples"]] == list(probs)
-    for example in state["examples"]:
-        p = probs[example["name"]]
-        assert (example["height"], example["width"]) == tuple(p.shape[1:])
-        assert example["labels_sha256"] == reference_sha(p, state["w"]), example["name"]
+    expected = [(w, None) for w in WEIGHTS] + DEFER_STATES
+    for state, (weights, defer) in zip(states, expected, strict=True):
+        assert state["w"] == [float(x) for x in weights.split(",")]
+        assert state["defer"] == defer
+        assert_reference_masks(state, probs)
+    # the near tie is one: where person and car are 0.5 each, the page's masks above hold
+    tied = probs["ex0"][:, -3:]  # deferring at 0.5 ties with both (the reference decides so)
+    assert (reference_labels(tied, [1, 0, 0], TIE - ULP) == 255).all()
+    assert (reference_labels(tied, [1, 0, 0], TIE) == 11).all()  # a class wins the tie
+    assert (reference_labels(tied, [1, 0, 0], TIE + ULP) == 11).all()
+
+
+@pytest.fixture(scope="module")
+def deferring_page(tmp_path_factory) -> Path:
+    """A page of one example that opens with the defer cost 0.3 (``--defer 0.3``)."""
+    example = embedded("ex0", np.zeros((32, 48, 3), np.uint8), synthetic_probs(32, 48, 0))
+    path = tmp_path_factory.mktemp("explorer_defer") / "explorer.html"
+    return write_explorer(path, [example], vertex_matrices(VERTEX_NAMES), VERTEX_NAMES, defer=0.3)
+
+
+@needs_chromium
+def test_defer_in_the_url_round_trips(page, deferring_page):
+    a, b = page, deferring_page
+    steps = [(b, "w=0,1,0", None), (b, "w=0,1,0&defer=off", None), (b, "w=0,1,0&defer=-1", None),
+             (b, "w=0,1,0&defer=abc", None), (b, "w=0,1,0&defer=", None),
+             (a, "w=1,0,0&defer=nan", None),
+             (b, "w=0,0,1", 120), (None, "", None),  # the slider, then its URL opened again
+             (b, "w=0,0,1&defer=0.7", -1), (None, "", None),  # the slider's "off"
+             (a, "w=1,0,0&defer=0.5", -1), (None, "", None)]  # fmt: skip
+    shown = page_states(page, steps)
+    states = [s["state"] for s in shown]
+    defers = [s["defer"] for s in states]
+    assert defers[:6] == [0.3, None, 0.3, 0.3, 0.3, None]  # the default; invalid ones ignored
+    slid = re.fullmatch(r"#w=0,0,1&defer=([^&]+)", shown[6]["hash"])
+    assert slid and float(slid.group(1)) == defers[6] and 0 < defers[6] <= 1000
+    assert states[7] == {**states[6], "ms": states[7]["ms"]}  # the same state from its URL
+    assert [s["hash"] for s in shown[8:]] == ["#w=0,0,1&defer=off"] * 2 + ["#w=1,0,0"] * 2
+    assert defers[8:] == [None] * 4
+    probs, opened = {a: embedded_probs(a), b: embedded_probs(b)}, []
+    for where, _, _ in steps:  # None: the page of the step before
+        opened.append(where or opened[-1])
+    for where, state, step in zip(opened, states, shown, strict=True):
+        assert_reference_masks(state, probs[where])
+        total = sum(e["height"] * e["width"] for e in state["examples"])
+        deferred = sum(e["deferred_pixels"] for e in state["examples"])
+        if state["defer"] is not None:
+            percent = float(re.search(r"deferred ([0-9.]+) %", step["shown"]).group(1))
+            assert abs(percent - 100 * deferred / total) <= 0.05 + 1e-9
 
 
 @needs_chromium
@@ -140,11 +203,9 @@ def test_evaluate_explorer_holds_the_sweep_and_reference_masks(tiny_run, tmp_pat
     assert '"sweep":{"weights":[[1.0,0.0,0.0]' in text and '"targets":[{"label"' in text
     probs = embedded_probs(page)
     assert len(probs) == 2
-    shown = {"0.5,0.5,0": "swept metrics", "0.3,0.3,0.4": "over the 2 embedded examples"}
-    for weights, metrics in shown.items():  # a grid point, and between grid points
-        dom = browser(page, f"w={weights}")
-        assert metrics in dom
-        state = page_state(page, weights, dom)
-        for example in state["examples"]:
-            p = probs[example["name"]]
-            assert example["labels_sha256"] == reference_sha(p, state["w"]), example["name"]
+    shown = {"0.5,0.5,0": "swept metrics", "0.3,0.3,0.4": "over the 2 embedded examples",
+             "0.5,0.5,0&defer=0.2": "a deferred pixel is not predicted as any class"}  # fmt: skip
+    steps = [(page, f"w={fragment}", None) for fragment in shown]
+    for step, metrics in zip(page_states(page, steps), shown.values(), strict=True):
+        assert metrics in step["metrics"]  # a grid point, between grid points, deferring
+        assert_reference_masks(step["state"], probs)

@@ -1,9 +1,11 @@
-// costseg explorer, part 2: the value-space triangle and the examples' masks at any of its
-// points (the rule itself: explorer_rule.js).
+// costseg explorer, part 3: the examples' masks at any point of the triangle and defer cost,
+// the page's state and controls (the rule: explorer_rule.js; the triangle: explorer_triangle.js).
 "use strict";
 (function () {
-  const { DATA, N, bytes, pixelMajor, mixed, shifted, compile, argmax, sha256 } = COSTSEG;
-  const SQ3 = Math.sqrt(3) / 2;
+  const { DATA, N, DEFERRED, bytes, pixelMajor, mixed, withDefer, shifted, compile, argmax,
+    sha256 } = COSTSEG;
+  const { toWeights, drawHeat, drawTriangle, snap } = COSTSEG_TRIANGLE;
+  const sweep = DATA.sweep;
   const $ = (id) => document.getElementById(id);
 
   // ---- examples ----
@@ -13,9 +15,12 @@
       truth: ex.labels && bytes(ex.labels), rois: ex.roi && bytes(ex.roi) };
   });
   const PALETTE = DATA.palette;
-  const RGBA = new Uint32Array(256);  // class → RGBA as one little-endian word; 255: grey
+  const SAME = 254;  // a pixel of the third view where the decision is argmax's: grey
+  const RGBA = new Uint32Array(256);  // label → RGBA as one little-endian word
+  const word = ([r, g, b]) => (0xff000000 | (b << 16) | (g << 8) | r) >>> 0;
   RGBA.fill(0xffc8c8c8);
-  PALETTE.forEach(([r, g, b], c) => { RGBA[c] = 0xff000000 | (b << 16) | (g << 8) | r; });
+  PALETTE.forEach((rgb, c) => { RGBA[c] = word(rgb); });
+  RGBA[DEFERRED] = word(DATA.deferredColour);
   function paint(canvas, ex, classes) {
     const ctx = canvas.getContext("2d"), img = ctx.createImageData(ex.width, ex.height);
     const words = new Uint32Array(img.data.buffer);
@@ -30,6 +35,8 @@
       const title = document.createElement("div");
       title.textContent = `${ex.name} (${ex.height} × ${ex.width} embedded)`
         + (ex.note ? `: ${ex.note}` : "");
+      ex.share = document.createElement("span");
+      title.append(" ", ex.share);
       const views = document.createElement("div");
       views.className = "views";
       ex.canvases = ["image", "mask", "diff"].map(() => {
@@ -49,12 +56,20 @@
   function drawMasks(ex) {
     paint(ex.canvases[1], ex, ex.labels);
     const differ = ex.differ || (ex.differ = new Uint8Array(ex.hw));
-    for (let p = 0; p < ex.hw; p++) differ[p] = ex.labels[p] === ex.top[p] ? 255 : ex.labels[p];
+    let deferred = 0;
+    for (let p = 0; p < ex.hw; p++) {
+      const d = ex.labels[p];
+      differ[p] = d === ex.top[p] ? SAME : d;
+      if (d === DEFERRED) deferred++;
+    }
     paint(ex.canvases[2], ex, differ);
+    ex.deferred = deferred;
+    ex.share.textContent = D === null ? "" : `· deferred ${percent(deferred, ex.hw)}`;
   }
+  const percent = (part, whole) => `${(100 * part / whole).toFixed(1)} %`;
 
-  // ---- state ----
-  let W = [1, 0, 0], M = mixed(W);
+  // ---- state: the weights W and the defer cost D (null: no defer row) ----
+  let W = [1, 0, 0], D = DATA.defer, M = withDefer(mixed(W), D);
   function parseHash() {
     const m = /(?:^|[#&])w=([^&]+)/.exec(location.hash);
     if (!m) return null;
@@ -62,16 +77,29 @@
     const ok = w.length === 3 && w.every((x) => Number.isFinite(x) && x >= 0) && w.some((x) => x > 0);
     return ok ? w : null;
   }
-  function recompute(w) {
+  function parseDefer() {  // "&defer=c" (c >= 0) or "&defer=off"; undefined: absent or invalid
+    const m = /(?:^|[#&])defer=([^&]+)/.exec(location.hash);
+    if (!m) return undefined;
+    if (m[1] === "off") return null;
+    const c = m[1].trim() === "" ? NaN : Number(m[1]);
+    return Number.isFinite(c) && c >= 0 ? c : undefined;
+  }
+  function hashOf(w, d) {  // "&defer=off" only where the page's default defers
+    const defer = d !== null ? `&defer=${d}` : DATA.defer !== null ? "&defer=off" : "";
+    return `#w=${w.join(",")}${defer}`;
+  }
+  function recompute(w, d) {
     const t0 = performance.now();
-    W = w; M = mixed(w);
+    W = w; D = d; M = withDefer(mixed(w), d);
     const decide = compile(shifted(M));
     for (const ex of examples) { decide(ex.q, ex.hw, ex.labels, N); drawMasks(ex); }
     const ms = performance.now() - t0;
-    drawTriangle();
+    drawTriangle(W);
     showPoint();
-    const state = { w: W, ms, examples: examples.map((ex) => ({ name: ex.name,
-      height: ex.height, width: ex.width, labels_sha256: sha256(ex.labels) })) };
+    showDefer();
+    const state = { w: W, defer: D, ms, examples: examples.map((ex) => ({ name: ex.name,
+      height: ex.height, width: ex.width, labels_sha256: sha256(ex.labels),
+      deferred_pixels: ex.deferred })) };
     let pre = $("costseg-state");
     if (!pre) {
       pre = document.createElement("pre");
@@ -80,90 +108,6 @@
       document.body.appendChild(pre);
     }
     pre.textContent = JSON.stringify(state);
-  }
-
-  // ---- the triangle: vertex 0 bottom left, 1 bottom right, 2 top (as report.ternary) ----
-  const TRI = { x0: 55, y0: 370, side: 330 };
-  const toXY = (w) => { const s = w[0] + w[1] + w[2];
-    return [TRI.x0 + TRI.side * (w[1] + 0.5 * w[2]) / s, TRI.y0 - TRI.side * SQ3 * w[2] / s]; };
-  function toWeights(x, y) {
-    const c = Math.max(0, (TRI.y0 - y) / (TRI.side * SQ3));
-    const b = Math.max(0, (x - TRI.x0) / TRI.side - c / 2);
-    const a = Math.max(0, 1 - b - c), s = a + b + c;
-    const ai = Math.round(1000 * a / s), bi = Math.round(1000 * b / s);
-    return [ai / 1000, bi / 1000, Math.max(0, 1000 - ai - bi) / 1000];
-  }
-  const sweep = DATA.sweep;
-  function selected() {
-    if (!sweep) return null;
-    const m = $("metric").value, c = $("cls").value, r = $("roi").value;
-    return ((sweep.metrics[m] || {})[c] || {})[r] || null;
-  }
-  function viridis(t) {
-    const stops = [[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]];
-    const x = Math.min(1, Math.max(0, t)) * 4, i = Math.min(3, Math.floor(x)), f = x - i;
-    return stops[i].map((v, j) => Math.round(v + f * (stops[i + 1][j] - v)));
-  }
-  let HEAT = null;  // the heatmap image, redrawn when the selection changes
-  function drawHeat(ctx) {
-    const values = selected();
-    if (!values) { HEAT = null; return; }
-    const finite = values.filter((v) => v !== null);
-    const lo = Math.min(...finite), hi = Math.max(...finite), n = Math.round(1 / sweepStep());
-    const index = new Map(sweep.weights.map((w, k) => [`${Math.round(w[1] * n)},${Math.round(w[2] * n)}`, k]));
-    HEAT = ctx.createImageData(ctx.canvas.width, ctx.canvas.height);
-    for (let y = 0; y < ctx.canvas.height; y++) {
-      for (let x = 0; x < ctx.canvas.width; x++) {
-        const c = (TRI.y0 - y) / (TRI.side * SQ3), b = (x - TRI.x0) / TRI.side - c / 2;
-        if (c < 0 || b < 0 || b + c > 1) continue;
-        const k = index.get(`${Math.round(b * n)},${Math.round(c * n)}`);
-        const v = k === undefined ? null : values[k];
-        const rgb = v === null ? [190, 190, 190] : viridis(hi > lo ? (v - lo) / (hi - lo) : 0.5);
-        const o = 4 * (y * ctx.canvas.width + x);
-        HEAT.data.set([...rgb, 255], o);
-      }
-    }
-    drawColorbar(lo, hi);
-  }
-  function sweepStep() {
-    let step = 1;
-    for (const w of sweep.weights) for (const v of w) if (v > 0 && v < step) step = v;
-    return step;
-  }
-  function drawColorbar(lo, hi) {
-    const ctx = $("colorbar").getContext("2d");
-    ctx.clearRect(0, 0, 440, 28);
-    for (let x = 0; x < 300; x++) { ctx.fillStyle = `rgb(${viridis(x / 299)})`; ctx.fillRect(70 + x, 2, 1, 12); }
-    ctx.fillStyle = "#222";
-    ctx.fillText(lo.toFixed(3), 30, 12); ctx.fillText(hi.toFixed(3), 374, 12);
-    ctx.fillText(`${$("metric").value} of ${$("cls").value}, RoI ${$("roi").value} (swept)`, 70, 26);
-  }
-  function mark(ctx, w, style, size, label) {
-    const [x, y] = toXY(w);
-    ctx.fillStyle = style; ctx.strokeStyle = "#000";
-    ctx.beginPath(); ctx.arc(x, y, size, 0, 2 * Math.PI); ctx.fill(); ctx.stroke();
-    if (label) { ctx.fillStyle = "#000"; ctx.fillText(label, x + size + 2, y - size - 1); }
-  }
-  function drawTriangle() {
-    const ctx = $("triangle").getContext("2d");
-    ctx.clearRect(0, 0, 440, 400);
-    ctx.fillStyle = "#f4f4f4";
-    const corners = [[1, 0, 0], [0, 1, 0], [0, 0, 1]].map(toXY);
-    ctx.beginPath(); corners.forEach(([x, y]) => ctx.lineTo(x, y)); ctx.closePath(); ctx.fill();
-    if (HEAT) { const tmp = document.createElement("canvas"); tmp.width = 440; tmp.height = 400;
-      tmp.getContext("2d").putImageData(HEAT, 0, 0); ctx.drawImage(tmp, 0, 0); }
-    ctx.strokeStyle = "#333"; ctx.stroke();
-    ctx.font = "12px sans-serif"; ctx.fillStyle = "#000";
-    DATA.vertexNames.forEach((name, i) => { const [x, y] = corners[i];
-      ctx.fillText(name, x - (i === 1 ? 60 : i === 2 ? 25 : 10), y + (i === 2 ? -6 : 16)); });
-    if (sweep) for (const w of sweep.weights) mark(ctx, w, "rgba(0,0,0,0.25)", 1.2);
-    for (const p of DATA.named) {
-      const vertex = p.w.findIndex((v) => v === 1);
-      mark(ctx, p.w, "#fff", 5, DATA.vertexNames[vertex] === p.label ? "" : p.label);
-    }
-    for (const p of DATA.targets) mark(ctx, p.w, "#2a7", 4);
-    for (const p of DATA.certified) mark(ctx, p.w, "#d22", 6, p.label);
-    mark(ctx, W, "rgba(255,200,0,0.9)", 7);
   }
 
   // ---- metrics at the point ----
@@ -175,7 +119,8 @@
   function showPoint() {
     $("point").textContent = `point w = (${W.map((x) => +x.toFixed(4)).join(", ")}) on `
       + `(${DATA.vertexNames.join(", ")})`;
-    const k = gridIndex(W), cls = $("cls").value || DATA.classes[11], c = DATA.classes.indexOf(cls);
+    const k = D === null ? gridIndex(W) : -1;  // the sweep's rules never defer
+    const cls = $("cls").value || DATA.classes[11], c = DATA.classes.indexOf(cls);
     let html = "";
     if (k >= 0) {
       html = `<b>swept metrics</b> of ${cls} at this grid point<table><tr><th>RoI</th>`;
@@ -190,7 +135,8 @@
     } else if (examples.some((ex) => ex.truth)) {
       html = exampleMetrics(c, cls);
     } else if (sweep) {
-      html = "between grid points: no swept metrics here (click near a grid dot)";
+      html = D === null ? "between grid points: no swept metrics here (click near a grid dot)"
+        : "the swept metrics are without deferring: set the defer cost off to see them";
     }
     $("metrics").innerHTML = html;
   }
@@ -212,7 +158,8 @@
         + `</td><td>${tp + fn ? (tp / (tp + fn)).toFixed(4) : "–"}</td></tr>`);
     }
     return `<b>precision and recall of ${cls} over the ${examples.length} embedded examples</b>`
-      + " (at their embedded resolution; not the swept images)"
+      + " (at their embedded resolution; not the swept images"
+      + (D === null ? ")" : "; a deferred pixel is not predicted as any class)")
       + `<table><tr><th>RoI</th><th>precision</th><th>recall</th></tr>${rows.join("")}</table>`;
   }
 
@@ -233,7 +180,30 @@
         + `</span>${DATA.classes[r]}</td><td>${ex.q[base + r].toPrecision(4)}</td>`
         + `<td>${acc.toPrecision(5)}</td></tr>`;
     }
+    if (D !== null) {  // the defer row: D for every true class
+      let acc = 0;
+      for (let k = 0; k < N; k++) acc += D * ex.q[base + k];
+      html += `<tr class="${ex.labels[p] === DEFERRED ? "chosen" : ""}"><td><span class="swatch" `
+        + `style="background:rgb(${DATA.deferredColour});outline:1px solid #999"></span>defer`
+        + `</td><td></td><td>${acc.toPrecision(5)}</td></tr>`;
+    }
     $("hover").innerHTML = html + "</table>";
+  }
+
+  // ---- the defer cost: "off" (no defer row), 0, then STEPS costs spaced evenly in log scale
+  // over DECADES decades up to the vertices' largest off-diagonal cost (costs span 0.1 .. 1000)
+  const STEPS = 400, DECADES = 4, TOP = DATA.deferMax > 0 ? DATA.deferMax : 1;
+  const sliderCost = (i) => (i < 0 ? null : i === 0 ? 0
+    : +(TOP * 10 ** (DECADES * (i / STEPS - 1))).toPrecision(3));
+  const sliderPosition = (d) => (d === null ? -1 : d <= 0 ? 0
+    : Math.max(1, Math.min(STEPS, Math.round(STEPS * (1 + Math.log10(d / TOP) / DECADES)))));
+  function showDefer() {
+    $("defer").value = String(sliderPosition(D));
+    $("defer-cost").value = D === null ? "" : String(D);
+    const shown = examples.reduce((n, ex) => n + ex.deferred, 0);
+    const pixels = examples.reduce((n, ex) => n + ex.hw, 0);
+    $("defer-value").textContent = D === null ? "off (no defer row: every pixel gets a class)"
+      : `${D}: deferred ${percent(shown, pixels)} of the embedded pixels (white)`;
   }
 
   // ---- controls ----
@@ -254,35 +224,41 @@
       $("cls").value = "person";
     }
     for (const id of ["metric", "cls", "roi"]) $(id).addEventListener("change", () => {
-      drawHeat($("triangle").getContext("2d")); drawTriangle(); showPoint(); });
+      drawHeat($("triangle").getContext("2d")); drawTriangle(W); showPoint(); });
     $("triangle").addEventListener("click", (ev) => {
       const rect = ev.target.getBoundingClientRect();
       let w = toWeights(ev.clientX - rect.left, ev.clientY - rect.top);
       const near = snap(ev.clientX - rect.left, ev.clientY - rect.top);
       if (near) w = near;
-      history.replaceState(null, "", `#w=${w.join(",")}`);
-      recompute(w);
+      history.replaceState(null, "", hashOf(w, D));
+      recompute(w, D);
     });
-    window.addEventListener("hashchange", () => { const w = parseHash(); if (w) recompute(w); });
+    const slider = $("defer");
+    slider.min = "-1"; slider.max = String(STEPS); slider.step = "1";
+    slider.addEventListener("input", () => {
+      const d = sliderCost(+slider.value);
+      history.replaceState(null, "", hashOf(W, d));
+      recompute(W, d);
+    });
+    $("defer-cost").addEventListener("change", (ev) => {
+      const text = ev.target.value.trim(), d = text === "" ? null : Number(text);
+      if (d !== null && !(Number.isFinite(d) && d >= 0)) { showDefer(); return; }
+      history.replaceState(null, "", hashOf(W, d));
+      recompute(W, d);
+    });
+    window.addEventListener("hashchange", () => {
+      const w = parseHash(), d = parseDefer();
+      if (w || d !== undefined) recompute(w || W, d === undefined ? D : d);
+    });
     $("notes").innerHTML = DATA.notes.concat(sweep && sweep.note ? [sweep.note] : [])
       .map((n) => `<div>${n.replace(/</g, "&lt;")}</div>`).join("");
     buildExamples();
     drawHeat($("triangle").getContext("2d"));
   }
-  function snap(x, y) {  // a grid point within 6 pixels, or a marked point
-    const points = [...(sweep ? sweep.weights : []), ...DATA.named.map((p) => p.w),
-      ...DATA.certified.map((p) => p.w), ...DATA.targets.map((p) => p.w)];
-    let best = null, dist = 6;
-    for (const w of points) {
-      const [px, py] = toXY(w), d = Math.hypot(px - x, py - y);
-      if (d <= dist) { dist = d; best = w; }
-    }
-    return best && best.slice();
-  }
   setup();
-  const first = parseHash() || [1, 0, 0];
-  recompute(first);
+  const first = parseHash() || [1, 0, 0], firstDefer = parseDefer();
+  recompute(first, firstDefer === undefined ? DATA.defer : firstDefer);
   // "&clicks=n": n more recomputations at the same point, as n clicks would (benchmarks)
   const clicks = /[#&]clicks=(\d+)/.exec(location.hash);
-  for (let i = 0; clicks && i < +clicks[1]; i++) recompute(first);
+  for (let i = 0; clicks && i < +clicks[1]; i++) recompute(first, D);
 })();

@@ -3,12 +3,13 @@
 
 The page holds the three vertex matrices, the examples' float16 probabilities (base64 of their
 raw little-endian bytes, class-major as ``--save-probs`` writes them) and, after a sweep, its
-metrics at every grid point. Its scripts (``explorer_rule.js``, ``explorer.js``; inlined at write
-time) recompute the masks of any point of the triangle with the reference's arithmetic in
-float64: the mixed matrix ``(w_0 C_0 + w_1 C_1) + w_2 C_2`` (the operation order of
-``costs.mix_costs``), the column shift ``C - max_k' C[k', ·]``, ``Σ_k`` in ascending order, ties
-to the lowest class; so its labels equal ``decide_reference`` on the embedded probabilities,
-pixel for pixel.
+metrics at every grid point. Its scripts (``explorer_rule.js``, ``explorer_triangle.js``,
+``explorer.js``; inlined at write time) recompute the masks of any point of the triangle and any
+defer cost c (or none) with the reference's arithmetic in float64: the mixed matrix
+``(w_0 C_0 + w_1 C_1) + w_2 C_2`` (the operation order of ``costs.mix_costs``) with the defer row
+``(c, …, c)`` below it (``costs.with_defer``), the column shift ``C - max_k' C[k', ·]`` over all
+rows, ``Σ_k`` in ascending order, ties to the lowest row (a class before deferring); so its
+labels equal ``decide_reference`` on the embedded probabilities, pixel for pixel (255: deferred).
 """
 
 from __future__ import annotations
@@ -25,10 +26,11 @@ import numpy as np
 import torch
 from PIL import Image
 
-from costseg.classes import CLASS_NAMES, PALETTE, ROI_NAMES
+from costseg.classes import CLASS_NAMES, DEFERRED_COLOUR, PALETTE, ROI_NAMES
 from costseg.report.files import png_bytes, write_text
 
 MAX_EMBEDDED = (256, 512)  # (H, W): larger examples are embedded at a reduced resolution
+SCRIPTS = ("explorer_rule.js", "explorer_triangle.js", "explorer.js")  # inlined in this order
 
 
 @dataclass
@@ -131,6 +133,17 @@ def _nan_to_none(values: Sequence[float]) -> list[float | None]:
     return [None if not math.isfinite(v) else float(v) for v in values]
 
 
+def largest_off_diagonal(vertices: torch.Tensor) -> float:
+    """The largest cost of a confusion (an off-diagonal entry) among (V, N, N) matrices: the top
+    of the page's defer slider.
+
+    >>> largest_off_diagonal(torch.tensor([[[0.0, 2], [1, 5]], [[0, 3], [1, 0]]]))
+    3.0
+    """
+    off = ~torch.eye(vertices.shape[-1], dtype=torch.bool)
+    return float(vertices[:, off].max())
+
+
 def page_data(
     examples: Sequence[ExplorerExample],
     vertices: torch.Tensor,
@@ -138,15 +151,20 @@ def page_data(
     marks: Marks,
     sweep: SweepData | None,
     notes: Sequence[str],
+    defer: float | None = None,
 ) -> dict:
-    """Everything the page's script reads, as one JSON-able dict."""
+    """Everything the page's script reads, as one JSON-able dict (``defer``: the defer cost the
+    page opens with, None: none)."""
     v = vertices.to(torch.float64).cpu()
     return {
         "classes": list(CLASS_NAMES),
         "palette": PALETTE.tolist(),
+        "deferredColour": list(DEFERRED_COLOUR),
         "roiNames": list(ROI_NAMES),
         "vertexNames": list(vertex_names),
         "vertices": v.reshape(-1).tolist(),  # repr of each float64: parsed back exactly
+        "defer": None if defer is None else float(defer),
+        "deferMax": largest_off_diagonal(v),
         "named": [{"label": s, "w": list(w)} for s, w in marks.named],
         "targets": [{"label": s, "w": list(w)} for s, w in marks.targets],
         "certified": [{"label": s, "w": list(w)} for s, w in marks.certified],
@@ -174,6 +192,7 @@ def write_explorer(
     sweep: SweepData | None = None,
     marks: Marks | None = None,
     notes: Sequence[str] = (),
+    defer: float | None = None,
 ) -> Path:
     """Write the self-contained ``explorer.html``.
 
@@ -186,19 +205,19 @@ def write_explorer(
         sweep: metrics of a sweep, or None.
         marks: target and certified points (``named`` is added to them).
         notes: lines shown on the page (source, probabilities, scaling).
+        defer: the defer cost the page opens with (``--defer``; its slider runs from 0 to the
+            vertices' largest off-diagonal cost), or None: no deferring.
 
     Returns:
         ``path``.
     """
     marks = marks or Marks()
     marks = Marks([*marks.named, *named], marks.targets, marks.certified)
-    data = page_data(examples, vertices, vertex_names, marks, sweep, notes)
+    data = page_data(examples, vertices, vertex_names, marks, sweep, notes, defer)
     text = json.dumps(data, allow_nan=False, ensure_ascii=False, separators=(",", ":"))
     text = text.replace("</", "<\\/")
     folder = resources.files("costseg.report")
     html = (folder / "explorer.html").read_text(encoding="utf-8")
-    script = "\n".join(
-        (folder / name).read_text(encoding="utf-8") for name in ("explorer_rule.js", "explorer.js")
-    )
+    script = "\n".join((folder / name).read_text(encoding="utf-8") for name in SCRIPTS)
     page = html.replace("/*COSTSEG_DATA*/", text).replace("/*COSTSEG_SCRIPT*/", script)
     return write_text(path, page)

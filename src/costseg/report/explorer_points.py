@@ -21,18 +21,21 @@ ROIS = (0, 1, 2, 3, 4)
 def named_points(
     rules: Sequence[Rule], vertices: torch.Tensor, scaling: str = "none"
 ) -> list[tuple[str, list[float]]]:
-    """The named rules that are vertices of the triangle, with their weights.
+    """The named rules that are vertices of the triangle, with their weights (a rule with a
+    defer row: where its class rows are; the page's defer slider sets the defer row).
 
     >>> from costseg.rules import parse_rules
     >>> V = vertex_matrices(["robotistic", "altruistic", "egoistic"])
     >>> named_points(parse_rules(["egoistic", "ml"]), V)
     [('egoistic', [0.0, 0.0, 1.0])]
+    >>> named_points(parse_rules(["altruistic"], defer=0.5), V)
+    [('altruistic', [0.0, 1.0, 0.0])]
     """
-    points = []
+    points, n = [], vertices.shape[-1]
     for rule in rules:
         if rule.priors_alpha:
             continue
-        cost = symmetric_cost(vertices.shape[-1]) if rule.cost is None else rule.cost
+        cost = symmetric_cost(n) if rule.cost is None else rule.cost[:n]
         cost = rescale(cost) if scaling == "mean" else cost
         for v in range(len(vertices)):
             if torch.equal(cost.to(vertices), vertices[v]):
@@ -124,5 +127,6 @@ def write_evaluation_explorer(results: EvalResults) -> None:
         sweep=None if grid is None else sweep_data(grid, results.class_ids),
         marks=_marks(results, grid),
         notes=notes,
+        defer=opts.get("defer"),
     )
     print(f"explorer: {results.output_dir / 'explorer.html'}")

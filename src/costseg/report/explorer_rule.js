@@ -1,11 +1,13 @@
 // costseg explorer, part 1: decoding the embedded data, the decision rule, SHA-256.
-// Decisions follow docs/definitions.md §1 in float64, as decide_reference computes them: the
-// mixed matrix (w0*C0 + w1*C1) + w2*C2, the column shift C - max over predicted rows, the sum
-// over the true class k in ascending order, argmin with ties to the lowest class.
+// Decisions follow docs/definitions.md §1 and §14 in float64, as decide_reference computes them:
+// the mixed matrix (w0*C0 + w1*C1) + w2*C2, with a defer cost c one more row (c, ..., c) below
+// it (with_defer), the column shift C - max over all rows, the sum over the true class k in
+// ascending order, argmin with ties to the lowest row (a class wins a tie with deferring); the
+// defer row's label is 255.
 "use strict";
 const COSTSEG = (function () {
   const DATA = JSON.parse(document.getElementById("costseg-data").textContent);
-  const N = DATA.classes.length, NN = N * N;
+  const N = DATA.classes.length, NN = N * N, DEFERRED = 255;
   const V = Float64Array.from(DATA.vertices);
 
   // ---- decoding: base64 → bytes; IEEE half → float64 (exact) ----
@@ -35,29 +37,38 @@ const COSTSEG = (function () {
     for (let i = 0; i < NN; i++) m[i] = (w[0] * V[i] + w[1] * V[NN + i]) + w[2] * V[2 * NN + i];
     return m;
   }
-  function shifted(m) {  // C - max over predicted rows, per true-class column
-    const s = new Float64Array(NN);
+  function withDefer(m, c) {  // (N + 1, N): m and the row (c, ..., c); c null: m itself
+    if (c === null) return m;
+    const out = new Float64Array(NN + N);
+    out.set(m);
+    out.fill(c, NN);
+    return out;
+  }
+  function shifted(m) {  // C - max over all rows (defer row included), per true-class column
+    const rows = m.length / N, s = new Float64Array(m.length);
     for (let j = 0; j < N; j++) {
       let top = -Infinity;
-      for (let i = 0; i < N; i++) top = Math.max(top, m[i * N + j]);
-      for (let i = 0; i < N; i++) s[i * N + j] = m[i * N + j] - top;
+      for (let i = 0; i < rows; i++) top = Math.max(top, m[i * N + j]);
+      for (let i = 0; i < rows; i++) s[i * N + j] = m[i * N + j] - top;
     }
     return s;
   }
   // One pass per pixel, specialised to the matrix: its entries as literals (String() of a
   // float64 is its shortest exact form), the pixel's q in locals, terms with a zero entry left
   // out (adding 0 * q = 0 changes no sum), each term rounded apart (JS never fuses a * b + c).
+  // Rows in order, a later row only when strictly cheaper; the defer row (row N) answers 255.
   function compile(s) {
     const lines = ["for (let p = 0, b = 0; p < hw; p++, b += N) {"];
     for (let k = 0; k < N; k++) lines.push(`const q${k} = q[b + ${k}];`);
     lines.push("let acc, low, best = 0;");
-    for (let r = 0; r < N; r++) {
+    for (let r = 0; r < s.length / N; r++) {
       lines.push("acc = 0;");
       for (let k = 0; k < N; k++) {
         const c = s[r * N + k];
         if (c !== 0) lines.push(`acc += (${String(c)}) * q${k};`);
       }
-      lines.push(r === 0 ? "low = acc;" : `if (acc < low) { low = acc; best = ${r}; }`);
+      const label = r === N ? DEFERRED : r;
+      lines.push(r === 0 ? "low = acc;" : `if (acc < low) { low = acc; best = ${label}; }`);
     }
     lines.push("out[p] = best;", "}");
     return new Function("q", "hw", "out", "N", lines.join("\n"));
@@ -115,5 +126,6 @@ const COSTSEG = (function () {
     return Array.from(h, (x) => x.toString(16).padStart(8, "0")).join("");
   }
 
-  return { DATA, N, bytes, pixelMajor, mixed, shifted, compile, argmax, sha256 };
+  return { DATA, N, DEFERRED, bytes, pixelMajor, mixed, withDefer, shifted, compile, argmax,
+    sha256 };
 })();
