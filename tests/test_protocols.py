@@ -199,9 +199,11 @@ def test_predict_runs_and_states_the_protocol(tiny_run, tmp_path):
     out = tmp_path / "out"
     predict_main(["--input", str(tmp_path / "photo.png"), "--ckpt_path", str(ckpt), "--cost",
                   "egoistic", "--output_dir", str(out), "--save-probs", "--no-progress",
-                  *PROTOCOL])  # fmt: skip
+                  "--explorer", "--num_examples", "1", *PROTOCOL])  # fmt: skip
     source = json.loads((out / "counts.json").read_text())["source"]
     assert source["inference"] == "slide crop 40x48 stride 24x40" and source["tta"] == "flip"
+    page = (out / "explorer.html").read_text()
+    assert "inference: slide crop 40x48 stride 24x40; test-time augmentation: flip" in page
     saved = torch.from_numpy(np.load(out / "probs" / "photo.npz")["probs"]).float()
     network = load_costseg_checkpoint(ckpt).network
     expected = _reference(network, torch.from_numpy(image).permute(2, 0, 1))

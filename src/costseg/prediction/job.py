@@ -154,11 +154,13 @@ def _write_explorer(job: PredictPlan) -> None:
 
     opts = job.options
     vertices = vertex_matrices(opts.vertices, opts.vertex_scaling)
+    source = job.source.description
+    protocol = f"inference: {source.get('inference')}; test-time augmentation: {source.get('tta')}"
     write_explorer(
         job.output_dir / "explorer.html",
         job.examples,
         vertices,
         opts.vertices,
         named=named_points(job.rules[: len(opts.cost)], vertices, opts.vertex_scaling),
-        notes=[f"source: {job.source.description.get('network', '')}", "no labels: no metrics"],
+        notes=[f"source: {source.get('network', '')}", protocol, "no labels: no metrics"],
     )
