@@ -41,7 +41,7 @@ def check_options(opts: EvalOptions) -> list[RuleGroup]:
         raise ValueError(f"{OPTIONS} need a network: saved probabilities cannot be rerun")
     if opts.save_probs and opts.probs is not None:
         raise ValueError("--save-probs writes a network's probabilities; with --probs they exist")
-    rules = parse_rules(opts.cost)
+    rules = parse_rules(opts.cost, defer=opts.defer)  # the sweeps' rules never defer
     groups = [rules_group(rules)]
     if opts.sweep is not None:
         groups.append(grid_group(opts.vertices, opts.sweep, opts.vertex_scaling))

@@ -4,8 +4,8 @@ Every table, file, TensorBoard tag, ``--target`` / ``--maximize`` and per-image 
 metric names from here. A metric reported per rule, class and RoI is a *rate* (a fraction in
 [0, 1], NaN when undefined) or a *count*; a new metric adds its name to these lists.
 
->>> TARGET_METRICS
-('precision', 'recall', 'fp_rate', 'fn_rate', 'instance_recall')
+>>> TARGET_METRICS[:5]
+('precision', 'recall', 'coverage', 'selective_recall', 'handled_recall')
 >>> segment_column("fp"), SEGMENT_RATE_PARTS["fn_rate"]
 ('fp_segments', ('fn', 'n_gt'))
 """
@@ -14,6 +14,16 @@ from __future__ import annotations
 
 PIXEL_RATES: tuple[str, ...] = ("precision", "recall")
 """Per rule, class and RoI, from :class:`~costseg.metrics.RoIPrecisionRecall` (pixels)."""
+
+DEFER_RATES: tuple[str, ...] = ("coverage", "selective_recall", "handled_recall")
+"""Per rule, class and RoI, from :class:`~costseg.metrics.RoIPrecisionRecall`: what deferring
+did (docs/definitions.md §14; :mod:`costseg.metrics.functional.deferral`)."""
+
+DEFER_RULE_RATES: tuple[str, ...] = ("deferred_rate",)
+"""Per rule and RoI: the share of the RoI's valid pixels that were deferred."""
+
+DEFER_COLUMNS: tuple[str, ...] = (*DEFER_RATES, *DEFER_RULE_RATES)
+"""The metric columns of a result row that only groups with a deferring rule have."""
 
 SEGMENT_COUNTS: tuple[str, ...] = ("fp", "fn", "n_pred", "n_gt")
 """Per rule, class and RoI, from :class:`~costseg.metrics.SegmentErrors`: false-positive and
@@ -47,10 +57,14 @@ INSTANCE_COLUMNS: tuple[str, ...] = (*INSTANCE_COUNTS[:2], *INSTANCE_RATES, *INS
 RULE_RATES: tuple[str, ...] = ("miou",)
 """Per rule only (over the whole image and the classes)."""
 
-TARGET_METRICS: tuple[str, ...] = (*PIXEL_RATES, *SEGMENT_RATES, *INSTANCE_RATES)
+TARGET_METRICS: tuple[str, ...] = (*PIXEL_RATES, *DEFER_RATES, *SEGMENT_RATES, *INSTANCE_RATES)
 """The rates per class and RoI that ``--target``, ``--maximize`` and ``--guarantee`` name."""
 
-RATES: tuple[str, ...] = (*TARGET_METRICS, *RULE_RATES)
+HIGHER_IS_BETTER: tuple[str, ...] = (*PIXEL_RATES, *DEFER_RATES, *INSTANCE_RATES)
+"""The target metrics where higher is better: a per-image loss or a guarantee takes 1 − the
+metric (the segment rates are losses themselves)."""
+
+RATES: tuple[str, ...] = (*TARGET_METRICS, *DEFER_RULE_RATES, *RULE_RATES)
 """Every reported fraction in [0, 1] (tables show them in percent)."""
 
 
@@ -65,12 +79,14 @@ ERROR_COLUMNS: tuple[str, ...] = SEGMENT_COLUMNS[:2]
 
 ROW_METRICS: tuple[str, ...] = (
     *PIXEL_RATES,
+    *DEFER_COLUMNS,
     *SEGMENT_COLUMNS,
     *SEGMENT_RATES,
     *INSTANCE_COLUMNS,
     *RULE_RATES,
 )
-"""The metric columns of a result row (rule × class × RoI), in file order."""
+"""The metric columns of a result row (rule × class × RoI), in file order (the defer columns
+only where a rule of the group defers)."""
 
 COUNTS: tuple[str, ...] = (*SEGMENT_COLUMNS, *INSTANCE_COUNTS)
 """The result-row columns that are counts (whole numbers)."""

@@ -4,8 +4,12 @@
 Learn-then-Test needs a loss ``L_i(λ)`` per image i and rule λ. For a class ``cls`` in a RoI
 these come from per-image counts (numerator, denominator):
 
-* ``recall``: (TP, TP + FN) pixels of ``cls`` inside the RoI; loss ``1 − recall``;
+* ``recall``: (TP, TP + FN) pixels of ``cls`` inside the RoI (a deferred pixel is a miss);
+  loss ``1 − recall``;
 * ``precision``: (TP, TP + FP) pixels of ``cls`` inside the RoI; loss ``1 − precision``;
+* ``coverage``, ``selective_recall``, ``handled_recall`` (docs/definitions.md §14; D: the
+  pixels of ``cls`` deferred, G: all of them): (G − D, G), (TP, G − D), (TP + D, G); loss
+  1 − the metric;
 * ``fn_rate``: (FN segments, ground-truth segments) of ``cls`` owned by the RoI; loss the rate;
 * ``fp_rate``: (FP segments, predicted segments) of ``cls`` owned by the RoI; loss the rate;
 * ``instance_recall``: (instances found, instances) of ``cls`` owned by the RoI; loss the
@@ -38,11 +42,13 @@ from costseg.calibration.guarantee import (
     recall_loss,
 )
 from costseg.classes import IGNORE_INDEX, NUM_ROIS
+from costseg.decision.label_maps import DEFERRED
 from costseg.metrics.functional.inputs import check_batch
 from costseg.metrics.functional.instances import instance_misses
-from costseg.metrics.functional.roi import roi_confusion
 from costseg.metrics.functional.segment_rules import packed_masks, rule_errors
 from costseg.metrics.names import (
+    DEFER_RATES,
+    HIGHER_IS_BETTER,
     INSTANCE_RATES,
     PIXEL_RATES,
     SEGMENT_COUNTS,
@@ -67,7 +73,8 @@ def per_image_counts(
     """Per image and rule, the (numerator, denominator) counts behind ``metric``.
 
     Args:
-        preds: (B, K, H, W) integer class ids of K rules (any integer dtype, e.g. uint8).
+        preds: (B, K, H, W) integer class ids of K rules (any integer dtype, e.g. uint8), or
+            ``DEFERRED``.
         target: (B, H, W) integer class ids, or ``ignore_index``.
         roi: None, (H, W) or (B, H, W) RoI ids in 0..num_rois (0 = in no RoI).
         cls: the class.
@@ -87,7 +94,7 @@ def per_image_counts(
     [[[1, 2]]]
     """
     _check_args(preds, target, roi, cls, roi_id, metric, num_rois, ignore_index)
-    if metric in PIXEL_RATES:
+    if metric in (*PIXEL_RATES, *DEFER_RATES):
         return _pixel_counts(preds, target, roi, cls, roi_id, metric, ignore_index)
     if metric in INSTANCE_RATES:
         if instances is None:
@@ -133,20 +140,28 @@ def _pixel_counts(
     metric: str,
     ignore_index: int,
 ) -> Tensor:
-    """(B, K, 2): (TP, TP + FN) or (TP, TP + FP) pixels of ``cls`` in RoI ``roi_id``, from
-    :func:`roi_confusion` of "``cls`` or not" on each image's counted pixels (RoIs are small)."""
+    """(B, K, 2): the (numerator, denominator) pixels of ``metric`` (the module docstring) of
+    ``cls`` in RoI ``roi_id``, from each image's counted pixels."""
     inside = target != ignore_index
     if roi_id > 0 and roi is not None:
         inside = inside & (roi.to(target.device) == roi_id).expand_as(target)
     out = torch.zeros(*preds.shape[:2], 2, dtype=torch.long, device=preds.device)
     for b in range(len(target)):
         counted = inside[b].flatten().nonzero().squeeze(1)
-        is_cls = (preds[b].flatten(1)[:, counted] == cls).long()  # (K, P')
-        truth = (target[b].flatten()[counted] == cls).long()
-        cm = roi_confusion(is_cls[None, :, None], truth[None, None], None, 2, 0)  # (K, 1, 2, 2)
-        tp = cm[:, 0, 1, 1]  # (K,): rows = truth, columns = prediction
-        out[b, :, 0] = tp
-        out[b, :, 1] = cm[:, 0, 1].sum(-1) if metric == "recall" else cm[:, 0, :, 1].sum(-1)
+        labels = preds[b].flatten(1)[:, counted]  # (K, P')
+        truth = target[b].flatten()[counted] == cls
+        hit = labels == cls
+        tp, predicted = (hit & truth).sum(1), hit.sum(1)
+        gt = truth.sum().expand_as(tp)
+        deferred = ((labels == DEFERRED) & truth).sum(1)
+        parts = {
+            "recall": (tp, gt),
+            "precision": (tp, predicted),
+            "coverage": (gt - deferred, gt),
+            "selective_recall": (tp, gt - deferred),
+            "handled_recall": (tp + deferred, gt),
+        }[metric]
+        out[b] = torch.stack(parts, -1)
     return out
 
 
@@ -180,8 +195,8 @@ def per_image_loss(counts: ArrayLike | Tensor, metric: str) -> Tensor:
 
     Args:
         counts: (n, K, 2) (numerator, denominator) counts.
-        metric: the metric the counts were taken for: the loss is ``1 − recall``,
-            ``1 − precision``, the FN-segment rate or the FP-segment rate.
+        metric: the metric the counts were taken for: the loss is 1 − the metric (recall,
+            precision, instance recall, the rates of deferral), or the FN- or FP-segment rate.
 
     Returns:
         float64 (n, K) losses, NaN where the denominator is 0.
@@ -197,10 +212,10 @@ def per_image_loss(counts: ArrayLike | Tensor, metric: str) -> Tensor:
     if metric not in TARGET_METRICS:
         raise ValueError(f"metric must be one of {', '.join(TARGET_METRICS)}; got {metric!r}")
     part, whole = counts.unbind(-1)
-    if metric in ("recall", "instance_recall"):
-        return recall_loss(part, whole - part)
     if metric == "precision":
         return precision_loss(part, whole - part)
+    if metric in HIGHER_IS_BETTER:  # 1 − part / whole
+        return recall_loss(part, whole - part)
     if metric == "fn_rate":
         return fn_segment_rate(part, whole)
     return fp_segment_rate(part, whole)

@@ -4,6 +4,8 @@ Pure functions on results; nothing here runs a network.
 
 >>> parse_target("person:roi1:recall>=0.99")
 Target(cls=11, roi=1, metric='recall', op='>=', value=0.99)
+>>> parse_target("person:roi1:handled_recall>=0.999").metric
+'handled_recall'
 """
 
 from __future__ import annotations
@@ -17,7 +19,13 @@ from typing import NamedTuple
 import torch
 
 from costseg.classes import CLASS_NAMES, ROI_IDS, class_index
-from costseg.metrics.names import INSTANCE_RATES, PIXEL_RATES, TARGET_METRICS
+from costseg.metrics.names import (
+    DEFER_RATES,
+    HIGHER_IS_BETTER,
+    INSTANCE_RATES,
+    PIXEL_RATES,
+    TARGET_METRICS,
+)
 
 _OPS = {">=": float.__ge__, "<=": float.__le__, ">": float.__gt__, "<": float.__lt__}
 
@@ -66,7 +74,7 @@ def parse_target(text: str, class_names: Sequence[str] = CLASS_NAMES) -> Target:
     except ValueError:
         raise ValueError(f"cannot parse the number in target {text!r}") from None
     metric = parse_metric(match.group(1), class_names)
-    if metric.metric.endswith(("precision", "recall", "_rate")) and not 0 <= value <= 1:
+    if not 0 <= value <= 1:  # every target metric is a rate
         raise ValueError(f"{metric.metric} is a rate in [0, 1]: the target {text!r} is outside")
     return Target(*metric, match.group(2), value)
 
@@ -79,7 +87,7 @@ def metric_values(
     instances: dict[str, torch.Tensor] | None = None,
 ) -> torch.Tensor:
     """(K,) values of ``metric`` for every rule of a group (NaN where undefined)."""
-    if metric.metric in PIXEL_RATES:
+    if metric.metric in (*PIXEL_RATES, *DEFER_RATES):
         return pixels[metric.metric][:, metric.roi, metric.cls]
     if metric.metric in INSTANCE_RATES:
         measured = [] if not instances else instances["classes"].tolist()
@@ -160,16 +168,15 @@ def choose(
 
 def risk_level(target: Target) -> float:
     """α of a guarantee: ``recall >= v`` bounds the loss 1 − recall by 1 − v (same for
-    precision); ``fp_rate <= v`` bounds the rate itself by v.
+    precision, instance recall and the rates of deferral); ``fp_rate <= v`` bounds the rate
+    itself by v.
 
     >>> round(risk_level(parse_target("person:roi1:recall>=0.95")), 6)
     0.05
     """
-    if target.metric in (*PIXEL_RATES, *INSTANCE_RATES):
+    if target.metric in HIGHER_IS_BETTER:
         if target.op not in (">=", ">"):
-            raise ValueError(
-                "--guarantee certifies recall, precision or instance_recall >= a value"
-            )
+            raise ValueError(f"--guarantee certifies {', '.join(HIGHER_IS_BETTER)} >= a value")
         return 1 - target.value
     if target.op not in ("<=", "<"):
         raise ValueError("--guarantee certifies fp_rate or fn_rate <= a value")

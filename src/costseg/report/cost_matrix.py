@@ -1,8 +1,9 @@
-"""Figures of cost matrices: log colour scale, rows = predicted class, columns = true class.
+"""Figures of cost matrices: log colour scale, rows = predicted class, columns = true class; a
+defer row (docs/definitions.md §14) is the last row, labelled "defer".
 
 The matrices of several rules share one figure (:func:`cost_matrix_figures`): its 19 × 2 class
-ticks and the layout around them are built once, and only the image, the colour scale, the
-zeros of the diagonal and the title change.
+ticks and the layout around them are built once per shape, and only the image, the colour scale,
+the zeros and the title change.
 """
 
 from __future__ import annotations
@@ -23,15 +24,18 @@ def plot_cost_matrix(
 ) -> Figure:
     """A cost matrix on a log colour scale; rows = predicted class, columns = true class.
 
-    The zero diagonal has no logarithm: it is drawn white and marked "0".
+    A zero (the diagonal, a defer cost of 0) has no logarithm: it is drawn white and marked "0".
 
     Args:
-        C: (N, N) costs.
+        C: (N, N) costs, or (N + 1, N) with a defer row.
         class_names: N names for the ticks.
         title: e.g. "egoistic".
 
     >>> plot_cost_matrix(np.ones((2, 2)) - np.eye(2), ["a", "b"]).axes[0].get_ylabel()
     'predicted class k̂'
+    >>> fig = plot_cost_matrix(np.array([[0, 1], [1, 0], [0.5, 0.5]]), ["a", "b"])
+    >>> [t.get_text() for t in fig.axes[0].get_yticklabels()]
+    ['a', 'b', 'defer']
     """
     return next(cost_matrix_figures([("", C, title)], class_names))[1]
 
@@ -52,15 +56,16 @@ def cost_matrix_figures(
     n = len(class_names)
     for tag, C, title in matrices:
         cost = as_numpy(C).astype(np.float64)
-        if cost.shape != (n, n):
+        if cost.shape not in ((n, n), (n + 1, n)):
             raise ValueError(
-                f"expected a ({n}, {n}) cost matrix for {n} class names, got {cost.shape}"
+                f"expected a ({n}, {n}) cost matrix (or ({n + 1}, {n}) with a defer row) for "
+                f"{n} class names, got {cost.shape}"
             )
         shown = np.ma.masked_where(~(np.isfinite(cost) & (cost > 0)), cost)
         lo, hi = float(shown.min()), float(shown.max())
         if lo == hi:  # e.g. the robotistic matrix: a log colour bar needs a non-empty range
             lo, hi = lo / 10, hi * 10
-        first = fig is None
+        first = image is None or image.get_array().shape != cost.shape
         if first:
             fig, image = _figure(shown, LogNorm(lo, hi), class_names)
         else:
@@ -69,8 +74,8 @@ def cost_matrix_figures(
         ax = image.axes
         for text in list(ax.texts):
             text.remove()
-        for i in np.flatnonzero(np.diag(cost) == 0):
-            ax.text(i, i, "0", ha="center", va="center", fontsize="x-small")
+        for i, j in zip(*np.nonzero(cost == 0), strict=True):
+            ax.text(j, i, "0", ha="center", va="center", fontsize="x-small")
         ax.set_title(title)
         if first:
             freeze_layout(fig)
@@ -78,15 +83,17 @@ def cost_matrix_figures(
 
 
 def _figure(shown: np.ma.MaskedArray, norm: LogNorm, class_names: Sequence[str]):
-    """The figure, axes, ticks and colour bar of an N × N cost matrix; returns (figure, image)."""
+    """The figure, axes, ticks and colour bar of an N × N (or (N + 1) × N) cost matrix; returns
+    (figure, image)."""
     n = len(class_names)
+    rows = [*class_names, "defer"][: shown.shape[0]]
     side = max(4.0, 0.3 * n + 2.5)
-    fig = Figure(figsize=(side + 1.0, side), layout="constrained")
+    fig = Figure(figsize=(side + 1.0, side + 0.3 * (len(rows) - n)), layout="constrained")
     ax = fig.subplots()
     cmap = colormaps["viridis"].with_extremes(bad="white")
     image = ax.imshow(shown, cmap=cmap, norm=norm, interpolation="nearest")
     ax.set_xticks(range(n), class_names, rotation=90)
-    ax.set_yticks(range(n), class_names)
+    ax.set_yticks(range(len(rows)), rows)
     ax.set_xlabel("true class k")
     ax.set_ylabel("predicted class k̂")
     fig.colorbar(image, ax=ax, label="cost (log scale)", shrink=0.8)

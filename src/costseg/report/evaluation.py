@@ -10,7 +10,7 @@ from __future__ import annotations
 from torch.utils.tensorboard import SummaryWriter
 
 from costseg.classes import CLASS_NAMES, ROI_NAMES
-from costseg.metrics.names import ERROR_COLUMNS, INSTANCE_COLUMNS
+from costseg.metrics.names import DEFER_RULE_RATES, ERROR_COLUMNS, INSTANCE_COLUMNS
 from costseg.report.drawing import Batch, save_and_log_all
 from costseg.report.early_figures import EarlyFigures, example_figures, plan_figures
 from costseg.report.figures import heatmap_grid_figures
@@ -21,18 +21,23 @@ from costseg.report.tables import (
     PAPER_ROIS,
     compare_with_paper,
     console_table,
+    format_value,
     paper_table,
 )
-from costseg.report.tensorboard import log_evaluation, log_masks, log_table
+from costseg.report.tensorboard import log_evaluation, log_masks, log_table, markdown_table
+from costseg.rules import DEFER_COLUMN
 
 SUMMARY_COLUMNS = (*PAPER_COLUMNS, *ERROR_COLUMNS)
+DEFER_SUMMARY = (DEFER_COLUMN, "coverage", "handled_recall", *DEFER_RULE_RATES)
+"""The console's columns of deferral, where a named rule defers (table.md and the files hold
+every column)."""
 
 
 def write_evaluation(results: EvalResults, early: EarlyFigures | None = None) -> None:
     """Write the named rules' results, then each sweep's, into ``results.output_dir``.
 
     ``early``: the figures started while the images were evaluated; the others are drawn here."""
-    from costseg.report.calibration import write_calibration
+    from costseg.report.calibration import calibration_rows, write_calibration
     from costseg.report.sweep import write_sweeps
 
     out = results.output_dir
@@ -41,7 +46,8 @@ def write_evaluation(results: EvalResults, early: EarlyFigures | None = None) ->
     headline = [r for r in rows if r["roi"] in PAPER_ROIS]
     print(f"probabilities: {results.probabilities}")
     instances = INSTANCE_COLUMNS[:2] if named.instances else ()
-    print(console_table(headline, (*SUMMARY_COLUMNS, *instances)))
+    deferral = DEFER_SUMMARY if named.group.defers else ()
+    print(console_table(headline, (*SUMMARY_COLUMNS, *deferral, *instances)))
     print("mIoU: " + ", ".join(f"{n} {100 * v:.2f}" for n, v in _miou(named).items()))
     tables = _tables(headline, named, _probability_note(results))
     write_text(out / "table.md", tables)
@@ -50,6 +56,8 @@ def write_evaluation(results: EvalResults, early: EarlyFigures | None = None) ->
     with SummaryWriter(str(out)) as writer:
         log_table(writer, "evaluation/table", tables)
         log_evaluation(writer, results, rows)
+        if calibration := calibration_rows(results.extra.get("ece", {})):
+            log_table(writer, "evaluation/calibration", markdown_table(calibration))
         for i, ex in enumerate(results.examples):
             log_masks(
                 writer,
@@ -71,9 +79,10 @@ def write_evaluation(results: EvalResults, early: EarlyFigures | None = None) ->
 
 
 def _probability_note(results: EvalResults) -> str:
-    ece = results.extra.get("ece", {})
-    values = ", ".join(f"{k} {float(v['ece']):.4f}" for k, v in ece.items())
-    note = results.probabilities + (f"; ECE (top label, 15 bins): {values}" if values else "")
+    from costseg.report.calibration import calibration_line, calibration_rows
+
+    rows = calibration_rows(results.extra.get("ece", {}))
+    note = results.probabilities + (f"; {calibration_line(rows)}" if rows else "")
     return note + (f". {results.extra['instances']}" if "instances" in results.extra else "")
 
 
@@ -82,16 +91,32 @@ def _miou(result: GroupResult) -> dict[str, float]:
 
 
 def _tables(headline: list[dict], named: GroupResult, probabilities: str) -> str:
-    miou = "\n".join(f"| {n} | {100 * v:.2f} |" for n, v in _miou(named).items())
     return "\n\n".join(
         [
             "# Precision and recall per cost matrix (RoI 1 = street, 2 = sidewalk)",
             f"Probabilities: {probabilities}.",
             paper_table(headline),
-            f"## mIoU (19 classes)\n\n| matrix | mIoU |\n|---|---|\n{miou}",
+            _miou_table(named),
             "## Next to the paper (Cityscapes val, DeepLabv3+ Xception)",
             compare_with_paper(headline) + "\n",
         ]
+    )
+
+
+def _miou_table(named: GroupResult) -> str:
+    """The mIoU of each named rule; where one defers, its defer cost and the share of the
+    image's pixels it deferred (a deferred pixel is a false negative of its class in IoU)."""
+    if not named.group.defers:
+        miou = "\n".join(f"| {n} | {100 * v:.2f} |" for n, v in _miou(named).items())
+        return f"## mIoU (19 classes)\n\n| matrix | mIoU |\n|---|---|\n{miou}"
+    lines = [
+        f"| {rule.name} | {format_value(rule.defer_cost)} | {100 * miou:.2f} | "
+        f"{format_value(named.pixels['deferred_rate'][k, 0].item(), percent=True)} |"
+        for k, (rule, miou) in enumerate(zip(named.group.rules, _miou(named).values(), strict=True))
+    ]
+    return (
+        "## mIoU (19 classes; a deferred pixel is a false negative of its class)\n\n"
+        "| matrix | defer | mIoU | deferred (whole image) |\n|---|---|---|---|\n" + "\n".join(lines)
     )
 
 
@@ -111,13 +136,36 @@ def _json(results: EvalResults, rows: list[dict]) -> dict:
             for k, n in enumerate(names)
         },
         "confusion_matrix": {
-            "layout": "[rule][true class][predicted class], whole image, pixels",
+            "layout": "[rule][true class][predicted class], whole image, pixels"
+            + (" not deferred" if named.group.defers else ""),
             **{n: pixels["confmat"][k, 0].tolist() for k, n in enumerate(names)},
         },
+        **_deferral_json(named),
         "instances": results.extra.get("instances"),
         "scaling": results.extra.get("scaling"),
-        "ece": {k: float(v["ece"]) for k, v in results.extra.get("ece", {}).items()},
+        **_calibration(results),
     }
+
+
+def _deferral_json(named: GroupResult) -> dict:
+    """Where a named rule defers: each rule's defer cost (null: it never defers) and its
+    deferred pixels per true class."""
+    if not named.group.defers:
+        return {}
+    names = named.group.names
+    return {
+        "defer": {r.name: r.defer_cost for r in named.group.rules},
+        "deferred_pixels": {
+            "layout": "[rule][true class], whole image, pixels deferred",
+            **{n: named.pixels["deferred"][k, 0].tolist() for k, n in enumerate(names)},
+        },
+    }
+
+
+def _calibration(results: EvalResults) -> dict:
+    from costseg.report.calibration import calibration_record, calibration_rows
+
+    return calibration_record(calibration_rows(results.extra.get("ece", {})))
 
 
 def _figures(results: EvalResults) -> list[tuple[str, Batch]]:

@@ -21,7 +21,8 @@ from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
-from costseg.classes import CLASS_NAMES, IGNORE_INDEX, PALETTE, colorize
+from costseg.classes import CLASS_NAMES, DEFERRED_COLOUR, IGNORE_INDEX, PALETTE, colorize
+from costseg.decision.label_maps import DEFERRED
 
 ArrayLike = np.ndarray | torch.Tensor
 PANEL = 3.0  # inches: width of one image panel
@@ -80,7 +81,7 @@ def masks_side_by_side(
     Args:
         image: (H, W, 3) or (3, H, W) uint8.
         target: (H, W) train ids, 255 = ignore (black).
-        preds: rule name → (H, W) train ids.
+        preds: rule name → (H, W) train ids, 255 = deferred (``DEFERRED_COLOUR``).
 
     Returns:
         (H, (2 + K) * W, 3) uint8 RGB.
@@ -90,18 +91,26 @@ def masks_side_by_side(
     (2, 9, 3)
     """
     img, gt, masks = _masks(image, target, preds)
-    return np.concatenate([img, colorize(gt), *(colorize(m) for m in masks.values())], axis=1)
+    decisions = (colorize(m, deferred=True) for m in masks.values())
+    return np.concatenate([img, colorize(gt), *decisions], axis=1)
 
 
-def _legend_handles(masks: Sequence[np.ndarray], class_names: Sequence[str]) -> list[Patch]:
-    present = np.unique(np.concatenate([m.ravel() for m in masks]).astype(np.int64))
+def _legend_handles(
+    gt: np.ndarray, masks: Sequence[np.ndarray], class_names: Sequence[str]
+) -> list[Patch]:
+    """The classes present in the ground truth or a rule's mask; "ignore" for the ground
+    truth's 255, "deferred" for a rule's."""
+    present = np.unique(np.concatenate([m.ravel() for m in (gt, *masks)]).astype(np.int64))
     handles = [
         Patch(facecolor=PALETTE[i] / 255, edgecolor="grey", label=class_names[i])
         for i in present
         if i < len(class_names)
     ]
-    if IGNORE_INDEX in present:
+    if (gt == IGNORE_INDEX).any():
         handles.append(Patch(facecolor="black", label="ignore"))
+    if any((m == DEFERRED).any() for m in masks):
+        colour = np.array(DEFERRED_COLOUR) / 255
+        handles.append(Patch(facecolor=colour, edgecolor="grey", label="deferred"))
     return handles
 
 
@@ -116,12 +125,17 @@ def plot_masks(
     Args:
         image: (H, W, 3) or (3, H, W) uint8.
         target: (H, W) train ids, 255 = ignore.
-        preds: rule name (panel title, e.g. "Altruistic") → (H, W) train ids.
+        preds: rule name (panel title, e.g. "Altruistic") → (H, W) train ids, 255 = deferred
+            (drawn in ``DEFERRED_COLOUR``, "deferred" in the legend).
         class_names: names of the train ids, for the legend of the classes present.
 
     >>> fig = plot_masks(np.zeros((4, 8, 3), np.uint8), np.zeros((4, 8)), {"ml": np.ones((4, 8))})
     >>> [ax.get_title() for ax in fig.axes], [t.get_text() for t in fig.legends[0].texts]
     (['image', 'ground truth', 'ml'], ['road', 'sidewalk'])
+    >>> deferred = {"ml": np.full((4, 8), 255)}
+    >>> fig = plot_masks(np.zeros((4, 8, 3), np.uint8), np.zeros((4, 8)), deferred)
+    >>> [t.get_text() for t in fig.legends[0].texts]
+    ['road', 'deferred']
     """
     return next(mask_figures([("", image, target, preds)], class_names))[1]
 
@@ -143,8 +157,8 @@ def mask_figures(
     for tag, image, target, preds in examples:
         img, gt, masks = _masks(image, target, preds)
         panels = {"image": img, "ground truth": colorize(gt)}
-        panels |= {name: colorize(m) for name, m in masks.items()}
-        handles = _legend_handles([gt, *masks.values()], class_names)
+        panels |= {name: colorize(m, deferred=True) for name, m in masks.items()}
+        handles = _legend_handles(gt, list(masks.values()), class_names)
         ncols = max(1, min(len(handles), 10))
         if layout != (gt.shape, tuple(panels), -(-len(handles) // ncols)):
             layout = (gt.shape, tuple(panels), -(-len(handles) // ncols))

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import torch
 
-from costseg.classes import TRAIN_ID_TO_LABEL_ID
+from costseg.classes import label_ids
 from costseg.report.files import write_png, write_text
 
 INCOMPLETE = "INCOMPLETE"
@@ -89,20 +89,22 @@ class BatchWriter:
     Args:
         output_dir: the evaluation folder.
         rule_names: names of the named rules, in the order of their label maps.
-        predictions: write ``predictions/<rule>/<image>.png`` (Cityscapes label ids).
+        predictions: write ``predictions/<rule>/<image>.png`` (Cityscapes label ids; 255 where
+            the rule deferred, docs/definitions.md §14).
     """
 
     def __init__(self, output_dir: Path, rule_names: list[str], predictions: bool) -> None:
         self.output_dir, self.rule_names, self.predictions = output_dir, rule_names, predictions
 
     def save_predictions(self, stems: list[str], preds: torch.Tensor) -> None:
-        """(B, K, H, W) train-id maps of the named rules → one PNG per image and rule."""
+        """(B, K, H, W) train-id maps of the named rules (255: deferred) → one PNG per image
+        and rule."""
         if not self.predictions:
             return
         for k, name in enumerate(self.rule_names):
             folder = self.output_dir / "predictions" / name
             for stem, pred in zip(stems, preds[:, k].cpu().numpy(), strict=True):
-                write_png(folder / f"{stem}.png", TRAIN_ID_TO_LABEL_ID[pred])
+                write_png(folder / f"{stem}.png", label_ids(pred))
 
     def save_probs(self, stems: list[str], probs: torch.Tensor) -> None:
         """(B, N, H, W) probabilities → ``probs/<image>.npz`` (float16, docs/definitions.md §8)."""

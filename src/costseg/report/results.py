@@ -14,6 +14,8 @@ import torch
 
 from costseg.classes import CLASS_NAMES, ROI_NAMES
 from costseg.metrics.names import (
+    DEFER_RATES,
+    DEFER_RULE_RATES,
     INSTANCE_COLUMNS,
     PIXEL_RATES,
     RULE_RATES,
@@ -40,10 +42,11 @@ class GroupResult:
 
     def rows(self, class_ids: Sequence[int], rois: Sequence[int] = ROIS) -> list[dict]:
         """One row per rule × class × RoI: the columns of
-        :data:`~costseg.metrics.names.ROW_METRICS` (segment ones only where measured).
+        :data:`~costseg.metrics.names.ROW_METRICS` (segment ones only where measured, those of
+        deferral only where a rule of the group defers).
 
-        The rule is identified by the group's columns (``matrix``; ``alpha, beta, gamma``; or
-        ``prior_alpha``). NaN marks an undefined ratio.
+        The rule is identified by the group's columns (``matrix``, and ``defer`` where a rule
+        defers; ``alpha, beta, gamma``; or ``prior_alpha``). NaN marks an undefined ratio.
         """
         rows = []
         for k, columns in enumerate(self.group.columns):
@@ -51,11 +54,19 @@ class GroupResult:
                 for r in rois:
                     row = {**columns, "class": CLASS_NAMES[cls], "roi": r}
                     row |= {m: self.pixels[m][k, r, cls].item() for m in PIXEL_RATES}
+                    row |= self._defer_columns(k, cls, r)
                     row |= self._segment_columns(k, c, r)
                     row |= self._instance_columns(k, cls, r)
                     row |= {m: self.pixels[m][k].item() for m in RULE_RATES}
                     rows.append(row)
         return rows
+
+    def _defer_columns(self, k: int, cls: int, r: int) -> dict:
+        """Deferral of rule k, class ``cls``, RoI r (none unless a rule of the group defers)."""
+        if not self.group.defers:
+            return {}
+        rates = {m: self.pixels[m][k, r, cls].item() for m in DEFER_RATES}
+        return rates | {m: self.pixels[m][k, r].item() for m in DEFER_RULE_RATES}
 
     def _segment_columns(self, k: int, c: int, r: int) -> dict:
         """Segment counts and rates of rule k, class position c, RoI r (none if not measured)."""

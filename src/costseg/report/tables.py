@@ -16,18 +16,21 @@ from typing import Any
 
 from costseg.classes import CLASS_NAMES, NUM_CLASSES, NUM_ROIS, ROI_NAMES
 from costseg.metrics.names import (
+    DEFER_COLUMNS,
     INSTANCE_COLUMNS,
     PIXEL_RATES,
     RATES,
     RULE_RATES,
     SEGMENT_COLUMNS,
 )
+from costseg.rules import DEFER_COLUMN
 
 Row = Mapping[str, Any]
 
 PERCENT = RATES
-EXTRA_COLUMNS = (*SEGMENT_COLUMNS, *INSTANCE_COLUMNS[:3], *RULE_RATES)
-"""Columns added to the paper's layout when the rows have them."""
+EXTRA_COLUMNS = (*DEFER_COLUMNS, *SEGMENT_COLUMNS, *INSTANCE_COLUMNS[:3], *RULE_RATES)
+"""Columns added to the paper's layout when the rows have them (and ``defer``, the rule's defer
+cost, after ``matrix``)."""
 
 PAPER_TABLE: tuple[dict[str, Any], ...] = tuple(
     {"matrix": m, "class": c, "roi": r, "precision": p, "recall": q}
@@ -180,8 +183,9 @@ def paper_table(rows: Sequence[Row]) -> str:
     """Markdown table in the paper's layout: class-major, then RoI, then matrix.
 
     Classes, RoIs and matrices keep the order in which they first appear in ``rows``; as in the
-    paper, a class or RoI is printed only on the first line of its group. Extra columns (segment
-    counts, mIoU) are added when any row has them, and the paper's own numbers where it has them.
+    paper, a class or RoI is printed only on the first line of its group. Extra columns (defer
+    cost and deferral, segment counts, mIoU) are added when any row has them, and the paper's
+    own numbers where it has them.
     ``class`` may be a name or a train id, ``roi`` an id or a name of :data:`ROI_NAMES`.
 
     >>> print(paper_table([{"matrix": "egoistic", "class": "person", "roi": 1,
@@ -197,6 +201,7 @@ def paper_table(rows: Sequence[Row]) -> str:
         rows, key=lambda r: (classes.index(_class_name(r["class"])), rois.index(_roi_id(r["roi"])))
     )
     extra = [c for c in EXTRA_COLUMNS if any(c in r for r in rows)]
+    defer = [DEFER_COLUMN] if any(DEFER_COLUMN in r for r in rows) else []
     with_paper = any(_key(r) in _PAPER for r in rows)
     table, previous = [], ("", "")
     for r in ordered:
@@ -205,7 +210,7 @@ def paper_table(rows: Sequence[Row]) -> str:
         previous = group
         paper = _PAPER.get(_key(r), {})
         table.append({**r, "class": shown[0], "roi": shown[1], **_paper_fractions(paper)})
-    columns = ["class", "roi", "matrix", *PIXEL_RATES, *extra]
+    columns = ["class", "roi", "matrix", *defer, *PIXEL_RATES, *extra]
     columns += list(_PAPER_RATES) if with_paper else []
     headers = ["RoI" if c == "roi" else c for c in columns]
     return markdown_table(table, columns, headers, percent=_PERCENT_WITH_PAPER)

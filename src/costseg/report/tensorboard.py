@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 from matplotlib.figure import Figure
 
 from costseg.classes import CLASS_NAMES
+from costseg.metrics.names import DEFER_RATES
 from costseg.report.figures import ArrayLike, masks_side_by_side
 
 if TYPE_CHECKING:
@@ -30,9 +31,11 @@ if TYPE_CHECKING:
 STEPS = """Scalars are the sweeps' curves; the step is
 * `sweep/*`, `alpha_sweep/*`: the rule's index (the row order of `sweep.csv`,
   `alpha_sweep.csv`; k for α = k · STEP),
-* `temperature_sweep/*`: 100 · T.
+* `temperature_sweep/*`: 100 · T (with a rule that defers, also its coverage,
+  selective and handled recall in RoI 1 and its deferred share of the whole image).
 
-Each class is a run (`tensorboard/<class>`); whole-image values (`*/miou`) are in this run."""
+Each class is a run (`tensorboard/<class>`); whole-image values (`*/miou`,
+`*/deferred_rate`) are in this run."""
 
 
 def log_table(writer: SummaryWriter, tag: str, markdown: str, step: int = 0) -> None:
@@ -99,7 +102,7 @@ def log_masks(
         tag: image tag.
         image: (H, W, 3) or (3, H, W) uint8.
         target: (H, W) train ids, 255 = ignore.
-        preds: rule name → (H, W) train ids, in panel order.
+        preds: rule name → (H, W) train ids (255: deferred), in panel order.
         step: global step.
 
     >>> import tempfile, numpy as np
@@ -194,11 +197,15 @@ def _sweep_curves(results: EvalResults) -> Iterator[Curve]:
         (g for g in results.groups if g.group.temperature), key=lambda g: g.group.temperature
     )
     steps = [round(100 * g.group.temperature) for g in tempered]
+    defers = bool(tempered) and tempered[0].group.defers
     for k, rule in enumerate(tempered[0].group.names if tempered else []):
         for cls in results.class_ids:
-            for metric in ("precision", "recall"):
+            for metric in ("precision", "recall", *(DEFER_RATES if defers else ())):
                 values = [g.pixels[metric][k, 1, cls].item() for g in tempered]
                 yield f"temperature_sweep/{rule}/{metric}_roi1", CLASS_NAMES[cls], steps, values
+        if defers:
+            values = [g.pixels["deferred_rate"][k, 0].item() for g in tempered]
+            yield f"temperature_sweep/{rule}/deferred_rate", None, steps, values
 
 
 def _group_curves(

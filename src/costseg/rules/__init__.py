@@ -9,12 +9,13 @@ metrics; the reports write any group from what it carries.
 """
 
 from costseg.rules.alpha import alpha_grid, alpha_group
-from costseg.rules.base import Rule, RuleGroup, adapted_priors, named_group
+from costseg.rules.base import DEFER_COLUMN, Rule, RuleGroup, adapted_priors, named_group
 from costseg.rules.named import RULE_NAMES, apply_rules, parse_rules, rules_group
 from costseg.rules.temperatures import TEMPERATURES, temperature_group
 from costseg.rules.triangle import grid_group, point_name, vertex_matrices
 
 __all__ = [
+    "DEFER_COLUMN",
     "RULE_NAMES",
     "TEMPERATURES",
     "Rule",

@@ -53,6 +53,8 @@ def alpha_group(
     base = parse_rules([cost_name], class_names)[0] if cost_name else None
     if base is not None and base.priors_alpha:
         raise ValueError("--alpha_cost must be a cost matrix, not 'ml'")
+    if base is not None and base.defers:
+        raise ValueError(f"--alpha_cost {cost_name} has a defer row: the α sweep takes N x N costs")
     cost, label = (base.cost, base.name) if base else (None, "robotistic")
     alphas = alpha_grid(step)
     return RuleGroup(

@@ -17,6 +17,10 @@ from costseg.costs import has_defer_row, mix_costs
 
 Decider = Callable[[torch.Tensor, torch.Tensor | None], torch.Tensor]
 
+DEFER_COLUMN = "defer"
+"""The column of a rule's defer cost in result rows (:attr:`Rule.defer_cost`), beside
+``matrix``, in the rows of groups where some rule defers."""
+
 
 @dataclass(frozen=True)
 class Rule:
@@ -38,6 +42,20 @@ class Rule:
     def defers(self) -> bool:
         """Whether the rule may defer a pixel (its matrix has a defer row)."""
         return self.cost is not None and has_defer_row(self.cost)
+
+    @property
+    def defer_cost(self) -> float | list[float] | None:
+        """The rule's cost of deferring: one number when it is the same for every true class,
+        else one per class; None when the rule never defers.
+
+        >>> from costseg.costs import with_defer
+        >>> Rule("a", with_defer(torch.ones(2, 2), 0.25)).defer_cost, Rule("b", None).defer_cost
+        (0.25, None)
+        """
+        if not self.defers:
+            return None
+        row = self.cost[-1].tolist()
+        return row[0] if len(set(row)) == 1 else row
 
 
 def adapted_priors(priors: torch.Tensor, alpha: float) -> torch.Tensor:
@@ -65,7 +83,8 @@ class RuleGroup:
         candidates: whether ``--target`` and ``--guarantee`` choose among its rules.
         output: file stem of its own result rows and figures (``sweep`` → ``sweep.csv``), or
             None when it is written with the headline results or elsewhere.
-        rules: the named rules (named and temperature groups).
+        rules: the named rules (named and temperature groups); :attr:`defers` whether one of
+            them may defer a pixel (docs/definitions.md §14).
         vertices: (3, N, N) vertex matrices, ``weights`` (K, 3) and ``corners`` (3 names) of
             rules that lie in the value triangle (drawn as triangles).
         line: (K,) positions of rules that lie along one axis (drawn as curves), ``axis`` its
@@ -93,9 +112,14 @@ class RuleGroup:
     note: str = ""
     temperature: float | None = None
 
+    @property
+    def defers(self) -> bool:
+        """Whether a rule of the group may defer a pixel: its results have the defer columns."""
+        return any(r.defers for r in self.rules)
+
     def cost(self, k: int) -> torch.Tensor | None:
-        """The (N, N) cost matrix of rule k, or None when the rule is no plain matrix (it uses
-        the priors, or is the symmetric matrix of argmax)."""
+        """The (N, N) (or (N + 1, N), with a defer row) cost matrix of rule k, or None when the
+        rule is no plain matrix (it uses the priors, or is the symmetric matrix of argmax)."""
         if self.vertices is not None and self.weights is not None:
             return mix_costs(self.vertices, self.weights[k : k + 1])[0]
         if self.rules and not self.rules[k].priors_alpha:

@@ -8,6 +8,8 @@ acts on ``p / π`` with the pixel-wise priors π (``ml`` is the symmetric matrix
 ['robotistic', 'ml']
 >>> rules_group(parse_rules(["egoistic"])).columns
 [{'matrix': 'egoistic'}]
+>>> rules_group(parse_rules(["egoistic"], defer=0.5)).columns
+[{'matrix': 'egoistic', 'defer': 0.5}]
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from costseg.classes import CLASS_NAMES
 from costseg.costs import PRESETS, has_defer_row, load_cost, symmetric_cost, with_defer
 from costseg.decision import decide
 from costseg.decision.label_maps import empty_labels
-from costseg.rules.base import Rule, RuleGroup, adapted_priors
+from costseg.rules.base import DEFER_COLUMN, Rule, RuleGroup, adapted_priors
 
 RULE_NAMES = (*PRESETS, "ml")
 
@@ -88,6 +90,12 @@ def apply_rules(
     return out
 
 
+def rule_columns(rule: Rule, defer: bool) -> dict[str, object]:
+    """The columns that identify a named rule in result rows: its name and, with ``defer``
+    (some rule of its group defers), its defer cost."""
+    return {"matrix": rule.name} | ({DEFER_COLUMN: rule.defer_cost} if defer else {})
+
+
 def cost_or_symmetric(cost: torch.Tensor | None, n: int) -> torch.Tensor:
     """``cost``, or the (N, N) symmetric matrix for None."""
     return symmetric_cost(n) if cost is None else cost
@@ -105,13 +113,15 @@ class NamedRules:
 
 
 def rules_group(rules: Sequence[Rule]) -> RuleGroup:
-    """The named rules of ``--cost`` as one group (with FP/FN location maps)."""
+    """The named rules of ``--cost`` as one group (with FP/FN location maps); where one of them
+    defers, each rule's defer cost is a column (:attr:`Rule.defer_cost`)."""
     rules = list(rules)
+    defer = any(r.defers for r in rules)
     return RuleGroup(
         "rules",
         [r.name for r in rules],
         NamedRules(tuple(rules)),
-        [{"matrix": r.name} for r in rules],
+        [rule_columns(r, defer) for r in rules],
         is_named=True,
         heatmaps=True,
         needs_priors=any(r.priors_alpha for r in rules),

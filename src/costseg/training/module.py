@@ -3,9 +3,9 @@
 Training is ordinary cross-entropy (ignore index 255). Validation takes the softmax and swaps
 ``argmax`` for the configured decision rules (robotistic by default, i.e. argmax), all rules
 in one pass (the step of :mod:`costseg.metrics.scoring`, shared with evaluation), and logs mIoU,
-per-class IoU and person/building recall in the street RoI per rule. The pixel-wise priors (and
-so the RoI map) travel inside the checkpoint. Side outputs (masks in TensorBoard) are callbacks
-(:mod:`costseg.training.callbacks`).
+per-class IoU and person/building recall in the street RoI per rule (and the share of pixels a
+rule with a defer row deferred). The pixel-wise priors (and so the RoI map) travel inside the
+checkpoint. Side outputs (masks in TensorBoard) are callbacks (:mod:`costseg.training.callbacks`).
 """
 
 from __future__ import annotations
@@ -42,7 +42,8 @@ class SegmentationModule(L.LightningModule):
         poly_power: exponent of the poly schedule.
         warmup_steps: steps over which the learning rate rises linearly to ``lr`` before the
             poly decay (0 = none); lets a short schedule start at a high rate.
-        val_costs: decision rules applied in validation (names as for ``evaluate.py --cost``).
+        val_costs: decision rules applied in validation (names as for ``evaluate.py --cost``;
+            a cost file with a defer row defers pixels, docs/definitions.md §14).
         prior_sigma: Gaussian smoothing (pixels) of the pixel-wise priors; None = the
             default 80 · H / 1024 (docs/definitions.md §3) for labels of height H.
         channels_last: run the network in channels-last memory format (faster convolutions
@@ -122,7 +123,9 @@ class SegmentationModule(L.LightningModule):
         out = self.val_metrics.compute()["pixels"]
         self.val_metrics.reset()
         self.log("val/miou", out["miou"][0].float(), prog_bar=True)
-        self.log("val/ece", self.val_ece.compute()["ece"].float())
+        calibration = self.val_ece.compute()
+        for score in ("ece", "nll", "brier"):
+            self.log(f"val/{score}", calibration[score].float())
         self.val_ece.reset()
         names = CLASS_NAMES[: self.hparams.num_classes]
         person, building = class_index("person", names), class_index("building", names)
@@ -132,6 +135,8 @@ class SegmentationModule(L.LightningModule):
                 self.log(f"val/iou/{rule}/{name}", out["iou"][k, c].float())
             for c, name in ((person, "person"), (building, "building")):
                 self.log(f"val/recall_street/{rule}/{name}", out["recall"][k, 1, c].float())
+            if self.rules.rules[k].defers:  # a deferred pixel is a false negative in IoU
+                self.log(f"val/deferred_rate/{rule}", out["deferred_rate"][k, 0].float())
 
     def configure_optimizers(self):
         h = self.hparams

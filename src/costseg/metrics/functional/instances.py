@@ -6,9 +6,10 @@ FN segments undercount the people a rule misses; instances count them one by one
 An instance is the set of pixels sharing an id ``label_id · 1000 + k`` (>= 1000) of a Cityscapes
 ``gtFine_instanceIds`` map, without its ignored pixels (label 255); ids below 1000 (stuff, crowd
 regions) hold no instance. An instance of class c is **missed** by a rule when none of its
-pixels is predicted c. It belongs to the RoI holding most of its pixels (ties: lowest id), and
-its area (its pixels) is small below 32², medium below 96², else large, at 1024 × 2048 labels;
-for other sizes the limits scale with the label area. Every state is a sum, so batches and
+pixels is predicted c nor deferred (labelled ``DEFERRED``, §14: a deferred pedestrian is seen
+as uncertain, not missed). It belongs to the RoI holding most of its pixels (ties: lowest id),
+and its area (its pixels) is small below 32², medium below 96², else large, at 1024 × 2048
+labels; for other sizes the limits scale with the label area. Every state is a sum, so batches and
 processes merge exactly.
 
 >>> ids = torch.tensor([[[24000, 24000, 0, 24001]]])            # two persons (train id 11)
@@ -33,6 +34,7 @@ from costseg.classes import (
     INSTANCE_OFFSET,
     LABEL_ID_TO_TRAIN_ID,
 )
+from costseg.decision.label_maps import DEFERRED
 from costseg.metrics.functional.inputs import check_batch
 
 AREA_NAMES = ("small", "medium", "large")
@@ -73,7 +75,7 @@ def instance_misses(
     """Ground-truth and missed instances of each image under K rules (definitions above).
 
     Args:
-        preds: (B, H, W) or (B, K, H, W) integer class ids.
+        preds: (B, H, W) or (B, K, H, W) integer class ids, or ``DEFERRED``.
         target: (B, H, W) train ids, ``ignore_index`` for ignored pixels.
         instances: (B, H, W) integer instance ids in Cityscapes' encoding.
         classes: the C instance classes (train ids) counted.
@@ -144,7 +146,8 @@ def _one_image(
     key = (cls_pos * len(AREA_NAMES) + size_bin) * r1 + owner  # (M,)
     cells = c * len(AREA_NAMES) * r1
     gt = _with_totals(torch.bincount(key, minlength=cells).view(c, len(AREA_NAMES), r1))
-    hits = rules.flatten(1)[:, pix] == classes[cls_pos][member]  # (K, P)
+    labels = rules.flatten(1)[:, pix]  # (K, P)
+    hits = (labels == classes[cls_pos][member]) | (labels == DEFERRED)
     hit = torch.zeros(k, m, dtype=torch.long, device=flat.device)
     hit.index_add_(1, member, hits.long())
     missed = hit == 0  # (K, M)

@@ -3,8 +3,11 @@ predicted and ground-truth masks, and which of them the other mask misses.
 
 A predicted segment of class c is a false positive when it holds no pixel with target c; a
 ground-truth segment is a false negative when it holds no pixel predicted c. A segment belongs to
-the RoI holding most of its pixels (ties: lowest id). :func:`segment_errors` is the definition on
-one image; :func:`mask_segment_errors` its core, shared with :mod:`.segment_rules` (K rules).
+the RoI holding most of its pixels (ties: lowest id). A deferred pixel (label 255,
+docs/definitions.md §14) is predicted as no class: it lies in no predicted segment, and it does
+not keep a ground-truth segment from being a false negative. :func:`segment_errors` is the
+definition on one image; :func:`mask_segment_errors` its core, shared with :mod:`.segment_rules`
+(K rules).
 
 >>> pred = torch.tensor([[1, 0, 0, 1], [0, 1, 0, 0]])   # a diagonal pair is ONE segment
 >>> segment_errors(pred, torch.tensor([[0, 0, 0, 1], [0, 0, 1, 1]]), cls=1)["fp"]
