@@ -31,7 +31,7 @@ class PredictPlan:
     inputs: Inputs
     device: torch.device
     source: Source
-    rules: list[Rule]  # the --cost rules, then argmax when none of them is it
+    rules: list[Rule]  # the --cost rules (with --defer: defer rows), then argmax if none is it
     output_dir: Path
     priors: PriorMaps
     examples: list[ExplorerExample] = field(default_factory=list)
@@ -44,7 +44,7 @@ class PredictPlan:
 
 def plan(opts: PredictOptions) -> PredictPlan:
     """Check options and inputs (before the network loads), open the source, claim the folder."""
-    rules = parse_rules(opts.cost)
+    rules = parse_rules(opts.cost, defer=opts.defer)
     if opts.explorer:
         vertex_matrices(opts.vertices, opts.vertex_scaling)
     inputs = find_inputs(opts.input)
@@ -73,10 +73,15 @@ def plan(opts: PredictOptions) -> PredictPlan:
 
 
 def _is_argmax(rule: Rule) -> bool:
-    if rule.priors_alpha:
+    """Whether a rule decides as argmax: no priors, no defer row, and a symmetric matrix (one
+    positive cost off the diagonal, 0 on it)."""
+    if rule.priors_alpha or rule.defers:
         return False
     cost = rule.cost
-    return cost is None or bool((cost == cost[0, 1] * (1 - torch.eye(len(cost)))).all())
+    if cost is None:
+        return True
+    symmetric = cost[0, 1] * (1 - torch.eye(len(cost), dtype=cost.dtype))
+    return bool(cost[0, 1] > 0 and (cost == symmetric).all())
 
 
 def decide_image(
@@ -91,7 +96,7 @@ def decide_image(
     Returns:
         probs (N, H, W) float32 (rounded to float16 with ``--save-probs``, so that the saved
         file reproduces the labels), maps (K + 1, H, W) uint8 train ids (the rules, then
-        argmax), roi (H, W) int64 numpy or None.
+        argmax; 255 where a rule defers), roi (H, W) int64 numpy or None.
     """
     x = torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1)[None].to(plan.device)
     with torch.inference_mode():
@@ -112,8 +117,8 @@ def predict(opts: PredictOptions) -> Path:
 def run(job: PredictPlan) -> Path:
     """One pass over the planned images or frames; returns the output folder."""
     opts = job.options
-    writer = PredictionWriter(job.output_dir, job.rule_names, opts.save_probs)
     k = len(job.rule_names)
+    writer = PredictionWriter(job.output_dir, job.rules[:k], opts.save_probs)
     argmax = next((i for i, r in enumerate(job.rules) if _is_argmax(r)), k)
     video, desc = job.inputs.video, "predict" if opts.progress else None
     if video is None:
@@ -162,5 +167,6 @@ def _write_explorer(job: PredictPlan) -> None:
         vertices,
         opts.vertices,
         named=named_points(job.rules[: len(opts.cost)], vertices, opts.vertex_scaling),
+        defer=opts.defer,
         notes=[f"source: {source.get('network', '')}", protocol, "no labels: no metrics"],
     )

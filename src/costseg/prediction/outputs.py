@@ -1,7 +1,9 @@
 """The files of a prediction (docs/usage.md): per image ``panels/<stem>.png``,
 ``labels/<rule>/<stem>.png`` (Cityscapes label ids), ``color/<rule>/<stem>.png``, optionally
 ``probs/<stem>.npz``; per video ``<stem>_panels.mp4`` and ``<stem>_<rule>.mp4``; at the end
-``counts.csv`` and ``counts.json``, written last, so a folder holding them is complete.
+``counts.csv`` and ``counts.json``, written last, so a folder holding them is complete. A rule
+that may defer (docs/definitions.md §14) writes 255 for its deferred pixels in both label PNGs,
+draws them in ``DEFERRED_COLOUR``, and its counts hold its defer cost and deferred share.
 """
 
 from __future__ import annotations
@@ -13,13 +15,39 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from costseg.classes import CLASS_NAMES, ROI_NAMES, TRAIN_ID_TO_LABEL_ID, colorize
-from costseg.prediction.counts import label_counts
+from costseg.classes import CLASS_NAMES, ROI_NAMES, colorize, label_ids
+from costseg.prediction.counts import deferred_pixels, label_counts
 from costseg.prediction.panels import overlay, panel
 from costseg.prediction.video import VideoWriter
 from costseg.report.files import write_csv, write_json, write_png
+from costseg.rules import Rule
 
-COUNT_COLUMNS = ("image", "rule", "class", "roi", "pixels", "segments")
+COUNT_COLUMNS = ("image", "rule", "class", "roi", "pixels", "segments", "deferred")
+
+
+def defer_cost(rule: Rule) -> float | list[float] | None:
+    """A rule's defer cost: one number when every true class has the same, else one per class;
+    None for a rule that never defers.
+
+    >>> from costseg.rules import parse_rules
+    >>> [defer_cost(r) for r in [*parse_rules(["egoistic", "ml"], defer=0.25), Rule("a", None)]]
+    [0.25, 0.25, None]
+    """
+    if not rule.defers:
+        return None
+    row = rule.cost[-1].tolist()
+    return row[0] if len(set(row)) == 1 else row
+
+
+def defer_text(cost: float | list[float] | None) -> str | None:
+    """:func:`defer_cost` as the panels state it.
+
+    >>> defer_text(0.25), defer_text([0.1, 0.2]), defer_text(None)
+    ('0.25', 'per class', None)
+    """
+    if cost is None:
+        return None
+    return "per class" if isinstance(cost, list) else f"{cost:g}"
 
 
 class PredictionWriter:
@@ -27,30 +55,40 @@ class PredictionWriter:
 
     Args:
         output_dir: the prediction folder.
-        rule_names: the K rules, in the order of the label maps.
+        rules: the K rules, in the order of the label maps.
         save_probs: also write ``probs/<stem>.npz`` (float16).
     """
 
-    def __init__(self, output_dir: Path, rule_names: Sequence[str], save_probs: bool) -> None:
-        self.output_dir, self.rule_names, self.save_probs = output_dir, list(rule_names), save_probs
+    def __init__(self, output_dir: Path, rules: Sequence[Rule], save_probs: bool) -> None:
+        self.output_dir, self.save_probs = output_dir, save_probs
+        self.rule_names = [r.name for r in rules]
+        self.defer_costs = [defer_cost(r) for r in rules]
+        self.defer_texts = [defer_text(c) for c in self.defer_costs]
         self.counts: dict[str, np.ndarray] = {}  # stem → (K, 2, N, R) pixels and segments
+        self.deferred: dict[str, np.ndarray] = {}  # stem → (K, R) deferred pixels
         self.videos: list[VideoWriter] = []
 
     def image(
         self, stem: str, image: np.ndarray, maps: np.ndarray, argmax: np.ndarray, roi, probs
     ) -> None:
-        """Files of one image: ``maps`` (K, H, W) train ids, ``argmax`` (H, W), ``roi`` (H, W)
-        or None, ``probs`` (N, H, W) tensor (saved with ``save_probs``)."""
+        """Files of one image: ``maps`` (K, H, W) train ids (255: deferred), ``argmax`` (H, W),
+        ``roi`` (H, W) or None, ``probs`` (N, H, W) tensor (saved with ``save_probs``)."""
         out = self.output_dir
         for name, labels in zip(self.rule_names, maps, strict=True):
-            write_png(out / "labels" / name / f"{stem}.png", TRAIN_ID_TO_LABEL_ID[labels])
-            write_png(out / "color" / name / f"{stem}.png", colorize(labels))
-        write_png(out / "panels" / f"{stem}.png", panel(image, self.rule_names, maps, argmax))
+            write_png(out / "labels" / name / f"{stem}.png", label_ids(labels))
+            write_png(out / "color" / name / f"{stem}.png", colorize(labels, deferred=True))
+        write_png(out / "panels" / f"{stem}.png", self.panel(image, maps, argmax))
         self.count(stem, maps, roi, probs)
 
+    def panel(self, image: np.ndarray, maps: np.ndarray, argmax: np.ndarray) -> np.ndarray:
+        """The panel of one image or frame (:func:`costseg.prediction.panels.panel`)."""
+        return panel(image, self.rule_names, maps, argmax, self.defer_texts)
+
     def count(self, stem: str, maps: np.ndarray, roi, probs: torch.Tensor) -> None:
-        """Count one image's pixels and segments; write its probabilities with ``save_probs``."""
+        """Count one image's pixels, segments and deferred pixels; write its probabilities with
+        ``save_probs``."""
         self.counts[stem] = np.stack([np.stack(label_counts(m, roi)) for m in maps])
+        self.deferred[stem] = np.stack([deferred_pixels(m, roi) for m in maps])
         if self.save_probs:
             from costseg.networks.probs_files import save_probs
 
@@ -63,7 +101,7 @@ class PredictionWriter:
 
     def frame(self, stem: str, image: np.ndarray, maps, argmax, roi, probs) -> None:
         """One video frame: a panel frame, one overlay frame per rule, and its counts."""
-        self.videos[0].write(panel(image, self.rule_names, maps, argmax))
+        self.videos[0].write(self.panel(image, maps, argmax))
         for video, labels in zip(self.videos[1:], maps, strict=True):
             video.write(overlay(image, labels))
         self.count(stem, maps, roi, probs)
@@ -83,14 +121,21 @@ class PredictionWriter:
             self.output_dir / "counts.json",
             {
                 **description,
-                "layout": "images[stem][rule] = {pixels, segments}: [class][roi]; segments "
-                "8-connected, each in the RoI holding most of its pixels",
+                "layout": "images[stem][rule] = {pixels, segments}: [class][roi], "
+                "{deferred_pixels, deferred}: [roi] (deferred: their share of the RoI's "
+                "pixels); segments 8-connected, each in the RoI holding most of its pixels",
                 "rules": self.rule_names,
+                "defer": dict(zip(self.rule_names, self.defer_costs, strict=True)),
                 "classes": list(CLASS_NAMES),
                 "rois": rois,
                 "images": {
                     stem: {
-                        name: {"pixels": c[k, 0].tolist(), "segments": c[k, 1].tolist()}
+                        name: {
+                            "pixels": c[k, 0].tolist(),
+                            "segments": c[k, 1].tolist(),
+                            "deferred_pixels": self.deferred[stem][k].tolist(),
+                            "deferred": self.deferred_share(stem)[k].tolist(),
+                        }
                         for k, name in enumerate(self.rule_names)
                     }
                     for stem, c in self.counts.items()
@@ -98,8 +143,17 @@ class PredictionWriter:
             },
         )
 
+    def deferred_share(self, stem: str) -> np.ndarray:
+        """(K, R) float64: the share of each RoI's pixels that each rule deferred (NaN: a RoI
+        without pixels in the image)."""
+        deferred = self.deferred[stem]
+        total = self.counts[stem][:, 0].sum(1) + deferred
+        with np.errstate(invalid="ignore"):
+            return deferred / total
+
     def _rows(self) -> Iterator[dict]:
         for stem, counts in self.counts.items():
+            share = self.deferred_share(stem)
             for k, name in enumerate(self.rule_names):
                 for c, cls in enumerate(CLASS_NAMES):
                     for r in range(counts.shape[-1]):
@@ -107,7 +161,7 @@ class PredictionWriter:
                             zip(
                                 COUNT_COLUMNS,
                                 (stem, name, cls, ROI_NAMES[r], counts[k, 0, c, r],
-                                 counts[k, 1, c, r]),
+                                 counts[k, 1, c, r], share[k, r]),
                                 strict=True,
                             )
                         )  # fmt: skip

@@ -1,5 +1,7 @@
 """One picture per image: the image, each rule's overlay with a class-colour legend, and where
-each rule differs from argmax. Drawn with numpy and PIL (fast enough for every video frame)."""
+each rule differs from argmax; a rule that may defer (docs/definitions.md §14) draws its deferred
+pixels in ``DEFERRED_COLOUR`` and states its defer cost and deferred share. Drawn with numpy and
+PIL (fast enough for every video frame)."""
 
 from __future__ import annotations
 
@@ -8,28 +10,31 @@ from collections.abc import Sequence
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from costseg.classes import CLASS_NAMES, PALETTE, colorize
+from costseg.classes import CLASS_NAMES, DEFERRED_COLOUR, colorize
+from costseg.decision.label_maps import DEFERRED
 
 MAX_TILE_WIDTH = 512
 MIN_TILE_WIDTH = 192  # room for the titles
-TITLE = 16  # pixels above each tile
+TITLE = 16  # pixels above each tile; two lines (a rule that defers) take 2 * TITLE - 4
 SWATCH = 14
 ALPHA = 0.55  # weight of the class colour in an overlay
 
 
 def overlay(image: np.ndarray, labels: np.ndarray) -> np.ndarray:
-    """(H, W, 3) uint8: the image blended with the label map's class colours."""
-    mixed = (1 - ALPHA) * image.astype(np.float32) + ALPHA * colorize(labels).astype(np.float32)
+    """(H, W, 3) uint8: the image blended with the label map's class colours (deferred pixels:
+    ``DEFERRED_COLOUR``)."""
+    colours = colorize(labels, deferred=True).astype(np.float32)
+    mixed = (1 - ALPHA) * image.astype(np.float32) + ALPHA * colours
     return mixed.round().astype(np.uint8)
 
 
 def differences(image: np.ndarray, labels: np.ndarray, argmax: np.ndarray) -> np.ndarray:
     """(H, W, 3) uint8: the image greyed and darkened; where ``labels`` differ from ``argmax``,
-    the rule's class colour."""
+    the rule's class colour (a deferred pixel: ``DEFERRED_COLOUR``)."""
     grey = image.astype(np.float32) @ np.float32([0.299, 0.587, 0.114])
     out = np.repeat((0.35 * grey).round().astype(np.uint8)[..., None], 3, axis=2)
     differ = labels != argmax
-    out[differ] = PALETTE[labels[differ]]
+    out[differ] = colorize(labels[differ], deferred=True)
     return out
 
 
@@ -46,21 +51,29 @@ def _resized(array: np.ndarray, size: tuple[int, int], nearest: bool) -> np.ndar
 
 
 def panel(
-    image: np.ndarray, rule_names: Sequence[str], maps: np.ndarray, argmax: np.ndarray
+    image: np.ndarray,
+    rule_names: Sequence[str],
+    maps: np.ndarray,
+    argmax: np.ndarray,
+    defer_costs: Sequence[str | None] | None = None,
 ) -> np.ndarray:
     """The panel of one image.
 
     Args:
         image: (H, W, 3) uint8 RGB.
         rule_names: the K rules.
-        maps: (K, H, W) train ids of the rules.
+        maps: (K, H, W) train ids of the rules (255: deferred).
         argmax: (H, W) train ids of argmax (the robotistic rule).
+        defer_costs: per rule, its defer cost as text (``"0.3"``, ``"per class"``), or None for
+            a rule that never defers; None: no rule defers.
 
     Returns:
         (h, w, 3) uint8 RGB, h and w even (video encoders need that): a top row with the image
-        and the K overlays, a bottom row with the K difference views, and a legend of the
-        classes present.
+        and the K overlays (a rule that defers: its defer cost and deferred share under its
+        name), a bottom row with the K difference views, and a legend of the classes present
+        (and of deferred pixels when a rule defers).
     """
+    defer_costs = list(defer_costs or [None] * len(rule_names))
     h, w = _tile_size(*image.shape[:2])
     small = _resized(image, (h, w), nearest=False)
     k = len(rule_names)
@@ -68,34 +81,56 @@ def panel(
     small_argmax = _resized(argmax.astype(np.uint8), (h, w), nearest=True)
     present = np.flatnonzero(np.bincount(np.concatenate([m.ravel() for m in small_maps]),
                                          minlength=256)[: len(CLASS_NAMES)])  # fmt: skip
+    defers = any(c is not None for c in defer_costs)
+    entries = [(CLASS_NAMES[c], colorize(np.array([c]))[0]) for c in present]
+    entries += [("deferred", DEFERRED_COLOUR)] if defers else []
+    title = 2 * TITLE - 4 if defers else TITLE
     width = (k + 1) * w + (k + 1) * w % 2
-    legend_rows = -(-len(present) // max(1, (width - 4) // 120))
-    height = 2 * (h + TITLE) + legend_rows * (SWATCH + 4) + 4
+    legend_rows = -(-len(entries) // max(1, (width - 4) // 120))
+    height = 2 * (h + title) + legend_rows * (SWATCH + 4) + 4
     canvas = Image.new("RGB", (width, height + height % 2), (255, 255, 255))
     draw, font = ImageDraw.Draw(canvas), ImageFont.load_default()
     tiles = [("image", small)] + [
-        (name, overlay(small, m)) for name, m in zip(rule_names, small_maps, strict=True)
+        (_title(name, cost, m), overlay(small, sm))
+        for name, cost, m, sm in zip(rule_names, defer_costs, maps, small_maps, strict=True)
     ]
     differ = [100 * float(np.count_nonzero(m != argmax)) / argmax.size for m in maps]
     tiles += [(None, None)] + [
         (f"{name}: {d:.1f} % not argmax", differences(small, m, small_argmax))
         for name, m, d in zip(rule_names, small_maps, differ, strict=True)
     ]
-    for i, (title, tile) in enumerate(tiles):
+    for i, (text, tile) in enumerate(tiles):
         if tile is None:
             continue
-        x, y = (i % (k + 1)) * w, (i // (k + 1)) * (h + TITLE)
-        draw.text((x + 3, y + 2), title, fill=(0, 0, 0), font=font)
-        canvas.paste(Image.fromarray(tile), (x, y + TITLE))
-    _legend(draw, font, present, 2 * (h + TITLE) + 2, canvas.width)
+        x, y = (i % (k + 1)) * w, (i // (k + 1)) * (h + title)
+        draw.text((x + 3, y + 2), text, fill=(0, 0, 0), font=font)
+        canvas.paste(Image.fromarray(tile), (x, y + title))
+    _legend(draw, font, entries, 2 * (h + title) + 2, canvas.width)
     return np.asarray(canvas)
 
 
-def _legend(draw: ImageDraw.ImageDraw, font, classes: np.ndarray, top: int, width: int) -> None:
+def deferred_percent(labels: np.ndarray) -> float:
+    """The share of a label map's pixels that are deferred (255), in percent.
+
+    >>> deferred_percent(np.array([[255, 0, 1, 255]]))
+    50.0
+    """
+    return 100 * float(np.count_nonzero(labels == DEFERRED)) / labels.size
+
+
+def _title(name: str, defer_cost: str | None, labels: np.ndarray) -> str:
+    if defer_cost is None:
+        return name
+    return f"{name}\ndefer {defer_cost}: {deferred_percent(labels):.1f} % deferred"
+
+
+def _legend(draw: ImageDraw.ImageDraw, font, entries, top: int, width: int) -> None:
+    """Swatches of ``entries`` ((name, RGB) each), in rows of 120-pixel cells."""
     x, y = 4, top
-    for c in classes:
+    for name, rgb in entries:
         if x + 120 > width and x > 4:
             x, y = 4, y + SWATCH + 4
-        draw.rectangle((x, y, x + SWATCH, y + SWATCH), fill=tuple(int(v) for v in PALETTE[c]))
-        draw.text((x + SWATCH + 4, y + 1), CLASS_NAMES[c], fill=(0, 0, 0), font=font)
+        fill = tuple(int(v) for v in rgb)
+        draw.rectangle((x, y, x + SWATCH, y + SWATCH), fill=fill, outline=(0, 0, 0))
+        draw.text((x + SWATCH + 4, y + 1), name, fill=(0, 0, 0), font=font)
         x += 120
