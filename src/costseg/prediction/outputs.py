@@ -25,22 +25,8 @@ from costseg.rules import Rule
 COUNT_COLUMNS = ("image", "rule", "class", "roi", "pixels", "segments", "deferred")
 
 
-def defer_cost(rule: Rule) -> float | list[float] | None:
-    """A rule's defer cost: one number when every true class has the same, else one per class;
-    None for a rule that never defers.
-
-    >>> from costseg.rules import parse_rules
-    >>> [defer_cost(r) for r in [*parse_rules(["egoistic", "ml"], defer=0.25), Rule("a", None)]]
-    [0.25, 0.25, None]
-    """
-    if not rule.defers:
-        return None
-    row = rule.cost[-1].tolist()
-    return row[0] if len(set(row)) == 1 else row
-
-
 def defer_text(cost: float | list[float] | None) -> str | None:
-    """:func:`defer_cost` as the panels state it.
+    """A rule's :attr:`~costseg.rules.Rule.defer_cost` as the panels state it.
 
     >>> defer_text(0.25), defer_text([0.1, 0.2]), defer_text(None)
     ('0.25', 'per class', None)
@@ -62,7 +48,7 @@ class PredictionWriter:
     def __init__(self, output_dir: Path, rules: Sequence[Rule], save_probs: bool) -> None:
         self.output_dir, self.save_probs = output_dir, save_probs
         self.rule_names = [r.name for r in rules]
-        self.defer_costs = [defer_cost(r) for r in rules]
+        self.defer_costs = [r.defer_cost for r in rules]
         self.defer_texts = [defer_text(c) for c in self.defer_costs]
         self.counts: dict[str, np.ndarray] = {}  # stem → (K, 2, N, R) pixels and segments
         self.deferred: dict[str, np.ndarray] = {}  # stem → (K, R) deferred pixels
