@@ -88,25 +88,41 @@ def test_labels_colours_and_counts_with_defer(checkpoint, images, tmp_path):
     assert page_json(out / "explorer.html")["defer"] == DEFER
 
 
-def test_a_cost_file_with_its_own_defer_row(checkpoint, images, tmp_path):
+def _video(path: Path, frames: int) -> Path:
+    import av
+
+    rng = np.random.default_rng(1)
+    with av.open(str(path), "w") as container:
+        stream = container.add_stream("mpeg4", rate=10)
+        stream.width, stream.height, stream.pix_fmt = 64, 48, "yuv420p"
+        for _ in range(frames):
+            image = rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)
+            container.mux(stream.encode(av.VideoFrame.from_ndarray(image, format="rgb24")))
+        container.mux(stream.encode(None))
+    return path
+
+
+def test_a_video_with_a_cost_file_with_its_own_defer_row(checkpoint, tmp_path):
+    pytest.importorskip("av")
     (cost := tmp_path / "cautious.yaml").write_text(
-        "name: cautious\noff_diagonal: 1.0\ndefer: {default: 0.9, person: 0.5}\n"
+        "name: cautious\noff_diagonal: 1.0\ndefer: {default: 0.6, person: 0.3}\n"
     )
-    out = tmp_path / "out"
-    predict_main(["--input", str(images / "b.png"), "--ckpt_path", str(checkpoint),
-                  "--output_dir", str(out), "--save-probs", "--cost", str(cost), "robotistic",
-                  "--no-progress"])  # fmt: skip
+    video, out = _video(tmp_path / "clip.mp4", 2), tmp_path / "out"
+    predict_main(["--input", str(video), "--ckpt_path", str(checkpoint), "--output_dir", str(out),
+                  "--save-probs", "--cost", str(cost), "robotistic", "--no-progress"])  # fmt: skip
+    assert (out / "clip_panels.mp4").is_file() and (out / "clip_cautious.mp4").is_file()
     counts = json.loads((out / "counts.json").read_text())
-    row = [0.9] * 19
-    row[11] = 0.5
+    row = [0.6] * 19
+    row[11] = 0.3
     assert counts["defer"] == {"cautious": row, "robotistic": None}
-    probs = torch.from_numpy(np.load(out / "probs" / "b.npz")["probs"])
-    expected = decide_reference(
-        probs[None].float(), with_defer(symmetric_cost(19), torch.tensor(row))
-    )
-    ids = np.asarray(Image.open(out / "labels" / "cautious" / "b.png"))
-    np.testing.assert_array_equal(LABEL_ID_TO_TRAIN_ID[ids], expected[0].numpy())
-    assert counts["images"]["b"]["robotistic"]["deferred"][0] == 0
+    cautious = with_defer(symmetric_cost(19), torch.tensor(row))
+    for stem in ("clip_000000", "clip_000001"):
+        probs = torch.from_numpy(np.load(out / "probs" / f"{stem}.npz")["probs"])
+        expected = decide_reference(probs[None].float(), cautious)[0].numpy()
+        by_hand = sum(int(v == 255) for v in expected.ravel().tolist())
+        assert counts["images"][stem]["cautious"]["deferred_pixels"][0] == by_hand > 0
+        assert counts["images"][stem]["cautious"]["deferred"][0] == by_hand / expected.size
+        assert counts["images"][stem]["robotistic"]["deferred"][0] == 0
 
 
 @pytest.mark.parametrize("value", ["-1", "abc", "inf", "nan"])
