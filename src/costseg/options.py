@@ -114,7 +114,8 @@ class NetworkOptions:
 
     cost: list[str] = option(RULES, "rules: robotistic, altruistic, egoistic, ml or a .yaml cost")
     defer: float | None = option(
-        help="every --cost rule may defer a pixel at this cost (docs/definitions.md §14)",
+        help="every --cost rule may defer a pixel at this cost (docs/definitions.md §14); "
+        "the rules of evaluate.py's sweeps never defer",
         type=defer_cost,
         metavar="C",
     )
