@@ -130,9 +130,15 @@ def test_explorer_embeds_the_saved_probabilities_and_the_scaled_vertices(
         "robotistic": [1.0, 0.0, 0.0], "egoistic": [0.0, 0.0, 1.0],
     }  # fmt: skip
     _labels_are_the_reference(out, rules, SIZES)
-    for stem, p in probs.items():  # the page's corners decide as the labels written
+    for stem, p in probs.items():  # the page's corners decide as the labels written...
         for rule, vertex in zip(names, vertices, strict=True):
             if rule in rules:
                 ids = np.asarray(Image.open(out / "labels" / rule / f"{stem}.png"))
-                got = decide_reference(p.float()[None], vertex)[0].numpy()
-                np.testing.assert_array_equal(got, LABEL_ID_TO_TRAIN_ID[ids], f"{stem} {rule}")
+                want = torch.from_numpy(LABEL_ID_TO_TRAIN_ID[ids]).long()
+                got = decide_reference(p.float()[None], vertex)[0]
+                # ...up to near ties: the rescaled matrix rounds differently; where the two
+                # differ, both classes cost the same to 1e-12 under the matrix of the labels.
+                expected = torch.einsum("jhw,ij->ihw", p.double(), load_cost(rule).double())
+                gap = (expected.gather(0, got[None]) - expected.gather(0, want[None])).abs()
+                assert (gap[0][got != want] <= 1e-12 * expected.max()).all(), f"{stem} {rule}"
+                assert (got == want).float().mean() > 0.999
