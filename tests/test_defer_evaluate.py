@@ -108,6 +108,7 @@ def test_a_defer_cost_too_high_to_pay_changes_nothing(ckpt, tmp_path) -> None:
     never = _evaluate(ckpt, tmp_path / "never", *few, "--defer", "1e9", rules=RULES[::2])
     assert int(never.named.pixels["deferred"].sum()) == 0
     a, b = (json.loads((tmp_path / d / "results.json").read_text()) for d in ("plain", "never"))
+    assert "defer" not in a and "coverage" not in a["rows"][0]  # no rule defers: no columns
     for key in ("miou", "iou", "confusion_matrix"):
         assert a[key] | {"layout": ""} == b[key] | {"layout": ""}, key
     for row, same in zip(a["rows"], b["rows"], strict=True):
