@@ -4,9 +4,10 @@
 
 On (1, 19, H, W) float32 probabilities (softmax of smooth random logits, the recipe of
 ``scripts/bench.py``), on the CPU and, when there is one, on the GPU: one read pass ``p.sum()``,
-``torch.argmax(p, 1)``, single-rule ``decide`` (egoistic) and ``decide_mixtures`` over the
-66-point barycentric grid (robotistic / altruistic / egoistic vertices, unscaled), on the CPU
-also without numba's kernels. Each timing is the best of several repeats after a warm-up; every
+``torch.argmax(p, 1)``, single-rule ``decide`` (egoistic, and egoistic with a defer row of
+:data:`DEFER` times its mean off-diagonal cost, docs/definitions.md §14) and ``decide_mixtures``
+over the 66-point barycentric grid (robotistic / altruistic / egoistic vertices, unscaled), on the
+CPU also without numba's kernels. Each timing is the best of several repeats after a warm-up; every
 ratio compares timings of the same run. The target ratios are also given as the median over
 rounds that time both sides back to back (a machine whose speed drifts moves both alike).
 """
@@ -20,10 +21,17 @@ from collections.abc import Callable
 
 import torch
 
-from costseg.costs import barycentric_grid, load_cost
-from costseg.decision import decide, decide_mixtures
+from costseg.costs import barycentric_grid, load_cost, with_defer
+from costseg.decision import DEFERRED, decide, decide_mixtures
 
 VERTICES = torch.stack([load_cost(n) for n in ("robotistic", "altruistic", "egoistic")])
+DEFER = 0.5  # × the egoistic matrix's mean off-diagonal cost: about 5 % of pixels deferred
+
+
+def egoistic_with_defer() -> torch.Tensor:
+    """The egoistic matrix with a defer row of ``DEFER`` times its mean off-diagonal cost."""
+    cost, n = VERTICES[2], VERTICES.shape[-1]
+    return with_defer(cost, DEFER * cost.sum().item() / (n * n - n))
 
 
 def best_time(fn: Callable[[], object], repeats: int, sync: Callable[[], object]) -> float:
@@ -71,14 +79,19 @@ def bench(device: str, shape: tuple[int, int, int, int], repeats: int) -> None:
     sync = torch.cuda.synchronize if device == "cuda" else (lambda: None)
     grid = barycentric_grid(0.1)
     run_sum, run_decide = (lambda: probs.sum()), (lambda: decide(probs, VERTICES[2]))
+    deferring = egoistic_with_defer().to(device)
+    run_defer = lambda: decide(probs, deferring)  # noqa: E731
     run_mix = lambda: decide_mixtures(probs, VERTICES, grid)  # noqa: E731
     t_sum = best_time(run_sum, repeats, sync)
     t_argmax = best_time(lambda: probs.argmax(1), repeats, sync)
     t_decide = best_time(run_decide, repeats, sync)
+    t_defer = best_time(run_defer, repeats, sync)
+    deferred = (run_defer() == DEFERRED).float().mean().item()
     t_mix = best_time(run_mix, max(3, repeats // 2), sync)
     rounds = 2 * repeats + 1
     paired_decide = paired_ratio(run_decide, run_sum, rounds, sync)
     paired_mix = paired_ratio(run_mix, run_decide, rounds, sync)
+    paired_defer = paired_ratio(run_defer, run_decide, rounds, sync)
     fine = barycentric_grid(0.05)
     t_fine = best_time(lambda: decide_mixtures(probs, VERTICES, fine), 1, sync)
     t_ops = t_decide_ops = None
@@ -92,6 +105,8 @@ def bench(device: str, shape: tuple[int, int, int, int], repeats: int) -> None:
     print(f"  decide (egoistic)              {1e3 * t_decide:8.3f} ms")
     if t_decide_ops:
         print(f"  same, tensor ops               {1e3 * t_decide_ops:8.3f} ms   (without numba)")
+    share = f"({100 * deferred:.1f} % deferred)"
+    print(f"  decide (egoistic + defer row)  {1e3 * t_defer:8.3f} ms   {share}")
     print(f"  decide_mixtures, {len(grid)} points    {1e3 * t_mix:8.3f} ms")
     print(f"  decide_mixtures, {len(fine)} points   {1e3 * t_fine:8.3f} ms")
     if t_ops:
@@ -100,6 +115,8 @@ def bench(device: str, shape: tuple[int, int, int, int], repeats: int) -> None:
     print(f"  decide / p.sum()               {t_decide / t_sum:8.2f}   (target <= 5)")
     print(f"  same, {paired}: {paired_decide:.2f}")
     print(f"  decide / argmax                {t_decide / t_argmax:8.2f}")
+    print(f"  decide with / without defer    {t_defer / t_decide:8.2f}")
+    print(f"  same, {paired}: {paired_defer:.2f}")
     print(f"  decide_mixtures / decide       {t_mix / t_decide:8.2f}   (target <= 10)")
     print(f"  same, {paired}: {paired_mix:.2f}")
     if device == "cuda":
