@@ -15,7 +15,7 @@ Pure numpy / scipy / torch; nothing here knows of models or Lightning.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -120,19 +120,27 @@ class LTTResult:
     method: Method
     bound: Bound
 
-    def best(self, objective: ArrayLike, maximize: bool = True) -> int | None:
+    def best(
+        self, objective: ArrayLike, maximize: bool = True, prefer: ArrayLike | None = None
+    ) -> int | None:
         """Among the valid λ, the index with the best finite ``objective`` (L,) value.
 
-        Ties go to the λ listed first in ``valid``; None when no valid λ has a finite value.
+        Ties go to the λ of largest ``prefer`` (L,) (e.g. the defer cost), then to the one
+        listed first in ``valid``; None when no valid λ has a finite value.
+
+        >>> result = learn_then_test(np.zeros((60, 3)), alpha=0.1, delta=0.1)
+        >>> result.best([0.5, 0.9, 0.9]), result.best([0.5, 0.9, 0.9], prefer=[0, 1, 2])
+        (1, 2)
         """
         values = np.asarray(objective, float)
-        if values.shape != self.pvalues.shape:
-            raise ValueError(f"objective must be ({len(self.pvalues)},); got {values.shape}")
+        ranks = np.zeros_like(values) if prefer is None else np.asarray(prefer, float)
+        if values.shape != self.pvalues.shape or ranks.shape != values.shape:
+            raise ValueError(f"objective and prefer must be ({len(self.pvalues)},)")
         candidates = [int(i) for i in self.valid if np.isfinite(values[i])]
         if not candidates:
             return None
         sign = 1.0 if maximize else -1.0
-        return max(candidates, key=lambda i: sign * values[i])  # max keeps the first of ties
+        return max(candidates, key=lambda i: (sign * values[i], ranks[i]))  # first of ties
 
 
 def learn_then_test(
@@ -183,6 +191,33 @@ def learn_then_test(
         valid.astype(np.int64), pvalues, risk, count.astype(np.int64),
         (len(values) - count).astype(np.int64), alpha, delta, method, bound,
     )  # fmt: skip
+
+
+def fixed_sequences(
+    losses: ArrayLike | Tensor,
+    alpha: float,
+    delta: float,
+    paths: Sequence[Sequence[int]],
+    bound: Bound = "hoeffding_bentkus",
+) -> LTTResult:
+    """Fixed-sequence testing along each of several disjoint paths at δ / len(paths)
+    (Bonferroni over the paths), e.g. one path per rule from its safest candidate up.
+
+    With one path this is :func:`learn_then_test` with ``method="fixed_sequence"``. ``valid``
+    lists each path's rejected λ in testing order, path after path.
+
+    >>> losses = np.zeros((100, 4))
+    >>> losses[:40, 1] = 1                             # risks about 0, 0.4, 0, 0
+    >>> fixed_sequences(losses, alpha=0.2, delta=0.1, paths=[[0, 1], [2, 3]]).valid.tolist()
+    [0, 2, 3]
+    """
+    flat = [int(i) for path in paths for i in path]
+    if not paths or len(set(flat)) != len(flat):
+        raise ValueError(f"paths must be one or more disjoint index lists; got {list(paths)}")
+    level = delta / len(paths)
+    tests = [learn_then_test(losses, alpha, level, "fixed_sequence", p, bound) for p in paths]
+    valid = np.concatenate([t.valid for t in tests]).astype(np.int64)
+    return replace(tests[0], valid=valid, delta=delta)
 
 
 def _check_losses(losses: ArrayLike | Tensor, delta: float, method: str, bound: str) -> NDArray:

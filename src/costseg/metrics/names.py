@@ -22,6 +22,15 @@ did (docs/definitions.md §14; :mod:`costseg.metrics.functional.deferral`)."""
 DEFER_RULE_RATES: tuple[str, ...] = ("deferred_rate",)
 """Per rule and RoI: the share of the RoI's valid pixels that were deferred."""
 
+RISK_COVERAGE_RATES: tuple[str, ...] = (
+    "selective_error",
+    "coverage_all_classes",
+    "selective_error_all_classes",
+)
+"""The columns a defer sweep's rows add (docs/definitions.md §14): per class and RoI the
+selective error ``1 − selective_recall``; per rule and RoI over all classes the coverage
+``1 − deferred_rate`` and the selective error ``1 − selective pixel accuracy``."""
+
 DEFER_COLUMNS: tuple[str, ...] = (*DEFER_RATES, *DEFER_RULE_RATES)
 """The metric columns of a result row that only groups with a deferring rule have."""
 
@@ -64,7 +73,7 @@ HIGHER_IS_BETTER: tuple[str, ...] = (*PIXEL_RATES, *DEFER_RATES, *INSTANCE_RATES
 """The target metrics where higher is better: a per-image loss or a guarantee takes 1 − the
 metric (the segment rates are losses themselves)."""
 
-RATES: tuple[str, ...] = (*TARGET_METRICS, *DEFER_RULE_RATES, *RULE_RATES)
+RATES: tuple[str, ...] = (*TARGET_METRICS, *DEFER_RULE_RATES, *RISK_COVERAGE_RATES, *RULE_RATES)
 """Every reported fraction in [0, 1] (tables show them in percent)."""
 
 

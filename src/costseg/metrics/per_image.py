@@ -9,7 +9,7 @@ these come from per-image counts (numerator, denominator):
 * ``precision``: (TP, TP + FP) pixels of ``cls`` inside the RoI; loss ``1 − precision``;
 * ``coverage``, ``selective_recall``, ``handled_recall`` (docs/definitions.md §14; D: the
   pixels of ``cls`` deferred, G: all of them): (G − D, G), (TP, G − D), (TP + D, G); loss
-  1 − the metric;
+  1 − the metric; ``cls`` None: the coverage over all classes (G: every counted pixel);
 * ``fn_rate``: (FN segments, ground-truth segments) of ``cls`` owned by the RoI; loss the rate;
 * ``fp_rate``: (FP segments, predicted segments) of ``cls`` owned by the RoI; loss the rate;
 * ``instance_recall``: (instances found, instances) of ``cls`` owned by the RoI; loss the
@@ -63,7 +63,7 @@ def per_image_counts(
     preds: Tensor,
     target: Tensor,
     roi: Tensor | None,
-    cls: int,
+    cls: int | None,
     roi_id: int,
     metric: str,
     num_rois: int = NUM_ROIS,
@@ -77,7 +77,7 @@ def per_image_counts(
             ``DEFERRED``.
         target: (B, H, W) integer class ids, or ``ignore_index``.
         roi: None, (H, W) or (B, H, W) RoI ids in 0..num_rois (0 = in no RoI).
-        cls: the class.
+        cls: the class; None: every class (``coverage`` only, ``all:roi:coverage``).
         roi_id: the RoI (0 = whole image; an id >= 1 needs ``roi``).
         metric: one of :data:`~costseg.metrics.names.TARGET_METRICS` (see the module docstring).
         num_rois: R.
@@ -110,7 +110,7 @@ def _check_args(
     preds: Tensor,
     target: Tensor,
     roi: Tensor | None,
-    cls: int,
+    cls: int | None,
     roi_id: int,
     metric: str,
     num_rois: int,
@@ -123,7 +123,9 @@ def _check_args(
     check_batch(preds, target, roi, num_rois)
     if metric not in TARGET_METRICS:
         raise ValueError(f"metric must be one of {', '.join(TARGET_METRICS)}; got {metric!r}")
-    if cls < 0 or cls == ignore_index:
+    if cls is None and metric != "coverage":
+        raise ValueError(f"over all classes (cls None) only coverage is measured, not {metric}")
+    if cls is not None and (cls < 0 or cls == ignore_index):
         raise ValueError(f"expected cls >= 0 and != ignore_index {ignore_index}, got {cls}")
     if not 0 <= roi_id <= num_rois:
         raise ValueError(f"expected roi_id in 0..{num_rois}, got {roi_id}")
@@ -135,7 +137,7 @@ def _pixel_counts(
     preds: Tensor,
     target: Tensor,
     roi: Tensor | None,
-    cls: int,
+    cls: int | None,
     roi_id: int,
     metric: str,
     ignore_index: int,
@@ -149,8 +151,14 @@ def _pixel_counts(
     for b in range(len(target)):
         counted = inside[b].flatten().nonzero().squeeze(1)
         labels = preds[b].flatten(1)[:, counted]  # (K, P')
-        truth = target[b].flatten()[counted] == cls
-        hit = labels == cls
+        truth = target[b].flatten()[counted]
+        if cls is None:  # all:roi:coverage, over every class
+            truth, hit = (
+                torch.ones_like(truth, dtype=torch.bool),
+                torch.zeros_like(labels, dtype=torch.bool),
+            )
+        else:
+            truth, hit = truth == cls, labels == cls
         tp, predicted = (hit & truth).sum(1), hit.sum(1)
         gt = truth.sum().expand_as(tp)
         deferred = ((labels == DEFERRED) & truth).sum(1)

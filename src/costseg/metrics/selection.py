@@ -6,6 +6,8 @@ Pure functions on results; nothing here runs a network.
 Target(cls=11, roi=1, metric='recall', op='>=', value=0.99)
 >>> parse_target("person:roi1:handled_recall>=0.999").metric
 'handled_recall'
+>>> parse_metric("all:roi1:coverage")         # the RoI's coverage over all classes
+Metric(cls=None, roi=1, metric='coverage')
 """
 
 from __future__ import annotations
@@ -30,14 +32,22 @@ from costseg.metrics.names import (
 _OPS = {">=": float.__ge__, "<=": float.__le__, ">": float.__gt__, "<": float.__lt__}
 
 
+ALL_CLASSES = "all"
+"""The class of ``all:roi:coverage``: every class of the RoI together (cls None)."""
+
+ALL_CLASS_METRICS = ("coverage",)
+"""The metrics named over all classes: coverage = 1 − the RoI's deferred rate
+(docs/definitions.md §14)."""
+
+
 class Metric(NamedTuple):
-    cls: int
+    cls: int | None
     roi: int
     metric: str
 
 
 class Target(NamedTuple):
-    cls: int
+    cls: int | None
     roi: int
     metric: str
     op: str
@@ -45,7 +55,8 @@ class Target(NamedTuple):
 
 
 def parse_metric(text: str, class_names: Sequence[str] = CLASS_NAMES) -> Metric:
-    """``class:roi:metric`` (e.g. ``person:roi1:precision``) → Metric; ValueError if malformed."""
+    """``class:roi:metric`` (e.g. ``person:roi1:precision``, or ``all:roi1:coverage`` over all
+    classes: cls None) → Metric; ValueError if malformed."""
     parts = text.split(":")
     if len(parts) != 3:
         raise ValueError(
@@ -58,6 +69,13 @@ def parse_metric(text: str, class_names: Sequence[str] = CLASS_NAMES) -> Metric:
         raise ValueError(
             f"unknown metric {metric!r} in {text!r}: expected one of {', '.join(TARGET_METRICS)}"
         )
+    if name == ALL_CLASSES:
+        if metric not in ALL_CLASS_METRICS:
+            raise ValueError(
+                f"{text!r}: over all classes only {', '.join(ALL_CLASS_METRICS)} is measured, "
+                "e.g. all:roi1:coverage"
+            )
+        return Metric(None, ROI_IDS[roi], metric)
     return Metric(class_index(name, class_names), ROI_IDS[roi], metric)
 
 
@@ -87,6 +105,8 @@ def metric_values(
     instances: dict[str, torch.Tensor] | None = None,
 ) -> torch.Tensor:
     """(K,) values of ``metric`` for every rule of a group (NaN where undefined)."""
+    if metric.cls is None:  # all:roi:coverage
+        return 1 - pixels["deferred_rate"][:, metric.roi]
     if metric.metric in (*PIXEL_RATES, *DEFER_RATES):
         return pixels[metric.metric][:, metric.roi, metric.cls]
     if metric.metric in INSTANCE_RATES:
@@ -114,17 +134,24 @@ def meets(values: torch.Tensor, target: Target) -> torch.Tensor:
     return torch.tensor([not math.isnan(v) and op(v, target.value) for v in values.tolist()])
 
 
-def best_points(values: torch.Tensor, allowed: torch.Tensor) -> list[int]:
-    """Indices of the allowed points with the largest value (NaN values never qualify).
+def best_points(
+    values: torch.Tensor, allowed: torch.Tensor, prefer: Sequence[float] | None = None
+) -> list[int]:
+    """Indices of the allowed points with the largest value (NaN values never qualify), in
+    index order, or by descending ``prefer`` (e.g. the defer cost: ties to the larger).
 
-    >>> best_points(torch.tensor([0.3, 0.9, 0.9, 1.0]), torch.tensor([True, True, True, False]))
+    >>> ok = torch.tensor([True, True, True, False])
+    >>> best_points(torch.tensor([0.3, 0.9, 0.9, 1.0]), ok)
     [1, 2]
+    >>> best_points(torch.tensor([0.3, 0.9, 0.9, 1.0]), ok, prefer=[0.0, 0.1, 0.2, 0.3])
+    [2, 1]
     """
     ok = allowed & ~values.isnan()
     if not ok.any():
         return []
     best = values[ok].max()
-    return [int(i) for i in (ok & (values == best)).nonzero().squeeze(1)]
+    points = [int(i) for i in (ok & (values == best)).nonzero().squeeze(1)]
+    return points if prefer is None else sorted(points, key=lambda i: -prefer[i])
 
 
 @dataclass
@@ -133,7 +160,8 @@ class Choice:
 
     Attributes:
         target, maximize: the texts asked.
-        points: indices of the rules that meet the target with the best value (may be empty).
+        points: indices of the rules that meet the target with the best value (may be empty),
+            the preferred first (:func:`best_points`).
         value: the best value of ``maximize`` among them (NaN if none).
         best_reached: the best value of the target's metric on any rule (to say how close).
     """
@@ -152,12 +180,14 @@ def choose(
     maximize: str,
     class_ids: Sequence[int],
     instances: dict[str, torch.Tensor] | None = None,
+    prefer: Sequence[float] | None = None,
 ) -> Choice:
-    """The rules meeting ``target`` with the largest ``maximize`` (measured on these images)."""
+    """The rules meeting ``target`` with the largest ``maximize`` (measured on these images);
+    ties ordered by descending ``prefer`` (``RuleGroup.prefer``), else by index."""
     t, goal = parse_target(target), parse_metric(maximize)
     target_values = metric_values(pixels, segments, t, class_ids, instances)
     values = metric_values(pixels, segments, goal, class_ids, instances)
-    points = best_points(values, meets(target_values, t))
+    points = best_points(values, meets(target_values, t), prefer)
     reached = target_values[~target_values.isnan()]
     best = math.nan
     if len(reached):

@@ -83,12 +83,20 @@ class RuleGroup:
         candidates: whether ``--target`` and ``--guarantee`` choose among its rules.
         output: file stem of its own result rows and figures (``sweep`` → ``sweep.csv``), or
             None when it is written with the headline results or elsewhere.
-        rules: the named rules (named and temperature groups); :attr:`defers` whether one of
-            them may defer a pixel (docs/definitions.md §14).
+        rules: the group's rules where each is a named rule (named, temperature and defer-sweep
+            groups); :attr:`defers` whether one of them may defer a pixel (docs/definitions.md
+            §14).
         vertices: (3, N, N) vertex matrices, ``weights`` (K, 3) and ``corners`` (3 names) of
             rules that lie in the value triangle (drawn as triangles).
         line: (K,) positions of rules that lie along one axis (drawn as curves), ``axis`` its
             label.
+        paths: the orders in which fixed-sequence testing (``--guarantee_method
+            fixed_sequence``) walks the rules, one path per named rule of the defer sweep (from
+            its smallest defer cost up), Bonferroni over the paths; empty: one path, the group's
+            order.
+        prefer: (K,) among rules with the same best ``--maximize`` value, ``--target`` and
+            ``--guarantee`` take the one of largest ``prefer`` (the defer sweep: its defer cost);
+            None: the first.
         note: how the group was built, for every output that shows it.
         temperature: decide on ``softmax(z / T)`` of the raw logits instead of the
             probabilities every other group sees (the temperature sweep, docs/definitions.md §6).
@@ -109,6 +117,8 @@ class RuleGroup:
     corners: tuple[str, ...] = ()
     line: tuple[float, ...] | None = None
     axis: str = ""
+    paths: tuple[tuple[int, ...], ...] = ()
+    prefer: tuple[float, ...] | None = None
     note: str = ""
     temperature: float | None = None
 

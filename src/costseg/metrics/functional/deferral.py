@@ -14,6 +14,10 @@ c and ``D`` those of them deferred:
 Selective precision is precision itself: a deferred pixel is predicted as no class, so the
 pixels predicted c are the same with or without the deferred ones. 0/0 is NaN.
 
+Risk–coverage (a sweep of the defer cost): per class, coverage against the selective error
+``1 − selective_recall``; over all classes of a RoI, ``1 − deferred_rate`` against
+:func:`selective_error`; :func:`risk_coverage_area` is the area under such a curve (AURC).
+
 >>> import torch
 >>> cm = torch.tensor([[[[3, 1], [0, 2]]]])          # (K=1, R+1=1, N=2, N): not deferred
 >>> deferred = torch.tensor([[[4, 0]]])               # four pixels of class 0 deferred
@@ -25,6 +29,10 @@ pixels predicted c are the same with or without the deferred ones. 0/0 is NaN.
 """
 
 from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Sequence
 
 from torch import Tensor
 
@@ -55,3 +63,42 @@ def deferral_metrics(confmat: Tensor, deferred: Tensor) -> dict[str, Tensor]:
         "handled_recall": (tp + d) / every,
         "deferred_rate": d.sum(-1) / every.sum(-1),
     }
+
+
+def selective_error(confmat: Tensor) -> Tensor:
+    """1 − selective pixel accuracy over all classes: the share of the pixels that were not
+    deferred whose predicted class is wrong; NaN where nothing is left.
+
+    Args:
+        confmat: (..., N, N) counts of the pixels that were not deferred (rows = target).
+
+    Returns:
+        float64 (...,), e.g. (K, R+1) per rule and RoI.
+
+    >>> import torch
+    >>> selective_error(torch.tensor([[3, 1], [0, 4]])).item()
+    0.125
+    """
+    cm = confmat.double()
+    return 1 - cm.diagonal(dim1=-2, dim2=-1).sum(-1) / cm.sum((-2, -1))
+
+
+def risk_coverage_area(coverage: Sequence[float], risk: Sequence[float]) -> float:
+    """AURC: the area under the risk–coverage curve by trapezoids over coverage.
+
+    The points are sorted by coverage; a point whose coverage or risk is NaN (no pixel of the
+    class, or none left undeferred) is left out. The area spans only the coverages the points
+    reach, from the smallest to the largest (nothing is extrapolated to coverage 0 or 1); NaN
+    with fewer than two points.
+
+    >>> risk_coverage_area([1.0, 0.5, 0.0], [0.25, 0.125, float("nan")])   # one trapezoid
+    0.09375
+    """
+    points = sorted(
+        (float(c), float(r))
+        for c, r in zip(coverage, risk, strict=True)
+        if not (math.isnan(c) or math.isnan(r))
+    )
+    if len(points) < 2:
+        return math.nan
+    return sum((c1 - c0) * (r0 + r1) / 2 for (c0, r0), (c1, r1) in itertools.pairwise(points))
