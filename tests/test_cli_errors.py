@@ -95,7 +95,14 @@ EVALUATE_CASES = {
     "unknown class": (["--classes", "unicorn"], ["unknown class 'unicorn'"]),
     "missing cuda": (["--device", "cuda"], ["cuda", "not available"]),
     "unknown device": (["--device", "tpu"], ["device 'tpu'"]),
-    "two sources": (["--network", "hf:x"], ["at most one"]),
+    "probs with a checkpoint": (["--probs", "somewhere"], ["--probs replaces the network"]),
+    "probs with a network": (
+        ["--probs", "somewhere", "--network", "hf:x"],
+        ["--probs replaces the network"],
+        False,
+    ),
+    "checkpoint option without a path": (["--ckpt_path"], ["--ckpt_path", "expected at least one"]),
+    "network option without a spec": (["--network"], ["--network", "expected at least one"]),
     "probs without data": (["--probs", "somewhere"], ["--probs needs --data_root"], False),
     "missing data root": (["--data_root", "no/such/cityscapes"], ["no/such/cityscapes"]),
 }
@@ -123,6 +130,13 @@ def test_evaluate_bad_files(ckpt, tmp_path, capsys):
     _one_line(evaluate_main, [*run, ckpt, "--output_dir", str(afile)], capsys, "is a file")
     inside = str(afile / "sub")
     _one_line(evaluate_main, [*run, ckpt, "--output_dir", inside], capsys, "cannot write")
+
+
+def test_evaluate_bad_ensemble_members(ckpt, tmp_path, capsys):
+    run = ["--no-progress", "--ckpt_path", ckpt]
+    _one_line(evaluate_main, [*run, str(tmp_path / "none.ckpt")], capsys, "none.ckpt", "not found")
+    _one_line(evaluate_main, [*run, "--network", "vainf:none.pth"], capsys, "none.pth", "not found")
+    _one_line(evaluate_main, [*run, "--network", "tf:x"], capsys, "tf:x")
 
 
 def test_evaluate_without_any_checkpoint(tmp_path, monkeypatch, capsys):

@@ -4,6 +4,7 @@ pixel for pixel. Chromium starts once per test: one launch opens many states (st
 
 from __future__ import annotations
 
+import base64
 import hashlib
 import html
 import json
@@ -15,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from explorer_page import embedded_probs, states_page
+from explorer_page import embedded_probs, page_json, states_page
 
 from costseg.costs import barycentric_grid, mix_costs, with_defer
 from costseg.decision import decide_reference
@@ -209,3 +210,42 @@ def test_evaluate_explorer_holds_the_sweep_and_reference_masks(tiny_run, tmp_pat
     for step, metrics in zip(page_states(page, steps), shown.values(), strict=True):
         assert metrics in step["metrics"]  # a grid point, between grid points, deferring
         assert_reference_masks(step["state"], probs)
+
+
+HOVER = """<!DOCTYPE html><pre id="out"></pre><script>
+const frame = document.createElement("iframe");
+frame.onload = () => {
+  const doc = frame.contentDocument, win = frame.contentWindow;
+  const canvas = doc.querySelector(".example canvas"), rect = canvas.getBoundingClientRect();
+  const [y, x] = %s, scale = rect.width / canvas.width;
+  canvas.dispatchEvent(new win.MouseEvent("mousemove",
+    {clientX: rect.left + (x + 0.5) * scale, clientY: rect.top + (y + 0.5) * scale}));
+  document.getElementById("out").textContent = doc.getElementById("hover").textContent;
+};
+frame.src = %s;
+document.body.appendChild(frame);
+</script>"""
+"""A page that hovers pixel (y, x) of the first example of an explorer page and lists what the
+page's hover box then shows."""
+
+
+@needs_chromium
+def test_hovering_a_pixel_shows_its_uncertainty(tmp_path):
+    g = torch.Generator().manual_seed(0)
+    probs = torch.rand(19, 6, 8, generator=g).softmax(0)
+    maps = {"entropy": torch.rand(6, 8, generator=g) * 3, "mutual_information": torch.rand(6, 8)}
+    example = embedded("ex", np.zeros((6, 8, 3), np.uint8), probs, uncertainty=maps)
+    page = write_explorer(
+        tmp_path / "explorer.html", [example], vertex_matrices(VERTEX_NAMES), VERTEX_NAMES
+    )
+    carried = page_json(page)["examples"][0]["uncertainty"]
+    for key, value in maps.items():  # the page carries the maps as float16
+        half = np.frombuffer(base64.b64decode(carried[key]), "<f2").reshape(6, 8)
+        np.testing.assert_array_equal(half, value.half().numpy())
+    hover = tmp_path / "hover.html"
+    hover.write_text(HOVER % ("[4, 5]", json.dumps(page.as_uri())))
+    dom = browser(hover, "")
+    shown = re.search(r"entropy ([\d.e+-]+), mutual information ([\d.e+-]+) nats", dom)
+    assert shown, dom[-500:]
+    for value, key in zip(shown.groups(), ("entropy", "mutual_information"), strict=True):
+        assert float(value) == pytest.approx(float(maps[key].half()[4, 5]), rel=5e-3)  # 3 digits

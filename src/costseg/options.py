@@ -19,7 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Literal
 
-SOURCE = "probability source (one of; default: newest runs/**/last.ckpt)"
+SOURCE = "probability source (default: newest runs/**/last.ckpt; several: their ensemble)"
 CALIBRATION = "calibration and guarantees (fitted on held-out images)"
 PROTOCOL = "inference protocol (docs/definitions.md §13)"
 RULES = ["robotistic", "altruistic", "egoistic"]
@@ -119,9 +119,16 @@ class NetworkOptions:
         type=defer_cost,
         metavar="C",
     )
-    ckpt_path: str | None = option(help="a costseg checkpoint", group=SOURCE)
-    network: str | None = option(
-        help="costseg:PATH, vainf:PATH, hf:DIR (alias segformer:DIR)", group=SOURCE
+    ckpt_path: list[str] | None = option(
+        help="costseg checkpoints (several: their ensemble, docs/definitions.md §13)",
+        metavar="PATH",
+        group=SOURCE,
+    )
+    network: list[str] | None = option(
+        help="costseg:PATH, vainf:PATH, hf:DIR (alias segformer:DIR); several, or with "
+        "--ckpt_path: their ensemble",
+        metavar="SPEC",
+        group=SOURCE,
     )
     mc_dropout: int | None = option(
         help="Monte-Carlo dropout: the mean softmax of N passes with dropout active",

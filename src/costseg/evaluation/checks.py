@@ -31,8 +31,8 @@ from costseg.rules import (
 def check_options(opts: EvalOptions) -> list[RuleGroup]:
     """Fail on malformed or contradictory options; returns the rule groups they ask for."""
     class_indices(opts.classes)
-    if sum(x is not None for x in (opts.ckpt_path, opts.network, opts.probs)) > 1:
-        raise ValueError("give at most one of --ckpt_path, --network and --probs")
+    if opts.probs is not None and (opts.ckpt_path is not None or opts.network is not None):
+        raise ValueError("--probs replaces the network: give it without --ckpt_path and --network")
     if opts.probs is not None and opts.data_root is None:
         raise ValueError("--probs needs --data_root: the dataset whose images were scored")
     if opts.mc_dropout is not None and opts.probs is not None:

@@ -23,8 +23,9 @@ from costseg.evaluation.checks import (
     needs_priors,
     source_priors,
 )
-from costseg.networks.protocols import Protocol, with_protocol
-from costseg.networks.sources import Source, open_source, resolve_device
+from costseg.networks.ensemble import open_sources
+from costseg.networks.protocols import Protocol
+from costseg.networks.sources import Source, resolve_device
 from costseg.options import EvalOptions
 from costseg.report.outputs import claim_output_dir
 from costseg.rules import RuleGroup, named_group
@@ -57,8 +58,10 @@ def plan(opts: EvalOptions) -> EvalPlan:
     device = resolve_device(opts.device)
     if world_size() > 1 and not dist.is_initialized():
         dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
-    source = open_source(opts.ckpt_path, opts.network, opts.probs, device)
-    source = with_protocol(source, Protocol.from_options(opts), opts.mc_dropout, opts.seed)
+    protocol = Protocol.from_options(opts)
+    source = open_sources(
+        opts.ckpt_path, opts.network, opts.probs, device, protocol, opts.mc_dropout, opts.seed
+    )
     if source.data_config is None and opts.data_root is None:
         raise ValueError(f"{source.description} names no dataset: pass --data_root")
     config = source.data_config or {}

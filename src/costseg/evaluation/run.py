@@ -25,6 +25,7 @@ from costseg.networks.sources import (
     Batch,
     batches,
 )
+from costseg.networks.uncertainty import output_maps
 from costseg.options import EvalOptions
 from costseg.report.outputs import INCOMPLETE, BatchWriter, mark_complete
 from costseg.report.results import EvalResults, Example, GroupResult
@@ -88,9 +89,12 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> 
             plan.source, plan.dataset, plan.indices, plan.batch_size, device, plan.num_workers, desc
         ):
             probs = _probabilities(plan, batch, scaling)
+            uncertainty = None
+            if opts.save_probs or len(examples) < opts.num_examples:
+                uncertainty = _uncertainty(plan, batch)
             if opts.save_probs:  # evaluate exactly what is saved, so --probs reproduces it
                 probs = probs.half().float()
-                writer.save_probs(batch.stems, probs)
+                writer.save_probs(batch.stems, probs, uncertainty)
             _update_ece(ece, plan, batch, probs)
             priors, roi = plan.priors.at(tuple(batch.labels.shape[-2:]))
             by_temperature = _tempered(plan, batch, probs)
@@ -107,9 +111,8 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> 
                 for g, m in zip(plan.groups, metrics, strict=True)
             ]
             writer.save_predictions(batch.stems, preds[named])
-            _keep_examples(
-                examples, opts.num_examples, batch, preds[named], opts.explorer and probs
-            )
+            kept = opts.explorer and probs
+            _keep_examples(examples, opts.num_examples, batch, preds[named], kept, uncertainty)
             if after_batch:
                 after_batch(examples)
     extra["ece"] = {k: m.compute() for k, m in ece.items()}
@@ -202,9 +205,19 @@ def _describe_probabilities(plan: EvalPlan, scaling: Scaling) -> str:
     return text + ("; rounded to float16 as saved" if plan.options.save_probs else "")
 
 
-def _keep_examples(examples: list, limit: int, batch: Batch, preds: torch.Tensor, probs) -> None:
-    """The first ``limit`` images; with ``probs`` (the explorer's), their float16 probabilities."""
+def _uncertainty(plan: EvalPlan, batch: Batch) -> dict[str, torch.Tensor]:
+    """The uncertainty maps (B, H, W) of the source's probabilities (before any scaling)."""
+    probs = batch.scores if plan.source.kind == "probs" else batch.scores.softmax(1)
+    return output_maps(probs, batch.expected_entropy)
+
+
+def _keep_examples(
+    examples: list, limit: int, batch: Batch, preds: torch.Tensor, probs, uncertainty
+) -> None:
+    """The first ``limit`` images with their float16 uncertainty maps; with ``probs`` (the
+    explorer's), their float16 probabilities."""
     for i in range(min(len(batch.images), limit - len(examples))):
         kept = None if probs is False else probs[i].to("cpu", torch.float16)
         image, label = batch.images[i].cpu(), batch.labels[i].cpu()
-        examples.append(Example(image, label, preds[i].cpu(), batch.stems[i], kept))
+        maps = {k: v[i].to("cpu", torch.float16) for k, v in uncertainty.items()}
+        examples.append(Example(image, label, preds[i].cpu(), batch.stems[i], kept, maps))

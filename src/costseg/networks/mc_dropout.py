@@ -23,6 +23,8 @@ from collections.abc import Callable, Sequence
 import torch
 from torch import Tensor, nn
 
+from costseg.networks.uncertainty import RunAverage
+
 DROPOUT_TYPES = (
     nn.Dropout,
     nn.Dropout1d,
@@ -74,23 +76,64 @@ def mc_dropout_probs(
     Returns:
         (B, N, H, W) float32 probabilities.
     """
+    return mc_dropout_runs([network], images, passes, seed, [key]).mean
+
+
+def mc_dropout_runs(
+    networks: Sequence[Callable[[Tensor], Tensor] | nn.Module],
+    images: Tensor,
+    passes: int,
+    seed: int,
+    keys: Sequence[str],
+) -> RunAverage:
+    """``passes`` runs of several networks (test-time augmentation's views) with dropout active:
+    run t is the mean softmax of every network's pass t (``docs/definitions.md §13``).
+
+    Each network's passes draw the masks :func:`mc_dropout_probs` would draw for it alone with
+    its key: its generator state is kept between its passes, whatever runs in between.
+
+    Returns:
+        the runs' mean probabilities and mean entropy (:class:`RunAverage`).
+    """
     if passes < 1:
         raise ValueError(f"passes must be >= 1; got {passes}")
-    modules = network.modules() if isinstance(network, nn.Module) else ()
+    modules = [m for n in networks if isinstance(n, nn.Module) for m in n.modules()]
     modes = [(m, m.training) for m in modules]
     devices = [images.device.index or 0] if images.device.type == "cuda" else []
+    runs = RunAverage()
     try:
         for m, _ in modes:  # not m.train(): that would also set the children
             m.training = isinstance(m, DROPOUT_TYPES)
         with torch.random.fork_rng(devices=devices):
-            torch.manual_seed(batch_seed(seed, key))
-            total = network(images).float().softmax(1)
-            for _ in range(passes - 1):
-                total += network(images).float().softmax(1)
+            states = []
+            for key in keys:
+                torch.manual_seed(batch_seed(seed, key))
+                states.append(_rng_states(devices))
+            for _ in range(passes):
+                total = None
+                for k, network in enumerate(networks):
+                    if len(networks) > 1:
+                        _set_rng_states(states[k], devices)
+                    probs = network(images).float().softmax(1)
+                    if len(networks) > 1:
+                        states[k] = _rng_states(devices)
+                    total = probs if total is None else total + probs
+                runs.add(total if len(networks) == 1 else total / len(networks))
     finally:
         for m, training in modes:
             m.training = training
-    return total / passes
+    return runs
+
+
+def _rng_states(devices: list[int]) -> list[Tensor]:
+    """The CPU generator's state, then each CUDA device's."""
+    return [torch.get_rng_state(), *(torch.cuda.get_rng_state(d) for d in devices)]
+
+
+def _set_rng_states(states: list[Tensor], devices: list[int]) -> None:
+    torch.set_rng_state(states[0])
+    for state, device in zip(states[1:], devices, strict=True):
+        torch.cuda.set_rng_state(state, device)
 
 
 class MCDropout(nn.Module):
@@ -115,7 +158,12 @@ class MCDropout(nn.Module):
 
     def forward(self, images: Tensor, names: Sequence[str] = ()) -> Tensor:
         """(B, 3, H, W) images (named ``names``, which key the seed) → (B, N, H, W) probs."""
-        return mc_dropout_probs(self.network, images, self.passes, self.seed, "\n".join(names))
+        return self.average(images, names).mean
+
+    def average(self, images: Tensor, names: Sequence[str] = ()) -> RunAverage:
+        """The passes' mean probabilities and mean entropy (the passes are the runs)."""
+        key = "\n".join(names)
+        return mc_dropout_runs([self.network], images, self.passes, self.seed, [key])
 
     def describe(self) -> str:
         """What the probabilities are, for every output."""

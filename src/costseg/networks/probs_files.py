@@ -5,12 +5,15 @@ One file per image, named after the image (``<city>_<seq>_<frame>.npz`` or ``.pt
 the folder or in a ``<city>/`` subfolder), holding ``probs`` or ``logits`` of shape (N, H, W) at
 the label resolution, in any floating dtype (float16 halves the size). A ``.npz`` file is
 written by ``numpy.savez(path, probs=array)``, a ``.pt`` file by
-``torch.save({"probs": tensor}, path)``.
+``torch.save({"probs": tensor}, path)``. The files ``--save-probs`` writes also hold the
+uncertainty maps (``entropy``, and ``mutual_information`` with several runs; (H, W) float16,
+docs/definitions.md §13), which loading leaves aside.
 """
 
 from __future__ import annotations
 
 import zipfile
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -28,13 +31,21 @@ _KEYS = ("probs", "logits")
 _SUM_TOLERANCE = 1e-2  # float16 rounding moves a sum of probabilities by < 1e-3
 
 
-def save_probs(path: str | Path, probs: Tensor, compress: bool = False) -> Path:
+def save_probs(
+    path: str | Path,
+    probs: Tensor,
+    compress: bool = False,
+    maps: Mapping[str, Tensor] | None = None,
+) -> Path:
     """Write (N, H, W) probabilities as float16 ``probs``, atomically (temp file + rename).
 
     Args:
         path: the file to write, ending in ``.npz`` or ``.pt``.
         probs: (N, H, W) floating probabilities, on any device.
         compress: zip-compress a ``.npz`` file (smaller, several times slower to write).
+        maps: (H, W) maps saved beside them as float16 under their names (the uncertainty maps
+            ``entropy`` and ``mutual_information``, docs/definitions.md §13); reading a file
+            reads ``probs`` only.
 
     Returns:
         ``path``.
@@ -54,12 +65,16 @@ def save_probs(path: str | Path, probs: Tensor, compress: bool = False) -> Path:
         raise ValueError(
             f"expected (N, H, W) floating probabilities; got {tuple(probs.shape)} {dtype}"
         )
-    half = probs.detach().to("cpu", torch.float16)
+    arrays = {"probs": probs, **(maps or {})}
+    if "logits" in arrays:
+        raise ValueError("'logits' cannot be saved beside 'probs'")
+    half = {k: v.detach().to("cpu", torch.float16) for k, v in arrays.items()}
     with AtomicFile(path) as tmp, open(tmp, "wb") as f:
         if path.suffix == ".pt":
-            torch.save({"probs": half}, f)
+            torch.save(half, f)
         else:  # a file object: numpy would add ".npz" to a name
-            (np.savez_compressed if compress else np.savez)(f, probs=half.numpy())
+            save = np.savez_compressed if compress else np.savez
+            save(f, **{k: v.numpy() for k, v in half.items()})
     return path
 
 

@@ -53,7 +53,8 @@ class Source:
         if self.run_dir is not None:
             return self.run_dir / job
         name = str(next(iter(self.description.values()))).split(":")[-1].rstrip("/")
-        return Path(elsewhere) / (Path(name).stem or "network")
+        name = "ensemble" if "members" in self.description else Path(name).stem
+        return Path(elsewhere) / (name or "network")
 
     def scores(self, images: Tensor, stems: list[str]) -> Tensor:
         """(B, N, H, W) float logits (network) or probabilities (files, Monte-Carlo dropout)."""
@@ -68,6 +69,16 @@ class Source:
         files = [find_probs_file(self.probs_dir, stem) for stem in stems]
         probs = [load_probs(f, len(CLASS_NAMES), size=size) for f in files]
         return torch.stack(probs).to(images.device)
+
+    def scores_and_entropy(self, images: Tensor, stems: list[str]) -> tuple[Tensor, Tensor | None]:
+        """:meth:`scores`, and E_t H(p_t) (B, H, W) where the source averages several runs
+        (Monte-Carlo dropout's passes, an ensemble's members; ``docs/definitions.md §13``),
+        else None."""
+        average = getattr(self.network, "average", None)
+        if average is None:
+            return self.scores(images, stems), None
+        runs = average(images, stems)
+        return runs.mean.float(), runs.expected_entropy
 
 
 def open_source(
@@ -157,6 +168,7 @@ class Batch:
     stems: list[str]
     scores: Tensor  # (B, N, H, W) logits or probabilities (see Source.kind)
     instances: Tensor | None = None  # (B, H, W) int64 instance ids, where the dataset has them
+    expected_entropy: Tensor | None = None  # (B, H, W) E_t H(p_t) over several runs, else None
 
 
 def batches(
@@ -184,7 +196,8 @@ def batches(
             images, labels = images.to(device), labels.to(device)
             stems = image_stems(dataset, chosen)
             ids = None if ids is None else ids.to(device)
-            yield Batch(images, labels, stems, source.scores(images, stems), ids)
+            scores, expected_entropy = source.scores_and_entropy(images, stems)
+            yield Batch(images, labels, stems, scores, ids, expected_entropy)
 
 
 class _Indexed(Dataset):

@@ -5,7 +5,8 @@ image file would be; the size ``round(H s) x round(W s)``, halves up as mmcv rou
 it horizontally; its logits are flipped back and resized to (H, W) (bilinear). The views'
 probabilities (softmax of each) are averaged with equal weights; flip + scales is every scale with
 and without the flip. With Monte-Carlo dropout each view's probabilities are its mean over the
-passes (``docs/definitions.md §12``), each view seeded apart.
+passes (``docs/definitions.md §12``), each view seeded apart; pass t of the image is the mean over
+the views of their pass t (the runs of the uncertainty maps, ``docs/definitions.md §13``).
 
 >>> from costseg.networks.base import ImageNetwork
 >>> logits = ImageNetwork(torch.nn.Conv2d(3, 4, 1))
@@ -25,7 +26,8 @@ import torch
 from torch import Tensor, nn
 from torch.nn import functional as F
 
-from costseg.networks.mc_dropout import MCDropout
+from costseg.networks.mc_dropout import MCDropout, mc_dropout_runs
+from costseg.networks.uncertainty import RunAverage
 
 
 def scaled_size(size: Sequence[int], scale: float) -> tuple[int, int]:
@@ -110,15 +112,24 @@ class TestTimeAugmentation(nn.Module):
     def forward(self, images: Tensor, names: Sequence[str] = ()) -> Tensor:
         """(B, 3, H, W) uint8 images (named ``names``, which key Monte-Carlo dropout's seed
         together with each view's tag) → (B, N, H, W) float32 probabilities."""
-        total = None
-        for k, view in enumerate(self.views):
-            if self.mc_dropout is None:
+        if self.mc_dropout is None:
+            total = None
+            for view in self.views:
                 probs = view(images).softmax(1)
-            else:
-                keys = [f"{n} {view.tag}" if view.tag else n for n in names]
-                probs = self.mc_dropout[k](images, keys)
-            total = probs if total is None else total + probs
-        return total / len(self.views)
+                total = probs if total is None else total + probs
+            return total / len(self.views)
+        return self.average(images, names).mean
+
+    def average(self, images: Tensor, names: Sequence[str] = ()) -> RunAverage:
+        """The mean probabilities and, with Monte-Carlo dropout, the passes' mean entropy: pass
+        t's map is the mean over the views of each view's pass t (the views are one run)."""
+        runs = RunAverage()
+        if self.mc_dropout is None:
+            runs.add(self(images))
+            return runs
+        keys = ["\n".join(f"{n} {v.tag}" if v.tag else n for n in names) for v in self.views]
+        passes, seed = self.mc_dropout[0].passes, self.mc_dropout[0].seed
+        return mc_dropout_runs(list(self.views), images, passes, seed, keys)
 
     def describe(self) -> str:
         """What the probabilities are, for every output."""

@@ -12,8 +12,10 @@ import torch
 
 from costseg.classes import CLASS_NAMES
 from costseg.data.prior_maps import PriorMaps
-from costseg.networks.protocols import Protocol, with_protocol
-from costseg.networks.sources import Source, open_source, resolve_device
+from costseg.networks.ensemble import open_sources
+from costseg.networks.protocols import Protocol
+from costseg.networks.sources import Source, resolve_device
+from costseg.networks.uncertainty import output_maps
 from costseg.options import PredictOptions
 from costseg.prediction.inputs import Inputs, find_inputs, read_image, video_frames
 from costseg.prediction.outputs import PredictionWriter
@@ -48,13 +50,12 @@ def plan(opts: PredictOptions) -> PredictPlan:
     if opts.explorer:
         vertex_matrices(opts.vertices, opts.vertex_scaling)
     inputs = find_inputs(opts.input)
-    if opts.ckpt_path is not None and opts.network is not None:
-        raise ValueError("give at most one of --ckpt_path and --network")
     protocol = Protocol.from_options(opts)
     device = resolve_device(opts.device)
     claimed = claim_output_dir(opts.output_dir, False, Path()) if opts.output_dir else None
-    source = open_source(opts.ckpt_path, opts.network, None, device)
-    source = with_protocol(source, protocol, opts.mc_dropout, opts.seed)
+    source = open_sources(
+        opts.ckpt_path, opts.network, None, device, protocol, opts.mc_dropout, opts.seed
+    )
     if any(r.priors_alpha for r in rules) and source.priors is None:
         raise ValueError("ml needs pixel-wise priors, and this source has none")
     base = source.default_output("prediction", "predict")
@@ -86,8 +87,8 @@ def _is_argmax(rule: Rule) -> bool:
 
 def decide_image(
     plan: PredictPlan, image: np.ndarray, stem: str
-) -> tuple[torch.Tensor, np.ndarray, object]:
-    """The network once (or ``--mc_dropout`` times), then every rule.
+) -> tuple[torch.Tensor, np.ndarray, object, dict[str, torch.Tensor]]:
+    """The network once (or as often as the protocol and the ensemble say), then every rule.
 
     Args:
         image: (H, W, 3) uint8 RGB.
@@ -96,17 +97,20 @@ def decide_image(
     Returns:
         probs (N, H, W) float32 (rounded to float16 with ``--save-probs``, so that the saved
         file reproduces the labels), maps (K + 1, H, W) uint8 train ids (the rules, then
-        argmax; 255 where a rule defers), roi (H, W) int64 numpy or None.
+        argmax; 255 where a rule defers), roi (H, W) int64 numpy or None, and the uncertainty
+        maps (name → (H, W) float32 on the CPU, of the probabilities before the rounding).
     """
     x = torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1)[None].to(plan.device)
     with torch.inference_mode():
-        scores = plan.source.scores(x, [stem])
+        scores, expected_entropy = plan.source.scores_and_entropy(x, [stem])
         probs = scores if plan.source.kind == "probs" else scores.softmax(1)
+        uncertainty = {k: v[0].cpu() for k, v in output_maps(probs, expected_entropy).items()}
         if plan.options.save_probs:
             probs = probs.half().float()
         priors, roi = plan.priors.at(image.shape[:2])
         maps = apply_rules(probs, plan.rules, priors)[0]
-    return probs[0], maps.to(torch.uint8).cpu().numpy(), None if roi is None else roi.cpu().numpy()
+    labels = maps.to(torch.uint8).cpu().numpy()
+    return probs[0], labels, None if roi is None else roi.cpu().numpy(), uncertainty
 
 
 def predict(opts: PredictOptions) -> Path:
@@ -124,18 +128,18 @@ def run(job: PredictPlan) -> Path:
     if video is None:
         for path in progress(job.inputs.images, desc):
             image = read_image(path)
-            probs, maps, roi = decide_image(job, image, path.stem)
-            writer.image(path.stem, image, maps[:k], maps[argmax], roi, probs)
-            _keep_example(job, path.stem, image, probs)
+            probs, maps, roi, uncertainty = decide_image(job, image, path.stem)
+            writer.image(path.stem, image, maps[:k], maps[argmax], roi, probs, uncertainty)
+            _keep_example(job, path.stem, image, probs, uncertainty)
     else:
         writer.open_video(video.path.stem, video.rate)
         try:
             frames = enumerate(video_frames(video.path))
             for i, image in progress(frames, desc, total=video.frames):
                 stem = f"{video.path.stem}_{i:06d}"
-                probs, maps, roi = decide_image(job, image, stem)
-                writer.frame(stem, image, maps[:k], maps[argmax], roi, probs)
-                _keep_example(job, stem, image, probs)
+                probs, maps, roi, uncertainty = decide_image(job, image, stem)
+                writer.frame(stem, image, maps[:k], maps[argmax], roi, probs, uncertainty)
+                _keep_example(job, stem, image, probs, uncertainty)
         except BaseException:
             writer.close_videos(abandon=True)
             raise
@@ -148,9 +152,11 @@ def run(job: PredictPlan) -> Path:
     return job.output_dir
 
 
-def _keep_example(job: PredictPlan, stem: str, image: np.ndarray, probs: torch.Tensor) -> None:
+def _keep_example(
+    job: PredictPlan, stem: str, image: np.ndarray, probs: torch.Tensor, uncertainty: dict
+) -> None:
     if job.options.explorer and len(job.examples) < job.options.num_examples:
-        job.examples.append(embedded(stem, image, probs))
+        job.examples.append(embedded(stem, image, probs, uncertainty=uncertainty))
 
 
 def _write_explorer(job: PredictPlan) -> None:
@@ -168,5 +174,10 @@ def _write_explorer(job: PredictPlan) -> None:
         opts.vertices,
         named=named_points(job.rules[: len(opts.cost)], vertices, opts.vertex_scaling),
         defer=opts.defer,
-        notes=[f"source: {source.get('network', '')}", protocol, "no labels: no metrics"],
+        notes=[
+            f"source: {source.get('network', '')}",
+            protocol,
+            f"uncertainty on hover: {source.get('uncertainty')}",
+            "no labels: no metrics",
+        ],
     )

@@ -1,7 +1,8 @@
 """The files of a prediction (docs/usage.md): per image ``panels/<stem>.png``,
 ``labels/<rule>/<stem>.png`` (Cityscapes label ids), ``color/<rule>/<stem>.png``, optionally
-``probs/<stem>.npz``; per video ``<stem>_panels.mp4`` and ``<stem>_<rule>.mp4``; at the end
-``counts.csv`` and ``counts.json``, written last, so a folder holding them is complete. A rule
+``probs/<stem>.npz`` (with the uncertainty maps, docs/definitions.md §13); per video
+``<stem>_panels.mp4`` and ``<stem>_<rule>.mp4``; at the end ``counts.csv`` and
+``counts.json``, written last, so a folder holding them is complete. A rule
 that may defer (docs/definitions.md §14) writes 255 for its deferred pixels in both label PNGs,
 draws them in ``DEFERRED_COLOUR``, and its counts hold its defer cost and deferred share.
 """
@@ -55,42 +56,57 @@ class PredictionWriter:
         self.videos: list[VideoWriter] = []
 
     def image(
-        self, stem: str, image: np.ndarray, maps: np.ndarray, argmax: np.ndarray, roi, probs
+        self,
+        stem: str,
+        image: np.ndarray,
+        maps: np.ndarray,
+        argmax: np.ndarray,
+        roi,
+        probs,
+        uncertainty: dict | None = None,
     ) -> None:
         """Files of one image: ``maps`` (K, H, W) train ids (255: deferred), ``argmax`` (H, W),
-        ``roi`` (H, W) or None, ``probs`` (N, H, W) tensor (saved with ``save_probs``)."""
+        ``roi`` (H, W) or None, ``probs`` (N, H, W) tensor and ``uncertainty`` (name → (H, W)
+        tensor; saved with ``save_probs``)."""
         out = self.output_dir
         for name, labels in zip(self.rule_names, maps, strict=True):
             write_png(out / "labels" / name / f"{stem}.png", label_ids(labels))
             write_png(out / "color" / name / f"{stem}.png", colorize(labels, deferred=True))
-        write_png(out / "panels" / f"{stem}.png", self.panel(image, maps, argmax))
-        self.count(stem, maps, roi, probs)
+        write_png(out / "panels" / f"{stem}.png", self.panel(image, maps, argmax, uncertainty))
+        self.count(stem, maps, roi, probs, uncertainty)
 
-    def panel(self, image: np.ndarray, maps: np.ndarray, argmax: np.ndarray) -> np.ndarray:
+    def panel(
+        self, image: np.ndarray, maps: np.ndarray, argmax: np.ndarray, uncertainty=None
+    ) -> np.ndarray:
         """The panel of one image or frame (:func:`costseg.prediction.panels.panel`)."""
-        return panel(image, self.rule_names, maps, argmax, self.defer_texts)
+        shown = None if uncertainty is None else {k: v.numpy() for k, v in uncertainty.items()}
+        return panel(image, self.rule_names, maps, argmax, self.defer_texts, shown)
 
-    def count(self, stem: str, maps: np.ndarray, roi, probs: torch.Tensor) -> None:
-        """Count one image's pixels, segments and deferred pixels; write its probabilities with
-        ``save_probs``."""
+    def count(
+        self, stem: str, maps: np.ndarray, roi, probs: torch.Tensor, uncertainty=None
+    ) -> None:
+        """Count one image's pixels, segments and deferred pixels; write its probabilities (and
+        uncertainty maps) with ``save_probs``."""
         self.counts[stem] = np.stack([np.stack(label_counts(m, roi)) for m in maps])
         self.deferred[stem] = np.stack([deferred_pixels(m, roi) for m in maps])
         if self.save_probs:
             from costseg.networks.probs_files import save_probs
 
-            save_probs(self.output_dir / "probs" / f"{stem}.npz", probs)
+            save_probs(self.output_dir / "probs" / f"{stem}.npz", probs, maps=uncertainty)
 
     def open_video(self, stem: str, rate: Fraction) -> None:
         """Start ``<stem>_panels.mp4`` and ``<stem>_<rule>.mp4``."""
         names = [f"{stem}_panels", *(f"{stem}_{n}" for n in self.rule_names)]
         self.videos = [VideoWriter(self.output_dir / f"{n}.mp4", rate) for n in names]
 
-    def frame(self, stem: str, image: np.ndarray, maps, argmax, roi, probs) -> None:
+    def frame(
+        self, stem: str, image: np.ndarray, maps, argmax, roi, probs, uncertainty=None
+    ) -> None:
         """One video frame: a panel frame, one overlay frame per rule, and its counts."""
-        self.videos[0].write(self.panel(image, maps, argmax))
+        self.videos[0].write(self.panel(image, maps, argmax, uncertainty))
         for video, labels in zip(self.videos[1:], maps, strict=True):
             video.write(overlay(image, labels))
-        self.count(stem, maps, roi, probs)
+        self.count(stem, maps, roi, probs, uncertainty)
 
     def close_videos(self, abandon: bool = False) -> None:
         """Finish (or, after an error, drop) the open videos."""

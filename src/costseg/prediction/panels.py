@@ -1,17 +1,18 @@
-"""One picture per image: the image, each rule's overlay with a class-colour legend, and where
-each rule differs from argmax; a rule that may defer (docs/definitions.md §14) draws its deferred
-pixels in ``DEFERRED_COLOUR`` and states its defer cost and deferred share. Drawn with numpy and
-PIL (fast enough for every video frame)."""
+"""One picture per image: the image, each rule's overlay with a class-colour legend, where each
+rule differs from argmax, and the uncertainty maps (docs/definitions.md §13); a rule that may
+defer (docs/definitions.md §14) draws its deferred pixels in ``DEFERRED_COLOUR`` and states its
+defer cost and deferred share. Drawn with numpy and PIL (fast enough for every video frame)."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
 from costseg.classes import CLASS_NAMES, DEFERRED_COLOUR, colorize
 from costseg.decision.label_maps import DEFERRED
+from costseg.report.uncertainty import Tile, draw_title, uncertainty_tiles
 
 MAX_TILE_WIDTH = 512
 MIN_TILE_WIDTH = 192  # room for the titles
@@ -56,6 +57,7 @@ def panel(
     maps: np.ndarray,
     argmax: np.ndarray,
     defer_costs: Sequence[str | None] | None = None,
+    uncertainty: Mapping[str, np.ndarray] | None = None,
 ) -> np.ndarray:
     """The panel of one image.
 
@@ -66,12 +68,15 @@ def panel(
         argmax: (H, W) train ids of argmax (the robotistic rule).
         defer_costs: per rule, its defer cost as text (``"0.3"``, ``"per class"``), or None for
             a rule that never defers; None: no rule defers.
+        uncertainty: (H, W) maps in nats (``entropy``, and ``mutual_information`` with several
+            runs; docs/definitions.md §13), or None: not drawn.
 
     Returns:
         (h, w, 3) uint8 RGB, h and w even (video encoders need that): a top row with the image
         and the K overlays (a rule that defers: its defer cost and deferred share under its
-        name), a bottom row with the K difference views, and a legend of the classes present
-        (and of deferred pixels when a rule defers).
+        name), a bottom row with the entropy (its scale above it) and the K difference views,
+        the mutual information below the entropy, and a legend of the classes present (and of
+        deferred pixels when a rule defers).
     """
     defer_costs = list(defer_costs or [None] * len(rule_names))
     h, w = _tile_size(*image.shape[:2])
@@ -87,7 +92,9 @@ def panel(
     title = 2 * TITLE - 4 if defers else TITLE
     width = (k + 1) * w + (k + 1) * w % 2
     legend_rows = -(-len(entries) // max(1, (width - 4) // 120))
-    height = 2 * (h + title) + legend_rows * (SWATCH + 4) + 4
+    scales = uncertainty_tiles(uncertainty, len(CLASS_NAMES)) if uncertainty else []
+    rows = 2 + (len(scales) > 1)
+    height = rows * (h + title) + legend_rows * (SWATCH + 4) + 4
     canvas = Image.new("RGB", (width, height + height % 2), (255, 255, 255))
     draw, font = ImageDraw.Draw(canvas), ImageFont.load_default()
     tiles = [("image", small)] + [
@@ -95,17 +102,23 @@ def panel(
         for name, cost, m, sm in zip(rule_names, defer_costs, maps, small_maps, strict=True)
     ]
     differ = [100 * float(np.count_nonzero(m != argmax)) / argmax.size for m in maps]
-    tiles += [(None, None)] + [
+    coloured = [(t, _resized(t.rgb, (h, w), nearest=False)) for t in scales]
+    tiles += coloured[:1] or [(None, None)]
+    tiles += [
         (f"{name}: {d:.1f} % not argmax", differences(small, m, small_argmax))
         for name, m, d in zip(rule_names, small_maps, differ, strict=True)
     ]
+    tiles += coloured[1:]
     for i, (text, tile) in enumerate(tiles):
         if tile is None:
             continue
         x, y = (i % (k + 1)) * w, (i // (k + 1)) * (h + title)
-        draw.text((x + 3, y + 2), text, fill=(0, 0, 0), font=font)
+        if isinstance(text, Tile):
+            draw_title(draw, font, x + 3, y + 2, text)
+        else:
+            draw.text((x + 3, y + 2), text, fill=(0, 0, 0), font=font)
         canvas.paste(Image.fromarray(tile), (x, y + title))
-    _legend(draw, font, entries, 2 * (h + title) + 2, canvas.width)
+    _legend(draw, font, entries, rows * (h + title) + 2, canvas.width)
     return np.asarray(canvas)
 
 

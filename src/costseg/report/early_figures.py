@@ -69,8 +69,10 @@ def plan_figures(group: RuleGroup, roi: torch.Tensor | None) -> list[tuple[str, 
 
 
 def example_figures(names: Sequence[str], examples: list[Example]) -> Iterator[tuple[str, Figure]]:
-    """The mask figure of each example: image, ground truth and each named rule's labels."""
+    """The mask figure of each example: image, ground truth, each named rule's labels and the
+    uncertainty maps, each titled with its scale (docs/definitions.md §13)."""
     from costseg.report.figures import mask_figures
+    from costseg.report.uncertainty import uncertainty_tiles
 
     yield from mask_figures(
         (
@@ -78,6 +80,12 @@ def example_figures(names: Sequence[str], examples: list[Example]) -> Iterator[t
             ex.image.permute(1, 2, 0).numpy(),
             ex.label.numpy(),
             {n: ex.preds[k].numpy() for k, n in enumerate(names)},
+            {
+                t.scale: t.rgb
+                for t in uncertainty_tiles(
+                    {k: v.float().numpy() for k, v in ex.uncertainty.items()}, len(CLASS_NAMES)
+                )
+            },
         )
         for i, ex in enumerate(examples)
     )

@@ -25,6 +25,7 @@ from costseg.report.tables import (
     paper_table,
 )
 from costseg.report.tensorboard import log_evaluation, log_masks, log_table, markdown_table
+from costseg.report.uncertainty import uncertainty_strip
 from costseg.rules import DEFER_COLUMN
 
 SUMMARY_COLUMNS = (*PAPER_COLUMNS, *ERROR_COLUMNS)
@@ -66,6 +67,10 @@ def write_evaluation(results: EvalResults, early: EarlyFigures | None = None) ->
                 ex.label.numpy(),
                 {n: ex.preds[k].numpy() for k, n in enumerate(named.group.names)},
             )
+            if ex.uncertainty:
+                maps = {k: v.float().numpy() for k, v in ex.uncertainty.items()}
+                strip = uncertainty_strip(maps, len(CLASS_NAMES))
+                writer.add_image(f"evaluation/uncertainty/{i}", strip, dataformats="HWC")
         batches = [] if early and early.plan_started else plan_figures(named.group, results.roi)
         if not (early and early.examples_started):
             batches.append(("evaluation", example_figures(named.group.names, results.examples)))

@@ -2,8 +2,8 @@
 // the page's state and controls (the rule: explorer_rule.js; the triangle: explorer_triangle.js).
 "use strict";
 (function () {
-  const { DATA, N, DEFERRED, bytes, pixelMajor, mixed, withDefer, shifted, compile, argmax,
-    sha256 } = COSTSEG;
+  const { DATA, N, DEFERRED, bytes, pixelMajor, halves, mixed, withDefer, shifted, compile,
+    argmax, sha256 } = COSTSEG;
   const { toWeights, drawHeat, drawTriangle, snap } = COSTSEG_TRIANGLE;
   const sweep = DATA.sweep;
   const $ = (id) => document.getElementById(id);
@@ -12,7 +12,8 @@
   const examples = DATA.examples.map((ex) => {
     const hw = ex.height * ex.width, q = pixelMajor(bytes(ex.probs), hw);
     return { ...ex, probs: null, hw, q, top: argmax(q, hw), labels: new Uint8Array(hw),
-      truth: ex.labels && bytes(ex.labels), rois: ex.roi && bytes(ex.roi) };
+      truth: ex.labels && bytes(ex.labels), rois: ex.roi && bytes(ex.roi),
+      uncertainty: Object.entries(ex.uncertainty || {}).map(([k, b]) => [k, halves(bytes(b))]) };
   });
   const PALETTE = DATA.palette;
   const SAME = 254;  // a pixel of the third view where the decision is argmax's: grey
@@ -187,7 +188,9 @@
         + `style="background:rgb(${DATA.deferredColour});outline:1px solid #999"></span>defer`
         + `</td><td></td><td>${acc.toPrecision(5)}</td></tr>`;
     }
-    $("hover").innerHTML = html + "</table>";
+    const nats = ex.uncertainty.map(([k, v]) => `${k.replace("_", " ")} ${v[p].toPrecision(3)}`);
+    $("hover").innerHTML = html + "</table>"
+      + (nats.length ? `<div id="uncertainty">${nats.join(", ")} nats</div>` : "");
   }
 
   // ---- the defer cost: "off" (no defer row), 0, then STEPS costs spaced evenly in log scale

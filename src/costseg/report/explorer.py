@@ -2,9 +2,10 @@
 (docs/definitions.md §11), opened from disk, with no network access.
 
 The page holds the three vertex matrices, the examples' float16 probabilities (base64 of their
-raw little-endian bytes, class-major as ``--save-probs`` writes them) and, after a sweep, its
-metrics at every grid point. Its scripts (``explorer_rule.js``, ``explorer_triangle.js``,
-``explorer.js``; inlined at write time) recompute the masks of any point of the triangle and any
+raw little-endian bytes, class-major as ``--save-probs`` writes them) and uncertainty maps (shown
+on hover, docs/definitions.md §13) and, after a sweep, its metrics at every grid point. Its
+scripts (``explorer_rule.js``, ``explorer_triangle.js``, ``explorer.js``; inlined at write
+time) recompute the masks of any point of the triangle and any
 defer cost c (or none) with the reference's arithmetic in float64: the mixed matrix
 ``(w_0 C_0 + w_1 C_1) + w_2 C_2`` (the operation order of ``costs.mix_costs``) with the defer row
 ``(c, …, c)`` below it (``costs.with_defer``), the column shift ``C - max_k' C[k', ·]`` over all
@@ -44,6 +45,8 @@ class ExplorerExample:
         labels: (h, w) uint8 train ids (255 ignored) for the page's metrics, or None.
         roi: (h, w) uint8 RoI ids 1..4, or None.
         note: how the embedded pixels relate to the image's ("" when they are all of them).
+        uncertainty: name → (h, w) float16 uncertainty map in nats (``entropy``,
+            ``mutual_information``; docs/definitions.md §13), shown on hover.
     """
 
     name: str
@@ -52,6 +55,7 @@ class ExplorerExample:
     labels: np.ndarray | None = None
     roi: np.ndarray | None = None
     note: str = ""
+    uncertainty: dict[str, torch.Tensor] = field(default_factory=dict)
 
 
 def embedded(
@@ -60,6 +64,7 @@ def embedded(
     probs: torch.Tensor,
     labels: np.ndarray | None = None,
     roi: np.ndarray | None = None,
+    uncertainty: dict[str, torch.Tensor] | None = None,
 ) -> ExplorerExample:
     """An example as the page embeds it: at most 256 × 512, else every s-th pixel.
 
@@ -67,6 +72,7 @@ def embedded(
         image: (H, W, 3) uint8 RGB.
         probs: (N, H, W) probabilities (rounded to float16 here).
         labels, roi: (H, W) train ids and RoI ids, or None.
+        uncertainty: name → (H, W) uncertainty map (rounded to float16 here), or None.
 
     >>> ex = embedded("a", np.zeros((600, 800, 3), np.uint8), torch.full((19, 600, 800), 0.05))
     >>> tuple(ex.probs.shape), ex.note
@@ -83,7 +89,11 @@ def embedded(
         image = np.asarray(Image.fromarray(image).resize((w, h), Image.Resampling.BOX))
     pick = lambda a: None if a is None else np.ascontiguousarray(a[::step, ::step])  # noqa: E731
     labels, roi = pick(labels), pick(roi)
-    return ExplorerExample(name, np.ascontiguousarray(image), probs, labels, roi, note)
+    maps = {
+        k: v[::step, ::step].to("cpu", torch.float16).contiguous()
+        for k, v in (uncertainty or {}).items()
+    }
+    return ExplorerExample(name, np.ascontiguousarray(image), probs, labels, roi, note, maps)
 
 
 @dataclass
@@ -126,6 +136,7 @@ def _example_json(ex: ExplorerExample) -> dict:
         "labels": None if ex.labels is None else _b64(ex.labels.astype(np.uint8)),
         "roi": None if ex.roi is None else _b64(ex.roi.astype(np.uint8)),
         "note": ex.note,
+        "uncertainty": {k: _b64(v.numpy()) for k, v in ex.uncertainty.items()},
     }
 
 

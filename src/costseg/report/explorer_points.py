@@ -99,6 +99,7 @@ def evaluation_examples(results: EvalResults) -> list[ExplorerExample]:
                 ex.probs,
                 label.astype(np.uint8),
                 _roi_at(results.roi, label.shape),
+                ex.uncertainty,
             )
         )
     return out
@@ -113,11 +114,17 @@ def write_evaluation_explorer(results: EvalResults) -> None:
     else:
         vertices = vertex_matrices(opts["vertices"], opts["vertex_scaling"])
     named = named_points(results.named.group.rules, vertices, opts["vertex_scaling"])
+    source = results.source
     notes = [
-        f"source: {results.source.get('network') or results.source}",
+        f"source: {source.get('network') or source}",
         f"probabilities: {results.probabilities}; the examples' masks are decided on these "
         "probabilities rounded to float16",
     ]
+    if "inference" in source:
+        protocol = f"inference: {source['inference']}; test-time augmentation: {source['tta']}"
+        notes.insert(1, protocol)
+    if "uncertainty" in source:
+        notes.append(f"uncertainty on hover: {source['uncertainty']}")
     write_explorer(
         results.output_dir / "explorer.html",
         evaluation_examples(results),

@@ -30,6 +30,11 @@ const COSTSEG = (function () {
     }
     return q;
   }
+  function halves(raw) {  // little-endian float16 → float64
+    const view = new DataView(raw.buffer, raw.byteOffset, raw.byteLength);
+    return Float64Array.from({ length: raw.byteLength / 2 },
+      (_, i) => HALF[view.getUint16(2 * i, true)]);
+  }
 
   // ---- the rule ----
   function mixed(w) {  // (N, N): the operation order of costs.mix_costs
@@ -126,6 +131,6 @@ const COSTSEG = (function () {
     return Array.from(h, (x) => x.toString(16).padStart(8, "0")).join("");
   }
 
-  return { DATA, N, DEFERRED, bytes, pixelMajor, mixed, withDefer, shifted, compile, argmax,
-    sha256 };
+  return { DATA, N, DEFERRED, bytes, pixelMajor, halves, mixed, withDefer, shifted, compile,
+    argmax, sha256 };
 })();

@@ -141,10 +141,11 @@ def plot_masks(
 
 
 def mask_figures(
-    examples: Iterable[tuple[str, ArrayLike, ArrayLike, Mapping[str, ArrayLike]]],
+    examples: Iterable[tuple],
     class_names: Sequence[str] = CLASS_NAMES,
 ) -> Iterator[tuple[str, Figure]]:
-    """:func:`plot_masks` of each ``(tag, image, target, preds)``, as ``(tag, figure)``.
+    """:func:`plot_masks` of each ``(tag, image, target, preds[, extra])``, as ``(tag, figure)``;
+    ``extra``: title → (H, W, 3) uint8 panels drawn after the rules' (the uncertainty maps).
 
     Examples of one size, the same rules and a legend of as many rows share one figure, which
     is redrawn for each: draw it before taking the next.
@@ -154,22 +155,25 @@ def mask_figures(
     [('0', 'road'), ('1', 'sidewalk')]
     """
     fig, layout, images = None, None, []
-    for tag, image, target, preds in examples:
+    for tag, image, target, preds, *extra in examples:
         img, gt, masks = _masks(image, target, preds)
         panels = {"image": img, "ground truth": colorize(gt)}
         panels |= {name: colorize(m, deferred=True) for name, m in masks.items()}
+        panels |= extra[0] if extra else {}
         handles = _legend_handles(gt, list(masks.values()), class_names)
         ncols = max(1, min(len(handles), 10))
         if layout != (gt.shape, tuple(panels), -(-len(handles) // ncols)):
             layout = (gt.shape, tuple(panels), -(-len(handles) // ncols))
             height, width = gt.shape
-            size = (PANEL * len(panels), PANEL * height / width + 0.8)
+            lines = max(title.count("\n") for title in panels)  # two-line titles: higher
+            size = (PANEL * len(panels), PANEL * height / width + 0.8 + 0.2 * lines)
             fig = Figure(figsize=size, layout="constrained")
             images = []
             for ax, (title, rgb) in zip(fig.subplots(1, len(panels)), panels.items(), strict=True):
                 images.append(ax.imshow(rgb, interpolation="nearest"))
                 ax.set_title(title)
                 ax.set_axis_off()
+                ax.set_anchor("S" if lines else "C")  # the room above for the titles
             _mask_legend(fig, handles, ncols)
             freeze_layout(fig)
         else:

@@ -106,9 +106,13 @@ class BatchWriter:
             for stem, pred in zip(stems, preds[:, k].cpu().numpy(), strict=True):
                 write_png(folder / f"{stem}.png", label_ids(pred))
 
-    def save_probs(self, stems: list[str], probs: torch.Tensor) -> None:
-        """(B, N, H, W) probabilities → ``probs/<image>.npz`` (float16, docs/definitions.md §8)."""
+    def save_probs(
+        self, stems: list[str], probs: torch.Tensor, uncertainty: dict | None = None
+    ) -> None:
+        """(B, N, H, W) probabilities → ``probs/<image>.npz`` (float16, docs/definitions.md §8),
+        with the (B, H, W) uncertainty maps beside them (§13)."""
         from costseg.networks.probs_files import save_probs
 
-        for stem, p in zip(stems, probs, strict=True):
-            save_probs(self.output_dir / "probs" / f"{stem}.npz", p)
+        for i, (stem, p) in enumerate(zip(stems, probs, strict=True)):
+            maps = {k: v[i] for k, v in (uncertainty or {}).items()}
+            save_probs(self.output_dir / "probs" / f"{stem}.npz", p, maps=maps)

@@ -88,13 +88,15 @@ class GroupResult:
 @dataclass
 class Example:
     """One image of the mask figures: (3, H, W) uint8, (H, W) labels, (K, H, W) named-rule maps;
-    for the explorer page its name and (N, H, W) float16 probabilities."""
+    for the explorer page its name and (N, H, W) float16 probabilities; its (H, W) float16
+    uncertainty maps (docs/definitions.md §13)."""
 
     image: torch.Tensor
     label: torch.Tensor
     preds: torch.Tensor
     name: str = ""
     probs: torch.Tensor | None = None
+    uncertainty: dict[str, torch.Tensor] = field(default_factory=dict)
 
 
 @dataclass
