@@ -78,7 +78,7 @@ EVALUATE_CASES = {
             "--guarantee",
             "0.1",
         ],
-        ["--sweep or --alpha_sweep"],
+        ["--sweep, --alpha_sweep or --defer_sweep"],
     ),
     "too few calibration images": (
         [*_target("person:roi1:recall>=0.9"), "--guarantee", "0.1"],

@@ -212,9 +212,19 @@ class EvalOptions(SourceOptions):
         type=step_size,
         metavar="STEP",
     )
-    target: str | None = option(help="constraint on the sweep, e.g. 'person:roi1:recall>=0.99'")
+    defer_sweep: list[float] | None = option(
+        help="also decide every --cost rule with a defer row of each cost START, START + STEP, "
+        "..., STOP: risk-coverage curves (docs/definitions.md §14)",
+        type=defer_cost,
+        nargs=3,
+        metavar=("START", "STOP", "STEP"),
+    )
+    target: str | None = option(
+        help="constraint on the sweep, e.g. 'person:roi1:recall>=0.99' or "
+        "'person:roi1:handled_recall>=0.99'"
+    )
     maximize: str | None = option(
-        help="what to maximise under --target, e.g. person:roi1:precision"
+        help="what to maximise under --target, e.g. person:roi1:precision or all:roi1:coverage"
     )
     alpha_sweep: float | None = option(
         help="also sweep the prior-adapted rule from Bayes (α=0) to ML (α=1)",
@@ -236,14 +246,15 @@ class EvalOptions(SourceOptions):
         group=CALIBRATION,
     )
     guarantee: float | None = option(
-        help="choose the --sweep / --alpha_sweep point with P(risk > α) <= DELTA "
+        help="choose the --sweep / --alpha_sweep / --defer_sweep point with P(risk > α) <= DELTA "
         "(Learn-then-Test); α comes from --target",
         metavar="DELTA",
         group=CALIBRATION,
     )
     guarantee_method: Literal["bonferroni", "fixed_sequence"] = option(
         "bonferroni",
-        "family-wise error control (fixed_sequence tests along the grid / α order)",
+        "family-wise error control (fixed_sequence tests along the grid / α order, or each "
+        "rule's defer costs from the smallest up)",
         group=CALIBRATION,
     )
 

@@ -21,6 +21,8 @@ from costseg.rules import (
     TEMPERATURES,
     RuleGroup,
     alpha_group,
+    defer_costs,
+    defer_group,
     grid_group,
     parse_rules,
     rules_group,
@@ -43,6 +45,8 @@ def check_options(opts: EvalOptions) -> list[RuleGroup]:
         raise ValueError("--save-probs writes a network's probabilities; with --probs they exist")
     rules = parse_rules(opts.cost, defer=opts.defer)  # the sweeps' rules never defer
     groups = [rules_group(rules)]
+    if opts.defer_sweep is not None:  # first: the candidates of --target and --guarantee
+        groups.append(defer_group(opts.cost, defer_costs(*opts.defer_sweep)))
     if opts.sweep is not None:
         groups.append(grid_group(opts.vertices, opts.sweep, opts.vertex_scaling))
     if opts.alpha_sweep is not None:
@@ -55,18 +59,26 @@ def check_options(opts: EvalOptions) -> list[RuleGroup]:
 
 
 def _check_selection(opts: EvalOptions) -> None:
+    sweeps = opts.sweep is not None or opts.defer_sweep is not None
     if opts.guarantee is not None:
         if not 0 < opts.guarantee < 1:
             raise ValueError(f"--guarantee is δ and must lie in (0, 1), got {opts.guarantee}")
         if not opts.target:
             raise ValueError("--guarantee needs --target (what to certify) and --maximize")
-        if opts.sweep is None and opts.alpha_sweep is None:
-            raise ValueError("--guarantee chooses among --sweep or --alpha_sweep points")
+        if not sweeps and opts.alpha_sweep is None:
+            raise ValueError(
+                "--guarantee chooses among --sweep, --alpha_sweep or --defer_sweep points"
+            )
     if opts.target or opts.maximize:
         if not (opts.target and opts.maximize):
             raise ValueError("--target and --maximize go together")
-        if opts.sweep is None and opts.guarantee is None:
-            raise ValueError("--target and --maximize choose among --sweep STEP points")
+        if not sweeps and opts.guarantee is None:
+            raise ValueError("--target and --maximize choose among --sweep or --defer_sweep points")
+        if opts.defer_sweep is not None and (opts.sweep or opts.alpha_sweep) is not None:
+            raise ValueError(
+                "--target chooses among the points of one sweep: give --defer_sweep without "
+                "--sweep and --alpha_sweep (its value systems are the --cost rules)"
+            )
         target = parse_target(opts.target)
         parse_metric(opts.maximize)
         if opts.guarantee is not None and not 0 < risk_level(target) < 1:
@@ -86,13 +98,14 @@ def _check_calibration(opts: EvalOptions) -> None:
             )
 
 
-def check_calibration_size(opts: EvalOptions, n_images: int, family: int) -> None:
-    """Refuse a guarantee that cannot certify anything with ``n_images`` calibration images."""
+def check_calibration_size(opts: EvalOptions, n_images: int, candidates: RuleGroup) -> None:
+    """Refuse a guarantee that cannot certify anything with ``n_images`` calibration images
+    among the rules of ``candidates`` (Bonferroni over them, or over its fixed-sequence paths)."""
     if opts.guarantee is None:
         return
-    alpha = risk_level(parse_target(opts.target))
-    test_family = family if opts.guarantee_method == "bonferroni" else 1
-    needed = minimum_images(alpha, opts.guarantee, test_family)
+    alpha, family = risk_level(parse_target(opts.target)), len(candidates.names)
+    tests = family if opts.guarantee_method == "bonferroni" else max(1, len(candidates.paths))
+    needed = minimum_images(alpha, opts.guarantee, tests)
     if n_images < needed:
         raise ValueError(
             f"{n_images} calibration images cannot certify anything at α = {alpha:.3g}, "

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import torch
 
-from costseg.calibration.guarantee import LTTResult, learn_then_test
+from costseg.calibration.guarantee import LTTResult, fixed_sequences, learn_then_test
 from costseg.calibration.sample import PixelSampler
 from costseg.calibration.scaling import Scaling
 from costseg.classes import CLASS_NAMES, NUM_ROIS
@@ -93,12 +93,17 @@ def certify(
         target: e.g. ``person:roi1:recall>=0.95`` (α = 1 − 0.95 for recall and precision,
             0.05 for the segment rates with ``<=``).
         maximize: e.g. ``person:roi1:precision``.
-        delta: δ; method: ``bonferroni`` or ``fixed_sequence`` (along the group's order).
+        delta: δ; method: ``bonferroni`` or ``fixed_sequence`` (along the group's order, or
+            along each of its ``paths`` at δ / len(paths)).
         class_ids: classes of the segment metrics.
+
+    Among certified rules of the same best ``maximize``, the one of largest ``group.prefer``
+    (the defer sweep: the larger defer cost).
     """
     t, goal = parse_target(target), parse_metric(maximize)
     alpha = risk_level(t)
-    segments = sorted({*class_ids, t.cls} | ({goal.cls} if goal.metric in SEGMENT_RATES else set()))
+    named = {t.cls} | ({goal.cls} if goal.metric in SEGMENT_RATES else set())
+    segments = sorted({*class_ids, *named} - {None})  # None: all classes (coverage)
     wanted = {m.cls for m in (t, goal) if m.metric in INSTANCE_RATES}
     metrics = GroupMetrics(
         group, len(CLASS_NAMES), NUM_ROIS, segments, instance_classes=sorted(wanted)
@@ -114,10 +119,14 @@ def certify(
         )
         n += len(batch.labels)
     losses = per_image_loss(torch.cat(counts), t.metric).numpy()
-    ltt = learn_then_test(losses, alpha, delta, method)
+    if method == "fixed_sequence" and group.paths:
+        ltt = fixed_sequences(losses, alpha, delta, group.paths)
+    else:
+        ltt = learn_then_test(losses, alpha, delta, method)
     pooled = metrics.compute()
     objective = metric_values(
         pooled["pixels"], pooled["segments"], goal, segments, pooled["instances"]
     )
-    chosen = ltt.best(objective.cpu().numpy())  # None unless a certified λ has a finite value
+    # None unless a certified λ has a finite value
+    chosen = ltt.best(objective.cpu().numpy(), prefer=group.prefer)
     return Certificate(group, ltt, chosen, objective, target, maximize, n)

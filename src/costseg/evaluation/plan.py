@@ -73,7 +73,7 @@ def plan(opts: EvalOptions) -> EvalPlan:
     reported, calibration = _split_calibration(opts, config, dataset, count)
     if calibration is not None:
         candidates = next((g for g in groups if g.candidates), named_group(groups))
-        check_calibration_size(opts, len(calibration[1]), len(candidates.names))
+        check_calibration_size(opts, len(calibration[1]), candidates)
     batch_size = opts.batch_size or settings.eval_batch_size
     base = source.default_output("evaluation", "eval")
     cache = (Path(opts.output_dir).resolve().parent if opts.output_dir else base.parent) / "priors"

@@ -16,6 +16,7 @@ from costseg.report.early_figures import EarlyFigures, example_figures, plan_fig
 from costseg.report.figures import heatmap_grid_figures
 from costseg.report.files import write_csv, write_json, write_text
 from costseg.report.results import EvalResults, GroupResult
+from costseg.report.risk_coverage import risk_coverage_json, risk_coverage_table
 from costseg.report.tables import (
     PAPER_COLUMNS,
     PAPER_ROIS,
@@ -50,7 +51,7 @@ def write_evaluation(results: EvalResults, early: EarlyFigures | None = None) ->
     deferral = DEFER_SUMMARY if named.group.defers else ()
     print(console_table(headline, (*SUMMARY_COLUMNS, *deferral, *instances)))
     print("mIoU: " + ", ".join(f"{n} {100 * v:.2f}" for n, v in _miou(named).items()))
-    tables = _tables(headline, named, _probability_note(results))
+    tables = _tables(headline, named, _probability_note(results)) + _risk_coverage_table(results)
     write_text(out / "table.md", tables)
     write_csv(out / "results.csv", rows)
     write_json(out / "results.json", _json(results, rows))
@@ -146,6 +147,7 @@ def _json(results: EvalResults, rows: list[dict]) -> dict:
             **{n: pixels["confmat"][k, 0].tolist() for k, n in enumerate(names)},
         },
         **_deferral_json(named),
+        **risk_coverage_json(results),
         "instances": results.extra.get("instances"),
         "scaling": results.extra.get("scaling"),
         **_calibration(results),
@@ -165,6 +167,11 @@ def _deferral_json(named: GroupResult) -> dict:
             **{n: named.pixels["deferred"][k, 0].tolist() for k, n in enumerate(names)},
         },
     }
+
+
+def _risk_coverage_table(results: EvalResults) -> str:
+    table = risk_coverage_table(results)
+    return f"\n{table}\n" if table else ""
 
 
 def _calibration(results: EvalResults) -> dict:

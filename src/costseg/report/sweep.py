@@ -3,7 +3,8 @@
 Each such group (``RuleGroup.output`` set) gets ``<output>.csv`` / ``<output>.json`` with every
 rule's rows, and its figures from where its rules lie: rules in the value triangle
 (``weights``) give the paper-style triangles ``figures/ternary_*.png`` and the precision–recall
-trade-off along each edge ``figures/edges_*.png``; rules along one axis (``line``) give curves.
+trade-off along each edge ``figures/edges_*.png``; rules along one axis (``line``) give curves;
+the defer sweep gives risk–coverage curves (:mod:`costseg.report.risk_coverage`).
 With ``--target``, ``best.json`` (and ``best_cost.yaml`` when the rule is a cost matrix) answer
 it over the first group of candidates.
 """
@@ -20,8 +21,10 @@ from costseg.report.curves import plot_curves
 from costseg.report.drawing import Batch
 from costseg.report.files import write_csv, write_json
 from costseg.report.results import EvalResults, GroupResult
+from costseg.report.risk_coverage import write_risk_coverage
 from costseg.report.tables import PAPER_ROIS
 from costseg.report.ternary import edge_tradeoff_figures, ternary_figures
+from costseg.rules import DEFER_FAMILY
 
 SWEEP_ROIS = (0, *PAPER_ROIS)
 """The RoIs of a sweep's rows: the whole image and the paper's."""
@@ -34,6 +37,9 @@ def write_sweeps(results: EvalResults) -> list[tuple[str, Batch]]:
     for result in results.groups:
         group, out = result.group, results.output_dir
         if group.output is None:
+            continue
+        if group.family == DEFER_FAMILY:  # its curves run along coverage (risk–coverage)
+            batches += write_risk_coverage(results, result)
             continue
         rows = result.rows(results.class_ids, SWEEP_ROIS)
         write_csv(out / f"{group.output}.csv", rows)
@@ -106,6 +112,7 @@ def _write_choice(results: EvalResults, result: GroupResult) -> None:
         opts["maximize"],
         results.class_ids,
         result.instances,
+        group.prefer,
     )
     record = {
         "target": choice.target,

@@ -22,6 +22,8 @@ from matplotlib.figure import Figure
 from costseg.classes import CLASS_NAMES
 from costseg.metrics.names import DEFER_RATES
 from costseg.report.figures import ArrayLike, masks_side_by_side
+from costseg.report.risk_coverage import risk_coverage_curves
+from costseg.rules import DEFER_FAMILY
 
 if TYPE_CHECKING:
     from torch.utils.tensorboard import SummaryWriter
@@ -32,7 +34,9 @@ STEPS = """Scalars are the sweeps' curves; the step is
 * `sweep/*`, `alpha_sweep/*`: the rule's index (the row order of `sweep.csv`,
   `alpha_sweep.csv`; k for α = k · STEP),
 * `temperature_sweep/*`: 100 · T (with a rule that defers, also its coverage,
-  selective and handled recall in RoI 1 and its deferred share of the whole image).
+  selective and handled recall in RoI 1 and its deferred share of the whole image),
+* `defer_sweep/<rule>/*`: k for the rule's k-th defer cost (`defer_sweep.csv`): coverage,
+  selective error and handled recall per RoI, the RoI's over all classes in this run.
 
 Each class is a run (`tensorboard/<class>`); whole-image values (`*/miou`,
 `*/deferred_rate`) are in this run."""
@@ -185,6 +189,9 @@ Curve = tuple[str, str | None, list[int], list[float]]  # tag, run (class or Non
 def _sweep_curves(results: EvalResults) -> Iterator[Curve]:
     for result in results.groups:
         if result.group.output is None:
+            continue
+        if result.group.family == DEFER_FAMILY:
+            yield from risk_coverage_curves(result, results.class_ids)
             continue
         prefix, steps = result.group.output, list(range(len(result.group.names)))
         yield from _group_curves(prefix, result, results.class_ids, steps)
