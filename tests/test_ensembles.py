@@ -175,10 +175,11 @@ def test_evaluate_with_two_members_records_both_and_saves_their_uncertainty(chec
     out = tmp_path / "eval"
     evaluate_main(["--ckpt_path", *map(str, checkpoints), "--cost", "robotistic", "--limit", "1",
                    "--num_examples", "1", "--output_dir", str(out), "--no-progress",
-                   "--save-probs"])  # fmt: skip
+                   "--save-probs", "--explorer"])  # fmt: skip
     results = json.loads((out / "results.json").read_text())
     members = [m["network"] for m in results["source"]["members"]]
     assert members == [f"costseg:{p}" for p in checkpoints]
+    assert results["source"]["priors"]["member"] == 1  # the first costseg member's priors
     assert "mutual information over the 2 members" in results["source"]["uncertainty"]
     assert results["probabilities"].startswith("ensemble: mean probabilities of 2 members")
     saved = np.load(out / "probs" / "val_000000.npz")
@@ -196,6 +197,10 @@ def test_evaluate_with_two_members_records_both_and_saves_their_uncertainty(chec
     assert (out / "figures" / "masks_0.png").is_file()
     events = b"".join(p.read_bytes() for p in out.glob("events.out.tfevents.*"))
     assert b"evaluation/uncertainty/0" in events
+    page = page_json(out / "explorer.html")["examples"][0]["uncertainty"]
+    for key in ("entropy", "mutual_information"):  # the hover's maps: the saved ones
+        shown = np.frombuffer(base64.b64decode(page[key]), "<f2").reshape(saved[key].shape)
+        np.testing.assert_array_equal(shown, saved[key])
 
 
 def test_predict_with_two_members_draws_and_saves_the_uncertainty(checkpoints, tmp_path):

@@ -178,7 +178,8 @@ def ensemble_source(
     first = costseg[0][1] if costseg else None
     if first is not None:
         k = costseg[0][0]
-        description["priors"] = f"member {k + 1}'s ({names[k]}): {first.description.get('priors')}"
+        priors = first.description.get("priors")
+        description["priors"] = {"member": k + 1, "priors": priors}
     return Source(
         "probs",
         description,
