@@ -24,6 +24,8 @@ from costseg.data.from_config import build_dataset
 from costseg.networks import ImageNetwork, load_costseg_checkpoint
 from costseg.networks.ensemble import Ensemble
 from costseg.networks.mc_dropout import MCDropout, batch_seed
+from costseg.networks.protocols import Protocol, with_protocol
+from costseg.networks.sliding import SlidingWindow
 from costseg.networks.sources import Source
 from costseg.networks.tta import TestTimeAugmentation
 from costseg.networks.uncertainty import uncertainty_maps
@@ -110,6 +112,25 @@ def test_two_members_mean_their_softmaxes_and_their_uncertainty_is_the_loops(one
         np.testing.assert_allclose(maps["expected_entropy"][i].numpy(), e, atol=ROUNDING, rtol=0)
         np.testing.assert_allclose(maps["mutual_information"][i].numpy(), mi, atol=ROUNDING, rtol=0)
     assert float(maps["mutual_information"].max()) > 1e-3  # the members disagree somewhere
+
+
+def test_each_member_runs_with_the_protocol_and_its_runs_are_the_members(one_thread):
+    a, b, images = _net(0), _net(1), _images()
+    protocol = Protocol(crop=(4, 4), stride=(2, 3), flip=True)
+    members = [with_protocol(_member(n), protocol, None, 0) for n in (a, b)]
+    with torch.inference_mode():
+        runs = Ensemble(members).average(images, ["a", "b"])
+        each = []
+        for net in (a, b):  # the protocol written out: flip, windows inside each view
+            windows = SlidingWindow(net, (4, 4), (2, 3))
+            plain, flipped = windows(images), windows(images.flip(-1)).flip(-1)
+            each.append((plain.softmax(1) + flipped.softmax(1)) / 2)
+    assert torch.equal(runs.mean, (each[0] + each[1]) / 2)
+    maps = uncertainty_maps(runs.mean, runs.expected_entropy)
+    for i in range(len(images)):  # two runs: the members (the views make one run each)
+        _, e, mi = _uncertainty_loop([p[i].double().numpy() for p in each])
+        np.testing.assert_allclose(maps["expected_entropy"][i].numpy(), e, atol=ROUNDING, rtol=0)
+        np.testing.assert_allclose(maps["mutual_information"][i].numpy(), mi, atol=ROUNDING, rtol=0)
 
 
 def test_members_that_disagree_on_the_classes_are_refused(one_thread):
