@@ -2,16 +2,21 @@
 §7).
 
     python scripts/check_guarantee.py [--ckpt_path PATH] [--n 50] [--trials 200] [--test 1000]
+    python scripts/check_guarantee.py --defer_sweep 0 1 0.05 --cost robotistic egoistic \
+        --target "person:roi1:handled_recall>=0.95" --maximize all:roi1:coverage
 
 Fresh procedural scenes (split "test", --seed 1000: unrelated to training) form a pool: the first
 --test images are the test set, the next ones the calibration pool (--trials × --n images by
 default: disjoint, independent calibration sets). The network runs once per image; the per-image
-counts of the target and of --maximize under every grid point λ are kept in ``counts.npz`` in
---output_dir (reruns are instant). Per calibration set, Learn-then-Test at δ picks the certified
-λ with the best pooled --maximize (or nothing), and the naive rule (``evaluate.py --target``) the
-λ meeting the target on the pooled calibration images with the best --maximize. The test risk of
-λ is its mean per-image loss on the test set (images with an undefined loss left out, counted); a
-violation is ``R_test(λ̂) > α``. Writes ``guarantee_check.json`` and ``guarantee_check.png``.
+counts of the target and of --maximize under every candidate λ (the grid points, or with
+--defer_sweep every --cost rule at every defer cost, as ``evaluate.py --defer_sweep``) are kept in
+``counts.npz`` in --output_dir (reruns are instant). Per calibration set, Learn-then-Test at δ
+picks the certified λ with the best pooled --maximize (or nothing), and the naive rule
+(``evaluate.py --target``) the λ meeting the target on the pooled calibration images with the
+best --maximize (both: ties to the larger defer cost; fixed-sequence testing walks each rule's
+defer costs from the smallest up, at δ / number of rules). The test risk of λ is its mean
+per-image loss on the test set (images with an undefined loss left out, counted); a violation
+is ``R_test(λ̂) > α``. Writes ``guarantee_check.json`` and ``guarantee_check.png``.
 """
 
 from __future__ import annotations
@@ -30,17 +35,16 @@ from matplotlib.figure import Figure
 from torch.utils.data import DataLoader, Subset
 from tqdm import tqdm
 
-from costseg.calibration.guarantee import learn_then_test
+from costseg.calibration.guarantee import fixed_sequences, learn_then_test
 from costseg.checkpoints import find_checkpoint
-from costseg.costs import barycentric_grid
 from costseg.data.prior_maps import PriorMaps
 from costseg.data.toy import StreetScenes
-from costseg.decision import decide_mixtures
 from costseg.metrics.per_image import per_image_counts, per_image_loss
 from costseg.metrics.selection import best_points, meets, parse_metric, parse_target, risk_level
 from costseg.networks import load_costseg_checkpoint, load_network
+from costseg.options import RULES as DEFAULT_RULES
 from costseg.report.files import save_figure, write_json
-from costseg.rules import vertex_matrices
+from costseg.rules import RuleGroup, defer_costs, defer_group, grid_group
 
 RULES = {"ltt": "Learn-then-Test", "naive": "naive --target"}
 
@@ -63,6 +67,9 @@ def build_parser() -> argparse.ArgumentParser:
     add("--step", type=float, default=0.1, help="barycentric grid step (0.1: 66 points)")
     add("--vertices", nargs=3, default=["robotistic", "altruistic", "egoistic"])
     add("--vertex_scaling", default="none", choices=("none", "mean"))
+    add("--defer_sweep", type=float, nargs=3, metavar=("START", "STOP", "STEP"),
+        help="candidates: every --cost rule at these defer costs instead of the grid")  # fmt: skip
+    add("--cost", nargs="+", default=DEFAULT_RULES, help="the rules of --defer_sweep")
     add("--seed", type=int, default=1000, help="scene seed (training uses 0)")
     add("--draw_seed", type=int, default=0, help="seed of the calibration-set draws")
     add("--size", type=int, nargs=2, metavar=("H", "W"), help="default: the checkpoint's")
@@ -82,7 +89,16 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         raise ValueError(f"need α = {args.alpha:g} and δ = {args.delta:g} in (0, 1)")
     if min(args.n, args.trials, args.test, args.batch_size) < 1 or args.n > args.cal_pool:
         raise ValueError(f"need n, trials, test, batch_size >= 1, n <= cal_pool = {args.cal_pool}")
+    candidates(args)  # a bad --defer_sweep or --cost: ValueError before any image
     return args
+
+
+def candidates(args: argparse.Namespace) -> RuleGroup:
+    """The λ: the grid of --step over --vertices, or with --defer_sweep every --cost rule at
+    every defer cost (one fixed-sequence path per rule)."""
+    if args.defer_sweep is not None:
+        return defer_group(args.cost, defer_costs(*args.defer_sweep))
+    return grid_group(args.vertices, args.step, args.vertex_scaling)
 
 
 def resolve_checkpoint(args: argparse.Namespace) -> Path | None:
@@ -102,28 +118,29 @@ def load_source(args: argparse.Namespace, path: Path | None) -> tuple[Any, Any, 
     size = tuple(args.size or config.get("size") or (128, 256))
     device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
     device = device if args.device == "auto" else torch.device(args.device)
-    roi = None
+    priors, roi = None, None
     if ckpt is not None and ckpt.priors is not None:
-        roi = PriorMaps(ckpt.priors, ckpt.class_names, device).at(size)[1]
+        priors, roi = PriorMaps(ckpt.priors, ckpt.class_names, device).at(size)
     if (args.target_spec.roi or args.max_spec.roi) and roi is None:
         raise ValueError("a RoI target or --maximize needs a checkpoint with priors (RoI map)")
+    if candidates(args).needs_priors and priors is None:
+        raise ValueError("ml needs pixel-wise priors: a checkpoint with priors")
     net = load_network(args.network, device) if args.network else ckpt.network.to(device).eval()
-    return net, roi, (int(size[0]), int(size[1]))
+    return net, (priors, roi), (int(size[0]), int(size[1]))
 
 
 def compute_counts(args: argparse.Namespace, source: tuple, indices: range) -> dict[str, Any]:
     """(len(indices), K, 2) per-image counts of the target ("target") and of --maximize, with
-    ``source`` = (network, RoI map, size) from :func:`load_source`."""
-    net, roi, size = source
+    ``source`` = (network, (priors, RoI map), size) from :func:`load_source`."""
+    net, (priors, roi), size = source
     scenes = StreetScenes("test", indices.stop, size, args.seed)
     loader = DataLoader(Subset(scenes, indices), args.batch_size, num_workers=1)
-    vertices = vertex_matrices(args.vertices, args.vertex_scaling)
-    weights, device = barycentric_grid(args.step), next(net.parameters()).device
+    group, device = candidates(args), next(net.parameters()).device
     out: dict[str, list[torch.Tensor]] = {"target": [], "maximize": []}
     with torch.inference_mode():
         for images, labels in tqdm(loader, f"images {indices.start}-{indices.stop}", unit="batch"):
             images, labels = images.to(device), labels.to(device)
-            preds = decide_mixtures(net(images).float().softmax(1), vertices, weights)
+            preds = group.decide(net(images).float().softmax(1), priors)
             for key, spec in (("target", args.target_spec), ("maximize", args.max_spec)):
                 out[key].append(per_image_counts(preds, labels, roi, *spec[:3]).cpu())
     return {k: torch.cat(v).numpy() for k, v in out.items()}
@@ -134,7 +151,8 @@ def cached_counts(args: argparse.Namespace) -> tuple[dict[str, np.ndarray], str,
     keeps those of earlier runs with the same settings, so only new images are counted."""
     path = resolve_checkpoint(args)
     name = args.network or f"costseg:{path}"
-    key = {k: getattr(args, k) for k in ("seed", "size", "step", "vertices", "vertex_scaling")}
+    names = ("seed", "size", "step", "vertices", "vertex_scaling", "defer_sweep", "cost")
+    key = {k: getattr(args, k) for k in names}
     key |= {"network": name, "checkpoint": str(path), "mtime": path and path.stat().st_mtime}
     key |= {"target": list(args.target_spec[:3]), "maximize": list(args.max_spec)}
     key_text, cache = json.dumps(key, sort_keys=True), args.output_dir / "counts.npz"
@@ -170,28 +188,33 @@ def draw_sets(args: argparse.Namespace) -> tuple[np.ndarray, bool]:
     return np.stack([rng.choice(calib, args.n, replace=False) for _ in range(args.trials)]), False
 
 
-def choose(args: argparse.Namespace, target: np.ndarray, goal: np.ndarray) -> dict[str, Any]:
+def choose(
+    args: argparse.Namespace, group: RuleGroup, target: np.ndarray, goal: np.ndarray
+) -> dict[str, Any]:
     """LTT's and the naive rule's choice on one calibration set's (n, K, 2) counts."""
     losses = per_image_loss(target, args.target_spec.metric).numpy()
-    ltt = learn_then_test(losses, args.alpha, args.delta, args.method, bound=args.bound)
+    if args.method == "fixed_sequence" and group.paths:  # as evaluate.py --guarantee
+        ltt = fixed_sequences(losses, args.alpha, args.delta, group.paths, args.bound)
+    else:
+        ltt = learn_then_test(losses, args.alpha, args.delta, args.method, bound=args.bound)
     objective = pooled(goal)
-    chosen = ltt.best(np.nan_to_num(objective, nan=-np.inf))  # as evaluate.py --guarantee
+    chosen = ltt.best(np.nan_to_num(objective, nan=-np.inf), prefer=group.prefer)
     allowed = meets(torch.from_numpy(pooled(target)), args.target_spec)
-    naive = best_points(torch.from_numpy(objective), allowed)  # as evaluate.py --target
+    naive = best_points(torch.from_numpy(objective), allowed, group.prefer)  # as --target
     return {"ltt": chosen, "naive": naive[0] if naive else None,
             "certified": len(ltt.valid), "left_out": float(ltt.n_undefined.mean())}  # fmt: skip
 
 
 def summarise(args: argparse.Namespace, counts: dict[str, np.ndarray]) -> dict[str, Any]:
-    """Every number of the check: per grid point on the test set, per trial and aggregated."""
+    """Every number of the check: per candidate on the test set, per trial and aggregated."""
     test_losses = per_image_loss(counts["target"][: args.test], args.target_spec.metric).numpy()
     defined = (~np.isnan(test_losses)).sum(0)
     with np.errstate(invalid="ignore"):
         risk = np.nansum(test_losses, 0) / defined  # NaN where no image has a defined loss
         risk_se = np.nanstd(test_losses, 0) / np.sqrt(defined)
     goal, target = pooled(counts["maximize"][: args.test]), pooled(counts["target"][: args.test])
-    sets, disjoint = draw_sets(args)
-    trials = [choose(args, counts["target"][s], counts["maximize"][s])
+    sets, disjoint, group = *draw_sets(args), candidates(args)
+    trials = [choose(args, group, counts["target"][s], counts["maximize"][s])
               for s in tqdm(sets, "calibration sets", unit="set")]  # fmt: skip
     ok = np.flatnonzero((risk <= args.alpha) & ~np.isnan(goal))
     test = {"images": args.test, "risk": risk, "risk_se": risk_se, "maximize": goal,
@@ -205,7 +228,8 @@ def summarise(args: argparse.Namespace, counts: dict[str, np.ndarray]) -> dict[s
         out[rule] = rule_summary(args, [t[rule] for t in trials], test, pooled_ok)
     out["ltt"]["mean_certified"] = float(np.mean([t["certified"] for t in trials]))
     out["calibration_left_out_mean"] = float(np.mean([t["left_out"] for t in trials]))
-    out["minimum_n"] = minimum_n(args, len(risk))
+    out["minimum_n"] = minimum_n(args, len(risk), len(group.paths))
+    out["candidates"] = group.columns
     return out
 
 
@@ -225,9 +249,10 @@ def rule_summary(
             "mean_test_maximize": float(np.nanmean(values)) if len(values) else None}  # fmt: skip
 
 
-def minimum_n(args: argparse.Namespace, candidates: int) -> int:
-    """Fewest calibration images with which a zero empirical risk is certified."""
-    level = args.delta / (candidates if args.method == "bonferroni" else 1)
+def minimum_n(args: argparse.Namespace, candidates: int, paths: int = 0) -> int:
+    """Fewest calibration images with which a zero empirical risk is certified (fixed-sequence
+    testing along ``paths`` paths: δ / paths for each)."""
+    level = args.delta / (candidates if args.method == "bonferroni" else max(1, paths))
     if args.bound == "hoeffding":  # p = exp(−2 n α²)
         return math.ceil(-math.log(level) / (2 * args.alpha**2))
     return math.ceil(math.log(level) / math.log1p(-args.alpha))  # p = (1 − α)ⁿ
@@ -243,7 +268,7 @@ def report(out: dict[str, Any]) -> None:
     lo, hi = t["undefined_images"]
     print(f"undefined loss, left out: {lo}-{hi} test images per λ; on average "
           f"{out['calibration_left_out_mean']:.1f} of {s['n']} calibration images")  # fmt: skip
-    print(f"grid points with test risk <= α: {t['meeting_alpha']} of {len(t['risk'])}")
+    print(f"candidates with test risk <= α: {t['meeting_alpha']} of {len(t['risk'])}")
     if s["n"] < out["minimum_n"]:
         print(f"note: LTT cannot certify anything with n < {out['minimum_n']} (even at zero risk)")
     for rule, name in RULES.items():
@@ -263,7 +288,7 @@ def plot(out: dict[str, Any], path: Path) -> None:
     left, right = (fig := Figure(figsize=(11, 4))).subplots(1, 2)
     risks = {rule: out[rule]["test_risk"][np.isfinite(out[rule]["test_risk"])] for rule in RULES}
     edges = np.histogram_bin_edges([s["alpha"], *risks["ltt"], *risks["naive"]], 30)
-    right.scatter(t["risk"], t["maximize"], s=8, color="0.6", label="every grid point")
+    right.scatter(t["risk"], t["maximize"], s=8, color="0.6", label="every candidate")
     for (rule, name), colour in zip(RULES.items(), ("tab:blue", "tab:orange"), strict=True):
         r = out[rule]
         label = f"{name} ({r['violation_rate']:.0%} of sets violate)"

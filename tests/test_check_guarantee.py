@@ -1,0 +1,66 @@
+"""scripts/check_guarantee.py with --defer_sweep on the tiny checkpoint: its Learn-then-Test and
+naive choices equal a NumPy recomputation from the per-image counts it saved (fixed-sequence
+along each rule from its smallest defer cost at δ / rules, ties to the larger defer cost)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import numpy as np
+
+from costseg.calibration.guarantee import hoeffding_bentkus_pvalue
+from costseg.checkpoints import find_checkpoint
+
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "check_guarantee.py"
+COSTS = [0.0, 0.5, 1.0]
+ALPHA, DELTA = 0.5, 0.5  # target handled_recall >= 0.5
+
+
+def _script():
+    spec = importlib.util.spec_from_file_location("check_guarantee", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _expected(target: np.ndarray, goal: np.ndarray) -> tuple[int | None, int | None]:
+    """(LTT's choice, the naive choice) on (n, K, 2) counts, written out in NumPy."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        losses = 1 - target[..., 0] / target[..., 1]  # NaN: no person pixel in the RoI
+        objective = goal[..., 0].sum(0) / goal[..., 1].sum(0)
+        pooled_target = target[..., 0].sum(0) / target[..., 1].sum(0)
+    valid = []
+    for path in (range(0, 3), range(3, 6)):  # robotistic, egoistic: smallest defer cost first
+        for j in path:
+            kept = losses[~np.isnan(losses[:, j]), j]
+            p = hoeffding_bentkus_pvalue(kept.mean() if len(kept) else 0.0, len(kept), ALPHA)
+            if p > DELTA / 2:
+                break
+            valid.append(j)
+    prefer = COSTS * 2
+
+    def best(points):
+        points = [j for j in points if not np.isnan(objective[j])]
+        return max(points, key=lambda j: (objective[j], prefer[j])) if points else None
+
+    return best(valid), best(np.flatnonzero(pooled_target >= 1 - ALPHA).tolist())
+
+
+def test_the_defer_sweep_choices_equal_a_numpy_recomputation(tiny_run, tmp_path) -> None:
+    ckpt = find_checkpoint(None, runs_dir=tiny_run[2])
+    out = tmp_path / "check"
+    args = ["--ckpt_path", str(ckpt), "--defer_sweep", "0", "1", "0.5"]
+    args += ["--cost", "robotistic", "egoistic", "--method", "fixed_sequence"]
+    args += ["--target", "person:roi0:handled_recall>=0.5", "--maximize", "all:roi0:coverage"]
+    args += ["--delta", str(DELTA), "--n", "6", "--trials", "1", "--test", "4"]
+    args += ["--batch_size", "5", "--output_dir", str(out), "--device", "cpu"]
+    assert _script().main(args) == 0
+    record = json.loads((out / "guarantee_check.json").read_text())
+    assert [c["defer"] for c in record["candidates"]] == COSTS * 2
+    with np.load(out / "counts.npz") as counts:
+        target, goal = counts["target"][4:], counts["maximize"][4:]  # the calibration set
+    ltt, naive = _expected(target, goal)
+    assert record["ltt"]["chosen"] == [ltt] and record["naive"]["chosen"] == [naive]
+    assert ltt is not None  # the check certifies something
