@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import statistics
 import subprocess
 import sys
@@ -85,6 +86,18 @@ def person_street(results: dict) -> dict[str, list[float]]:
     return found
 
 
+def summary(results: dict) -> dict:
+    """What the study keeps of one evaluation's results.json."""
+    return {
+        "person_street": person_street(results),
+        "miou": results["miou"],
+        # raw, then scaled where a scaling was fitted: the last is the one decided on
+        **{k: list(results[k].values())[-1] for k in ("ece", "nll", "brier")},
+        "images": results["images"],
+        "probabilities": results["probabilities"],
+    }
+
+
 def times_per_image(members: list[str], rounds: int) -> dict[str, float]:
     """Median seconds per image of each distinct (members, protocol, passes) source."""
     device = torch.device("cpu")
@@ -117,7 +130,7 @@ def table(rows: dict[str, dict], ratios: dict[str, float]) -> str:
     for name, result in rows.items():
         base = name.replace(", temperature-scaled", "").replace("temperature-scaled", "plain")
         for k, rule in enumerate(RULES):
-            p, r, i = (100 * v for v in result["person_street"][rule])
+            p, r, i = (100 * (math.nan if v is None else v) for v in result["person_street"][rule])
             head = [name, f"{result['ece'] * 100:.2f} %", f"{result['nll']:.4f}"]
             head += [f"{result['brier']:.4f}", f"{ratios[base]:.2f}x"]
             if k:
@@ -143,14 +156,7 @@ def main() -> None:
     for name, options, _, _ in sources(members):
         folder = args.output_dir / name.replace(" ", "_").replace(",", "")
         results = evaluate(options, folder.resolve())
-        rows[name] = {
-            "person_street": person_street(results),
-            "miou": results["miou"],
-            # raw, then scaled where a scaling was fitted: the last is the one decided on
-            **{k: list(results[k].values())[-1] for k in ("ece", "nll", "brier")},
-            "images": results["images"],
-            "probabilities": results["probabilities"],
-        }
+        rows[name] = summary(results)
     torch.set_num_threads(1)
     ratios = times_per_image(members, args.rounds)
     ratios = {name: seconds / ratios["plain"] for name, seconds in ratios.items()}
