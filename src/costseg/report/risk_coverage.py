@@ -16,7 +16,6 @@ from matplotlib.figure import Figure
 
 from costseg.classes import CLASS_NAMES, ROI_NAMES
 from costseg.metrics.functional.deferral import risk_coverage_area, selective_error
-from costseg.report.drawing import Batch
 from costseg.report.files import write_csv, write_json
 from costseg.report.results import EvalResults, GroupResult
 from costseg.report.tables import PAPER_ROIS, format_value
@@ -75,8 +74,10 @@ def curve_rows(result: GroupResult, class_ids: Sequence[int]) -> list[dict]:
     return rows
 
 
-def write_risk_coverage(results: EvalResults, result: GroupResult) -> list[tuple[str, Batch]]:
-    """``defer_sweep.csv`` / ``.json``; returns the figures, undrawn."""
+def write_risk_coverage(results: EvalResults, result: GroupResult) -> list[tuple[str, Iterator]]:
+    """``defer_sweep.csv`` / ``.json``; returns the figures, undrawn, as a batch of
+    :mod:`costseg.report.drawing` (not imported here: it reaches this module through
+    :mod:`costseg.report.tensorboard`)."""
     group, out = result.group, results.output_dir
     rows = curve_rows(result, results.class_ids)
     write_csv(out / f"{group.output}.csv", rows)
