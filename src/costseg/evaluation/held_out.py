@@ -44,7 +44,7 @@ class Certificate:
     """The value system chosen with a guarantee (Learn-then-Test over a rule group).
 
     Attributes:
-        group: the candidates (grid points or α values).
+        group: the candidates (grid points, α values, or rules at defer costs).
         ltt: the test's outcome (p-values, risks, images used and left out).
         chosen: index of the certified candidate with the best ``maximize`` on the
             calibration images, or None when nothing is certified.
