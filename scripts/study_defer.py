@@ -24,6 +24,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from costseg.cli import user_errors
+
 RANGES = {
     "robotistic": ("0", "1", "0.02"),
     "altruistic": ("0", "20", "0.2"),
@@ -140,8 +142,10 @@ def main() -> None:
     parser.add_argument("--output_dir", type=Path, default=Path("study_defer"))
     args = parser.parse_args()
     if args.output_dir.exists():
-        print(f"error: {args.output_dir} exists: choose another --output_dir", file=sys.stderr)
-        sys.exit(2)
+        raise ValueError(f"{args.output_dir} exists: choose another --output_dir")
+    for path in [args.ckpt_path]:
+        if not Path(path).is_file():
+            raise ValueError(f"checkpoint not found: {path}")
     ckpt_path = str(Path(args.ckpt_path).resolve())
     curves = {rule: sweep(ckpt_path, rule, (args.output_dir / rule).resolve()) for rule in RANGES}
     text = table(curves)
@@ -154,8 +158,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    try:
+    with user_errors(subprocess.CalledProcessError):
         main()
-    except KeyboardInterrupt:
-        print("study interrupted", file=sys.stderr)
-        sys.exit(130)

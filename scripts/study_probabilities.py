@@ -32,6 +32,7 @@ from pathlib import Path
 
 import torch
 
+from costseg.cli import user_errors
 from costseg.data.from_config import build_dataset, image_stems
 from costseg.networks.ensemble import open_sources
 from costseg.networks.protocols import Protocol
@@ -149,8 +150,10 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=10, help="images timed per source")
     args = parser.parse_args()
     if args.output_dir.exists():
-        print(f"error: {args.output_dir} exists: choose another --output_dir", file=sys.stderr)
-        sys.exit(2)
+        raise ValueError(f"{args.output_dir} exists: choose another --output_dir")
+    for path in args.ckpt_path:
+        if not Path(path).is_file():
+            raise ValueError(f"checkpoint not found: {path}")
     members = [str(Path(p).resolve()) for p in args.ckpt_path]
     rows = {}
     for name, options, _, _ in sources(members):
@@ -169,8 +172,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    try:
+    with user_errors(subprocess.CalledProcessError):
         main()
-    except KeyboardInterrupt:
-        print("study interrupted", file=sys.stderr)
-        sys.exit(130)
