@@ -41,10 +41,11 @@ from costseg.calibration.guarantee import (
     precision_loss,
     recall_loss,
 )
-from costseg.classes import IGNORE_INDEX, NUM_ROIS
+from costseg.classes import IGNORE_INDEX, NUM_CLASSES, NUM_ROIS
 from costseg.decision.label_maps import DEFERRED
 from costseg.metrics.functional.inputs import check_batch
 from costseg.metrics.functional.instances import instance_misses
+from costseg.metrics.functional.roi import roi_confusion
 from costseg.metrics.functional.segment_rules import packed_masks, rule_errors
 from costseg.metrics.names import (
     DEFER_RATES,
@@ -95,7 +96,7 @@ def per_image_counts(
     """
     _check_args(preds, target, roi, cls, roi_id, metric, num_rois, ignore_index)
     if metric in (*PIXEL_RATES, *DEFER_RATES):
-        return _pixel_counts(preds, target, roi, cls, roi_id, metric, ignore_index)
+        return _pixel_counts(preds, target, roi, cls, roi_id, metric, num_rois, ignore_index)
     if metric in INSTANCE_RATES:
         if instances is None:
             raise ValueError("instance_recall needs instance ids, and these images have none")
@@ -140,28 +141,24 @@ def _pixel_counts(
     cls: int | None,
     roi_id: int,
     metric: str,
+    num_rois: int,
     ignore_index: int,
 ) -> Tensor:
     """(B, K, 2): the (numerator, denominator) pixels of ``metric`` (the module docstring) of
-    ``cls`` in RoI ``roi_id``, from each image's counted pixels."""
-    inside = target != ignore_index
-    if roi_id > 0 and roi is not None:
-        inside = inside & (roi.to(target.device) == roi_id).expand_as(target)
-    out = torch.zeros(*preds.shape[:2], 2, dtype=torch.long, device=preds.device)
+    ``cls`` in RoI ``roi_id``, from each image's confusion counts (deferred pixels in the last
+    column)."""
+    n, out = NUM_CLASSES, []
     for b in range(len(target)):
-        counted = inside[b].flatten().nonzero().squeeze(1)
-        labels = preds[b].flatten(1)[:, counted]  # (K, P')
-        truth = target[b].flatten()[counted]
+        image_roi = roi if roi is None or roi.ndim == 2 else roi[b]
+        cm = roi_confusion(
+            preds[b : b + 1], target[b : b + 1], image_roi, n, num_rois, ignore_index, DEFERRED
+        )[:, roi_id]  # (K, N, N + 1)
         if cls is None:  # all:roi:coverage, over every class
-            truth, hit = (
-                torch.ones_like(truth, dtype=torch.bool),
-                torch.zeros_like(labels, dtype=torch.bool),
-            )
+            gt, deferred = cm.sum((-2, -1)), cm[..., n].sum(-1)
+            tp = predicted = torch.zeros_like(gt)
         else:
-            truth, hit = truth == cls, labels == cls
-        tp, predicted = (hit & truth).sum(1), hit.sum(1)
-        gt = truth.sum().expand_as(tp)
-        deferred = ((labels == DEFERRED) & truth).sum(1)
+            tp, predicted = cm[:, cls, cls], cm[:, :, cls].sum(-1)
+            gt, deferred = cm[:, cls].sum(-1), cm[:, cls, n]
         parts = {
             "recall": (tp, gt),
             "precision": (tp, predicted),
@@ -169,8 +166,8 @@ def _pixel_counts(
             "selective_recall": (tp, gt - deferred),
             "handled_recall": (tp + deferred, gt),
         }[metric]
-        out[b] = torch.stack(parts, -1)
-    return out
+        out.append(torch.stack(parts, -1))
+    return torch.stack(out)
 
 
 def _segment_counts(
