@@ -22,9 +22,10 @@ lint: setup
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 
-# pytest-xdist: one test process per core (most tests run on one thread)
+# pytest-xdist: one test process per core (most tests run on one thread); an idle process takes
+# tests queued for the other (worksteal), so a few long tests near the end do not leave a core idle
 test: lint
-	$(BIN)/python -m pytest -q -n auto
+	$(BIN)/python -m pytest -q -n auto --dist worksteal
 
 bench: setup
 	$(BIN)/python scripts/bench_decision.py
