@@ -137,6 +137,11 @@ def test_evaluate_bad_ensemble_members(ckpt, tmp_path, capsys):
     _one_line(evaluate_main, [*run, str(tmp_path / "none.ckpt")], capsys, "none.ckpt", "not found")
     _one_line(evaluate_main, [*run, "--network", "vainf:none.pth"], capsys, "none.pth", "not found")
     _one_line(evaluate_main, [*run, "--network", "tf:x"], capsys, "tf:x")
+    # every member is checked before the first is loaded (which prints "checkpoint: ...")
+    with pytest.raises(SystemExit):
+        evaluate_main([*run, "--network", "hf:no_such_dir"])
+    out, err = capsys.readouterr()
+    assert "no_such_dir" in err and "checkpoint:" not in out, out
 
 
 def test_evaluate_without_any_checkpoint(tmp_path, monkeypatch, capsys):

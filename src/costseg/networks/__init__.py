@@ -19,6 +19,7 @@ float logits at the input resolution. Nothing is ever downloaded.
 from __future__ import annotations
 
 import re
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -74,6 +75,20 @@ def load_network(spec: str, device: str | torch.device = "cpu") -> ImageNetwork:
     else:
         net = load_hf(location)
     return net.to(torch.device(device)).eval()
+
+
+def check_spec(spec: str) -> None:
+    """Raise as :func:`load_network` would for a malformed spec or a missing file or folder,
+    without loading anything (so an ensemble can check every member first).
+
+    >>> check_spec("vainf:no/such.pth")
+    Traceback (most recent call last):
+    ...
+    FileNotFoundError: not found: no/such.pth (vainf:no/such.pth)
+    """
+    _, location, _ = _parse_spec(spec)
+    if not Path(location).exists():
+        raise FileNotFoundError(f"not found: {location} ({spec})")
 
 
 def _parse_spec(spec: str) -> tuple[str, str, dict[str, Any]]:

@@ -19,6 +19,8 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor, nn
 
+from costseg.checkpoints import find_checkpoint
+from costseg.networks import check_spec
 from costseg.networks.protocols import Protocol, with_protocol
 from costseg.networks.sources import Source, open_source
 from costseg.networks.uncertainty import RunAverage
@@ -120,6 +122,11 @@ def open_sources(
         FileNotFoundError: a member's file does not exist.
     """
     specs = [(None, None)] if probs is not None else member_specs(ckpt_path, network)
+    for path, spec in specs:  # every member's file, before any network is loaded
+        if spec is not None:
+            check_spec(spec)
+        elif path is not None:
+            find_checkpoint(path)
     members = [
         with_protocol(open_source(path, spec, probs, device), protocol, passes, seed)
         for path, spec in specs
