@@ -272,3 +272,33 @@ def test_mismatched_members_and_mixed_sources_are_one_line(checkpoints, tmp_path
         assert exit_info.value.code == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and message in err, err
+
+
+def test_scores_without_entropy_are_the_same_mean(one_thread):
+    """The forward of an ensemble of MC-dropout members (and of TTA with dropout) skips the
+    entropies and gives the mean bit for bit; batches() asks for the entropy only of the first
+    images."""
+    from costseg.networks.sources import batches
+
+    images, names = _images(), ["a", "b"]
+    with torch.inference_mode():
+        members = [_member(_net(seed, dropout=0.5), passes=3) for seed in (0, 1)]
+        ensemble = Ensemble(members)
+        runs = ensemble.average(images, names)
+        assert torch.equal(ensemble(images, names), runs.mean)
+        assert ensemble.average(images, names, keep_entropy=False).expected_entropy is None
+        tta = TestTimeAugmentation(_net(2, dropout=0.5), flip=True, passes=3, seed=1)
+        assert torch.equal(tta(images, names), tta.average(images, names).mean)
+
+    class Scenes(torch.utils.data.Dataset):
+        def __len__(self):
+            return 4
+
+        def __getitem__(self, i):
+            return _images(i)[0], torch.zeros(6, 7, dtype=torch.long)
+
+    source = Source("probs", {"network": "ensemble"}, network=ensemble)
+    with torch.inference_mode():
+        got = list(batches(source, Scenes(), range(4), 2, torch.device("cpu"), 0, None, 1))
+        assert torch.equal(got[1].scores, ensemble(got[1].images, got[1].stems))
+    assert [b.expected_entropy is not None for b in got] == [True, False]

@@ -85,8 +85,10 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> 
     examples: list[Example] = []
     desc = "evaluate" if opts.progress and rank() == 0 else None
     with torch.inference_mode():
+        mapped = None if opts.save_probs else opts.num_examples  # images with uncertainty maps
+        source, workers = plan.source, plan.num_workers
         for batch in batches(
-            plan.source, plan.dataset, plan.indices, plan.batch_size, device, plan.num_workers, desc
+            source, plan.dataset, plan.indices, plan.batch_size, device, workers, desc, mapped
         ):
             probs = _probabilities(plan, batch, scaling)
             uncertainty = None
@@ -171,7 +173,7 @@ def _calibration_batches(plan: EvalPlan, what: str):
     desc = f"{what} ({len(indices)} calibration images)" if plan.options.progress else None
     with torch.inference_mode():
         yield from batches(
-            plan.source, dataset, indices, plan.batch_size, plan.device, plan.num_workers, desc
+            plan.source, dataset, indices, plan.batch_size, plan.device, plan.num_workers, desc, 0
         )
 
 

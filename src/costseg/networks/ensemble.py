@@ -50,17 +50,22 @@ class Ensemble(nn.Module):
 
     def forward(self, images: Tensor, names: Sequence[str] = ()) -> Tensor:
         """(B, 3, H, W) uint8 images named ``names`` → (B, N, H, W) float32 probabilities."""
-        return self.average(images, names).mean
+        return self.average(images, names, keep_entropy=False).mean
 
-    def average(self, images: Tensor, names: Sequence[str] = ()) -> RunAverage:
-        """The members' mean probabilities and the mean entropy of their runs.
+    def average(
+        self, images: Tensor, names: Sequence[str] = (), keep_entropy: bool = True
+    ) -> RunAverage:
+        """The members' mean probabilities and (``keep_entropy``) the mean entropy of their runs.
 
         Raises:
             ValueError: members that give different numbers of classes.
         """
-        runs, first = RunAverage(), None
+        runs, first = RunAverage(keep_entropy), None
         for m, member in enumerate(self.members):
-            scores, expected = member.scores_and_entropy(images, list(names))
+            if keep_entropy:
+                scores, expected = member.scores_and_entropy(images, list(names))
+            else:
+                scores, expected = member.scores(images, list(names)), None
             probs = scores if member.kind == "probs" else scores.softmax(1)
             first = probs.shape[1] if first is None else first
             if probs.shape[1] != first:

@@ -76,7 +76,7 @@ def mc_dropout_probs(
     Returns:
         (B, N, H, W) float32 probabilities.
     """
-    return mc_dropout_runs([network], images, passes, seed, [key]).mean
+    return mc_dropout_runs([network], images, passes, seed, [key], keep_entropy=False).mean
 
 
 def mc_dropout_runs(
@@ -85,6 +85,7 @@ def mc_dropout_runs(
     passes: int,
     seed: int,
     keys: Sequence[str],
+    keep_entropy: bool = True,
 ) -> RunAverage:
     """``passes`` runs of several networks (test-time augmentation's views) with dropout active:
     run t is the mean softmax of every network's pass t (``docs/definitions.md §13``).
@@ -100,7 +101,7 @@ def mc_dropout_runs(
     modules = [m for n in networks if isinstance(n, nn.Module) for m in n.modules()]
     modes = [(m, m.training) for m in modules]
     devices = [images.device.index or 0] if images.device.type == "cuda" else []
-    runs = RunAverage()
+    runs = RunAverage(keep_entropy)
     try:
         for m, _ in modes:  # not m.train(): that would also set the children
             m.training = isinstance(m, DROPOUT_TYPES)
@@ -158,12 +159,14 @@ class MCDropout(nn.Module):
 
     def forward(self, images: Tensor, names: Sequence[str] = ()) -> Tensor:
         """(B, 3, H, W) images (named ``names``, which key the seed) → (B, N, H, W) probs."""
-        return self.average(images, names).mean
+        return self.average(images, names, keep_entropy=False).mean
 
-    def average(self, images: Tensor, names: Sequence[str] = ()) -> RunAverage:
+    def average(
+        self, images: Tensor, names: Sequence[str] = (), keep_entropy: bool = True
+    ) -> RunAverage:
         """The passes' mean probabilities and mean entropy (the passes are the runs)."""
         key = "\n".join(names)
-        return mc_dropout_runs([self.network], images, self.passes, self.seed, [key])
+        return mc_dropout_runs([self.network], images, self.passes, self.seed, [key], keep_entropy)
 
     def describe(self) -> str:
         """What the probabilities are, for every output."""

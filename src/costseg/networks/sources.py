@@ -179,8 +179,11 @@ def batches(
     device: torch.device,
     num_workers: int = 0,
     desc: str | None = None,
+    entropy_images: int | None = None,
 ) -> Iterator[Batch]:
-    """Score the chosen images of ``dataset``, batch by batch (a progress bar when ``desc``).
+    """Score the chosen images of ``dataset``, batch by batch (a progress bar when ``desc``),
+    with the expected entropy of a source of several runs for the batches that begin within the
+    first ``entropy_images`` images (None: every batch; the entropy costs a pass per run).
 
     Images of different sizes (Mapillary, a user's own data) come in separate batches. Datasets
     with ``has_instances`` give each batch its instance ids (``docs/definitions.md §9``).
@@ -191,12 +194,17 @@ def batches(
         num_workers=num_workers,
         collate_fn=_collate_by_size,
     )
+    seen = 0
     for group in progress(loader, desc):
         for images, labels, chosen, ids in group:
             images, labels = images.to(device), labels.to(device)
             stems = image_stems(dataset, chosen)
             ids = None if ids is None else ids.to(device)
-            scores, expected_entropy = source.scores_and_entropy(images, stems)
+            if entropy_images is None or seen < entropy_images:
+                scores, expected_entropy = source.scores_and_entropy(images, stems)
+            else:
+                scores, expected_entropy = source.scores(images, stems), None
+            seen += len(images)
             yield Batch(images, labels, stems, scores, ids, expected_entropy)
 
 

@@ -118,18 +118,20 @@ class TestTimeAugmentation(nn.Module):
                 probs = view(images).softmax(1)
                 total = probs if total is None else total + probs
             return total / len(self.views)
-        return self.average(images, names).mean
+        return self.average(images, names, keep_entropy=False).mean
 
-    def average(self, images: Tensor, names: Sequence[str] = ()) -> RunAverage:
+    def average(
+        self, images: Tensor, names: Sequence[str] = (), keep_entropy: bool = True
+    ) -> RunAverage:
         """The mean probabilities and, with Monte-Carlo dropout, the passes' mean entropy: pass
         t's map is the mean over the views of each view's pass t (the views are one run)."""
-        runs = RunAverage()
         if self.mc_dropout is None:
+            runs = RunAverage(keep_entropy=False)  # one run: no expected entropy
             runs.add(self(images))
             return runs
         keys = ["\n".join(f"{n} {v.tag}" if v.tag else n for n in names) for v in self.views]
         passes, seed = self.mc_dropout[0].passes, self.mc_dropout[0].seed
-        return mc_dropout_runs(list(self.views), images, passes, seed, keys)
+        return mc_dropout_runs(list(self.views), images, passes, seed, keys, keep_entropy)
 
     def describe(self) -> str:
         """What the probabilities are, for every output."""

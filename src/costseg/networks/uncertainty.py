@@ -40,10 +40,13 @@ class RunAverage:
     """The mean of runs' (B, N, H, W) probability maps and of their entropies, one run at a time.
 
     The maps are summed in the order they come and divided once by their number (as
-    Monte-Carlo dropout always averaged), so one run's mean is that run, bit for bit.
+    Monte-Carlo dropout always averaged), so one run's mean is that run, bit for bit. With
+    ``keep_entropy`` False no entropy is computed (the mean alone, for scores that need no
+    uncertainty map) and :attr:`expected_entropy` is None.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, keep_entropy: bool = True) -> None:
+        self.keep_entropy = keep_entropy
         self.total: Tensor | None = None
         self.entropy_total: Tensor | None = None
         self.count = 0
@@ -52,12 +55,15 @@ class RunAverage:
     def add(self, probs: Tensor, expected_entropy: Tensor | None = None) -> None:
         """Add one map; with ``expected_entropy`` the map is itself a mean over runs whose mean
         entropy this is (its runs are pooled with the others, each map weighing the same)."""
-        h = entropy(probs) if expected_entropy is None else expected_entropy.clone()
+        h = None
+        if self.keep_entropy:
+            h = entropy(probs) if expected_entropy is None else expected_entropy.clone()
         if self.total is None:
             self.total, self.entropy_total = probs.clone(), h
         else:
             self.total += probs
-            self.entropy_total += h
+            if h is not None:
+                self.entropy_total += h
         self.several |= self.count > 0 or expected_entropy is not None
         self.count += 1
 
