@@ -35,7 +35,7 @@ from matplotlib.figure import Figure
 from torch.utils.data import DataLoader, Subset
 from tqdm import tqdm
 
-from costseg.calibration.guarantee import fixed_sequences, learn_then_test
+from costseg.calibration.guarantee import learn_then_test_paths, tests_sharing_delta
 from costseg.checkpoints import find_checkpoint
 from costseg.data.prior_maps import PriorMaps
 from costseg.data.toy import StreetScenes
@@ -193,10 +193,9 @@ def choose(
 ) -> dict[str, Any]:
     """LTT's and the naive rule's choice on one calibration set's (n, K, 2) counts."""
     losses = per_image_loss(target, args.target_spec.metric).numpy()
-    if args.method == "fixed_sequence" and group.paths:  # as evaluate.py --guarantee
-        ltt = fixed_sequences(losses, args.alpha, args.delta, group.paths, args.bound)
-    else:
-        ltt = learn_then_test(losses, args.alpha, args.delta, args.method, bound=args.bound)
+    ltt = learn_then_test_paths(  # as evaluate.py --guarantee
+        losses, args.alpha, args.delta, args.method, group.paths, args.bound
+    )
     objective = pooled(goal)
     chosen = ltt.best(np.nan_to_num(objective, nan=-np.inf), prefer=group.prefer)
     allowed = meets(torch.from_numpy(pooled(target)), args.target_spec)
@@ -252,7 +251,7 @@ def rule_summary(
 def minimum_n(args: argparse.Namespace, candidates: int, paths: int = 0) -> int:
     """Fewest calibration images with which a zero empirical risk is certified (fixed-sequence
     testing along ``paths`` paths: δ / paths for each)."""
-    level = args.delta / (candidates if args.method == "bonferroni" else max(1, paths))
+    level = args.delta / tests_sharing_delta(args.method, candidates, paths)
     if args.bound == "hoeffding":  # p = exp(−2 n α²)
         return math.ceil(-math.log(level) / (2 * args.alpha**2))
     return math.ceil(math.log(level) / math.log1p(-args.alpha))  # p = (1 − α)ⁿ

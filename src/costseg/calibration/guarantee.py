@@ -220,6 +220,37 @@ def fixed_sequences(
     return replace(tests[0], valid=valid, delta=delta)
 
 
+def learn_then_test_paths(
+    losses: ArrayLike | Tensor,
+    alpha: float,
+    delta: float,
+    method: Method,
+    paths: Sequence[Sequence[int]] = (),
+    bound: Bound = "hoeffding_bentkus",
+) -> LTTResult:
+    """:func:`learn_then_test` over every candidate, fixed-sequence along each of ``paths``
+    (:func:`fixed_sequences`) where the candidates come in paths, else in index order.
+
+    >>> losses = np.zeros((100, 4))
+    >>> losses[:40, 1] = 1
+    >>> learn_then_test_paths(losses, 0.2, 0.1, "fixed_sequence", [[0, 1], [2, 3]]).valid.tolist()
+    [0, 2, 3]
+    """
+    if method == "fixed_sequence" and paths:
+        return fixed_sequences(losses, alpha, delta, paths, bound)
+    return learn_then_test(losses, alpha, delta, method, bound=bound)
+
+
+def tests_sharing_delta(method: Method, candidates: int, paths: int = 0) -> int:
+    """How many tests share δ: every candidate (Bonferroni), or each fixed-sequence path (one
+    when the candidates are one path).
+
+    >>> tests_sharing_delta("bonferroni", 63, 3), tests_sharing_delta("fixed_sequence", 63, 3)
+    (63, 3)
+    """
+    return candidates if method == "bonferroni" else max(1, paths)
+
+
 def _check_losses(losses: ArrayLike | Tensor, delta: float, method: str, bound: str) -> NDArray:
     """(n_images, L) float64 losses, after checking them and the settings."""
     values = np.asarray(losses.detach().cpu() if isinstance(losses, Tensor) else losses, float)

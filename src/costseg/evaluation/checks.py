@@ -12,6 +12,7 @@ from pathlib import Path
 
 import torch
 
+from costseg.calibration.guarantee import tests_sharing_delta
 from costseg.classes import CLASS_NAMES, INSTANCE_CLASSES, class_indices
 from costseg.evaluation.held_out import minimum_images
 from costseg.metrics.selection import parse_metric, parse_target, risk_level
@@ -104,7 +105,7 @@ def check_calibration_size(opts: EvalOptions, n_images: int, candidates: RuleGro
     if opts.guarantee is None:
         return
     alpha, family = risk_level(parse_target(opts.target)), len(candidates.names)
-    tests = family if opts.guarantee_method == "bonferroni" else max(1, len(candidates.paths))
+    tests = tests_sharing_delta(opts.guarantee_method, family, len(candidates.paths))
     needed = minimum_images(alpha, opts.guarantee, tests)
     if n_images < needed:
         raise ValueError(

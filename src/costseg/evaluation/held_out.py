@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import torch
 
-from costseg.calibration.guarantee import LTTResult, fixed_sequences, learn_then_test
+from costseg.calibration.guarantee import LTTResult, learn_then_test_paths
 from costseg.calibration.sample import PixelSampler
 from costseg.calibration.scaling import Scaling
 from costseg.classes import CLASS_NAMES, NUM_ROIS
@@ -119,10 +119,7 @@ def certify(
         )
         n += len(batch.labels)
     losses = per_image_loss(torch.cat(counts), t.metric).numpy()
-    if method == "fixed_sequence" and group.paths:
-        ltt = fixed_sequences(losses, alpha, delta, group.paths)
-    else:
-        ltt = learn_then_test(losses, alpha, delta, method)
+    ltt = learn_then_test_paths(losses, alpha, delta, method, group.paths)
     pooled = metrics.compute()
     objective = metric_values(
         pooled["pixels"], pooled["segments"], goal, segments, pooled["instances"]

@@ -93,7 +93,7 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> 
             probs = _probabilities(plan, batch, scaling)
             uncertainty = None
             if opts.save_probs or len(examples) < opts.num_examples:
-                uncertainty = _uncertainty(plan, batch)
+                uncertainty = _uncertainty(plan, batch, probs, scaling)
             if opts.save_probs:  # evaluate exactly what is saved, so --probs reproduces it
                 probs = probs.half().float()
                 writer.save_probs(batch.stems, probs, uncertainty)
@@ -207,9 +207,13 @@ def _describe_probabilities(plan: EvalPlan, scaling: Scaling) -> str:
     return text + ("; rounded to float16 as saved" if plan.options.save_probs else "")
 
 
-def _uncertainty(plan: EvalPlan, batch: Batch) -> dict[str, torch.Tensor]:
-    """The uncertainty maps (B, H, W) of the source's probabilities (before any scaling)."""
-    probs = batch.scores if plan.source.kind == "probs" else batch.scores.softmax(1)
+def _uncertainty(
+    plan: EvalPlan, batch: Batch, probs: torch.Tensor, scaling: Scaling
+) -> dict[str, torch.Tensor]:
+    """The uncertainty maps (B, H, W) of the source's probabilities before any scaling (``probs``
+    themselves when there is none)."""
+    if scaling.kind != "none":
+        probs = _probabilities(plan, batch, Scaling())
     return output_maps(probs, batch.expected_entropy)
 
 

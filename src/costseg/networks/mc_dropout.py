@@ -159,7 +159,7 @@ class MCDropout(nn.Module):
 
     def forward(self, images: Tensor, names: Sequence[str] = ()) -> Tensor:
         """(B, 3, H, W) images (named ``names``, which key the seed) → (B, N, H, W) probs."""
-        return self.average(images, names, keep_entropy=False).mean
+        return mc_dropout_probs(self.network, images, self.passes, self.seed, "\n".join(names))
 
     def average(
         self, images: Tensor, names: Sequence[str] = (), keep_entropy: bool = True
