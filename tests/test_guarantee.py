@@ -11,11 +11,13 @@ import torch
 from scipy.stats import binom
 
 from costseg.calibration.guarantee import (
-    fn_segment_rate,
-    fp_segment_rate,
     hoeffding_bentkus_pvalue,
     hoeffding_pvalue,
     learn_then_test,
+)
+from costseg.calibration.losses import (
+    fn_segment_rate,
+    fp_segment_rate,
     precision_loss,
     recall_loss,
 )

@@ -35,7 +35,7 @@ import torch
 from numpy.typing import ArrayLike
 from torch import Tensor
 
-from costseg.calibration.guarantee import (
+from costseg.calibration.losses import (
     fn_segment_rate,
     fp_segment_rate,
     precision_loss,
