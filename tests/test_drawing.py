@@ -1,25 +1,34 @@
-"""Figures drawn on forked processes equal those drawn in one process, and failures surface."""
+"""Figures drawn by the forkserver's workers equal those drawn in one process; failures, dead
+and stalled workers end in one error; drawing cannot hang behind this process's threads."""
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
+import threading
 import time
 
 import numpy as np
 import pytest
+import torch
 from matplotlib.figure import Figure
 
-from costseg.report.drawing import Drawing
+from costseg import processes
+from costseg.processes import Stalled
+from costseg.report.drawing import Drawing, job
 
 
-def draw(batches, folder, processes):
-    """Each batch's drawn tags and shapes, on ``processes`` processes."""
-    drawn = Drawing([("prefix", batch) for batch in batches], folder, processes - 1).finish()
-    return [figures for _, figures in drawn]
+def draw(jobs, folder, workers):
+    """Each job's drawn tags and shapes, on ``workers`` processes."""
+    drawing = Drawing(folder, workers)
+    for drawn_job in jobs:
+        drawing.submit("prefix", drawn_job)
+    return [figures for _, figures in drawing.finish()]
 
 
-def _redrawn(tags: list[str], seed: int):
-    """A batch like the report's: one figure redrawn with new data for each tag."""
+def redrawn(tags: list[str], seed: int):
+    """A job like the report's: one figure redrawn with new data for each tag."""
     fig = Figure(figsize=(2, 1.5))
     ax = fig.subplots()
     line = ax.plot([0, 1], [0, 1])[0]
@@ -29,51 +38,71 @@ def _redrawn(tags: list[str], seed: int):
         yield tag, fig
 
 
-def _batches():
-    return [_redrawn([f"b{b}_{i}" for i in range(b + 1)], 10 * b) for b in range(5)]
+def _jobs():
+    return [job(redrawn, [f"b{b}_{i}" for i in range(b + 1)], 10 * b) for b in range(5)]
 
 
-def test_forked_drawing_equals_one_process(tmp_path):
-    one = draw(_batches(), tmp_path / "one", processes=1)
-    two = draw(_batches(), tmp_path / "two", processes=2)
+def test_two_workers_draw_what_one_draws(tmp_path):
+    one = draw(_jobs(), tmp_path / "one", workers=1)
+    two = draw(_jobs(), tmp_path / "two", workers=2)
     assert one == two
-    assert [tag for batch in two for tag, _ in batch] == [
+    assert [tag for figures in two for tag, _ in figures] == [
         f"b{b}_{i}" for b in range(5) for i in range(b + 1)
     ]
-    assert all(shape == (150, 200, 3) for batch in two for _, shape in batch)
+    assert all(shape == (150, 200, 3) for figures in two for _, shape in figures)
     names = sorted(p.name for p in (tmp_path / "one").iterdir())
     assert names == sorted(p.name for p in (tmp_path / "two").iterdir())
     for name in names:
         assert (tmp_path / "one" / name).read_bytes() == (tmp_path / "two" / name).read_bytes()
 
 
-def _failing(message: str):
-    yield from _redrawn(["fine"], 0)
+def failing(message: str):
+    yield from redrawn(["fine"], 0)
     raise ValueError(message)
 
 
-def test_an_error_in_any_process_is_raised(tmp_path):
-    # Two failing batches: whichever the worker takes, its error reaches the caller; the one
-    # the calling process takes raises as it is.
-    with pytest.raises((RuntimeError, ValueError), match="boom"):
-        draw([_failing("boom"), _failing("boom")], tmp_path, processes=2)
+def test_an_error_in_a_worker_is_raised_with_its_traceback(tmp_path):
+    with pytest.raises(RuntimeError, match=r"(?s)failed in a worker.*ValueError: boom"):
+        draw([job(failing, "boom")], tmp_path, workers=2)
 
 
-def _dies_in_a_worker(parent: int):
-    if os.getpid() != parent:
-        os._exit(3)  # a worker killed, e.g. by the OOM killer
-    time.sleep(1)  # the worker claims the other batch meanwhile
-    yield from _redrawn(["parent"], 0)
+def dies(code: int):
+    os._exit(code)  # a worker killed, e.g. by the OOM killer
+    yield
 
 
-def test_a_dead_worker_is_an_error_not_a_hang(tmp_path):
-    parent = os.getpid()
-    with pytest.raises(RuntimeError, match=r"exit codes \[3\]"):
-        draw([_dies_in_a_worker(parent), _dies_in_a_worker(parent)], tmp_path, processes=2)
+def test_a_dead_worker_is_one_error_not_a_hang(tmp_path):
+    with pytest.raises(Stalled, match=r"ended with exit code 3 in prefix"):
+        draw([job(dies, 3), job(redrawn, ["b"], 0)], tmp_path, workers=1)
 
 
-def test_a_started_drawing_draws_while_the_caller_goes_on(tmp_path):
-    drawing = Drawing([("p", _redrawn(["early"], 0))], tmp_path, workers=1)
+def stalls(seconds: float):
+    yield from redrawn(["before"], 0)
+    time.sleep(seconds)  # alive and stuck, like a worker waiting on a lock nobody holds
+    yield from redrawn(["after"], 0)
+
+
+def test_a_stalled_worker_ends_the_wait_naming_where_it_stopped(tmp_path, monkeypatch):
+    monkeypatch.setattr(processes, "STALL_SECONDS", 2.0)
+    start = time.monotonic()
+    with pytest.raises(Stalled, match=r"drew nothing for \d+ s \(pid \d+ after prefix/before\)"):
+        draw([job(stalls, 600)], tmp_path, workers=1)
+    assert time.monotonic() - start < 30
+
+
+def test_a_job_that_carries_a_tensor_is_refused(tmp_path):
+    import functools
+
+    drawing = Drawing(tmp_path, workers=1)
+    with pytest.raises(TypeError, match="carries a Tensor"):
+        drawing.submit("prefix", functools.partial(redrawn, ["a"], torch.zeros(1)))
+    drawing.cancel()
+    assert job(redrawn, [torch.zeros(2, dtype=torch.float16)], 0).args[0][0].dtype == np.float16
+
+
+def test_a_drawing_draws_while_the_caller_goes_on(tmp_path):
+    drawing = Drawing(tmp_path, workers=1)
+    drawing.submit("p", job(redrawn, ["early"], 0))
     deadline = time.monotonic() + 60
     while not (tmp_path / "early.png").exists():  # drawn by the worker, before finish()
         assert time.monotonic() < deadline, "the worker drew nothing"
@@ -81,16 +110,72 @@ def test_a_started_drawing_draws_while_the_caller_goes_on(tmp_path):
     assert drawing.finish() == [("p", [("early", (150, 200, 3))])]
 
 
-def test_redrawing_only_the_changing_artists_paints_the_same_pixels():
-    from costseg.costs import barycentric_grid
-    from costseg.report.files import redraw_only, render
-    from costseg.report.ternary import ternary_figures
+@contextlib.contextmanager
+def deadline(seconds: float, what: str):
+    """Raise TimeoutError in the main thread after ``seconds`` (a hang becomes a failure)."""
 
-    weights = barycentric_grid(0.1)
-    rng = np.random.default_rng(0)
-    panels = [(f"t{i}", rng.random(len(weights)), f"panel {i}", f"m{i % 2}") for i in range(3)]
-    repainted = [render(fig) for _, fig in ternary_figures(weights, panels)]
-    full = [render(redraw_only(fig, [])) for _, fig in ternary_figures(weights, panels)]
-    assert len({image.tobytes() for image in full}) == 3  # the panels differ
-    for a, b in zip(repainted, full, strict=True):
-        np.testing.assert_array_equal(a, b)
+    def expire(*_):
+        raise TimeoutError(f"{what} hung for {seconds} s")
+
+    previous = signal.signal(signal.SIGALRM, expire)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def busy_threads(stop: threading.Event) -> list[threading.Thread]:
+    """Threads like an evaluation's: torch's intra-op pool kept busy above its grain size (a
+    256 × 512 map) and costseg's thread pool, while the figures are started."""
+    from costseg.threads import threads
+
+    def torch_ops():
+        x = torch.rand(4, 256, 512)
+        while not stop.wait(0.005):
+            x.half().float().mul_(1.0001)
+
+    def pool_jobs():
+        values = np.random.default_rng(0).random(1 << 14)
+        while not stop.wait(0.005):
+            threads().submit(np.sort, values).result()
+
+    started = [threading.Thread(target=f, daemon=True) for f in (torch_ops, pool_jobs)]
+    for thread in started:
+        thread.start()
+    return started
+
+
+def test_the_example_figures_never_hang_behind_busy_threads(tmp_path, monkeypatch):
+    """20 times, each under a deadline: the evaluation's mask figures at 256 × 512 (float16
+    uncertainty maps above torch's grain size) started while torch's pool and other threads run."""
+    from costseg.report.early_figures import EarlyFigures
+    from costseg.report.results import Example
+    from costseg.rules.named import parse_rules, rules_group
+
+    monkeypatch.setattr(processes, "STALL_SECONDS", 10.0)
+    rng = torch.Generator().manual_seed(0)
+    h, w = 256, 512
+    example = Example(
+        image=torch.randint(0, 256, (3, h, w), dtype=torch.uint8, generator=rng),
+        label=torch.randint(0, 19, (h, w), generator=rng),
+        preds=torch.randint(0, 19, (1, h, w), generator=rng),
+        uncertainty={"entropy": torch.rand(h, w, generator=rng).half()},
+    )
+    group = rules_group(parse_rules(["robotistic"]))
+    stop = threading.Event()
+    running = busy_threads(stop)
+    try:
+        for attempt in range(20):
+            out = tmp_path / str(attempt)
+            with deadline(20, f"attempt {attempt + 1} of 20"):
+                early = EarlyFigures(out, group, None, num_examples=1)
+                early.after_batch([example])
+                drawn = early.drawing.finish()
+            assert [tag for _, figures in drawn for tag, _ in figures][-1] == "masks_0"
+            assert (out / "figures" / "masks_0.png").stat().st_size > 0
+    finally:
+        stop.set()
+        for thread in running:
+            thread.join()

@@ -24,6 +24,7 @@ from typing import Any, NoReturn
 
 from costseg import CONFIGS
 from costseg.options import EvalOptions, PredictOptions
+from costseg.processes import Stalled
 
 
 def fail(message: str, join: bool = False) -> NoReturn:
@@ -45,7 +46,8 @@ def interrupted(message: str = "") -> NoReturn:
 
 @contextlib.contextmanager
 def user_errors(*extra: type[BaseException]) -> Iterator[None]:
-    """Turn a user mistake (ValueError, OSError and ``extra``) into one line and exit status 2,
+    """Turn a user mistake (ValueError, OSError and ``extra``) or a stalled worker
+    (:class:`costseg.processes.Stalled`) into one line and exit status 2,
     and Ctrl-C into one line (the interrupt's message: where partial outputs are) and 130.
 
     An OSError in another thread (a full disk under TensorBoard's writer thread) prints no
@@ -70,7 +72,7 @@ def user_errors(*extra: type[BaseException]) -> Iterator[None]:
         if os.environ.get("COSTSEG_DEBUG"):
             raise
         interrupted(str(err))
-    except (ValueError, OSError, *extra) as err:
+    except (ValueError, OSError, Stalled, *extra) as err:
         if os.environ.get("COSTSEG_DEBUG"):
             raise
         fail(str(err) or err.__class__.__name__, isinstance(err, argparse.ArgumentError))

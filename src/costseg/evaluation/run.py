@@ -15,6 +15,7 @@ from dataclasses import asdict
 
 import torch
 
+from costseg import processes
 from costseg.calibration.scaling import Scaling
 from costseg.classes import CLASS_NAMES, NUM_ROIS
 from costseg.evaluation.held_out import as_logits, certify, fit_scaling
@@ -135,9 +136,11 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> 
 def evaluate(opts: EvalOptions) -> EvalResults:
     """Plan, run, and (on rank 0) write every output; returns the results.
 
-    Figures known before the loop ends are drawn on forked processes meanwhile. The output
+    Figures known before the loop ends are drawn meanwhile, by workers of the forkserver
+    (:mod:`costseg.processes`), which starts first, while the network loads. The output
     folder is marked ``INCOMPLETE`` until every file is written; an interrupt or a failed write
     says where the partial outputs are."""
+    processes.start()
     planned, early = plan(opts), None
     out = planned.output_dir
     try:
@@ -151,12 +154,14 @@ def evaluate(opts: EvalOptions) -> EvalResults:
             from costseg.report.evaluation import write_evaluation
 
             write_evaluation(results, early)
-    except (KeyboardInterrupt, OSError) as err:
+    except (KeyboardInterrupt, OSError, processes.Stalled) as err:
         if early:
             early.cancel()
         partial = f"the partial outputs in {out} are marked {INCOMPLETE}"
         if isinstance(err, KeyboardInterrupt):
             raise KeyboardInterrupt(partial) from None
+        if isinstance(err, processes.Stalled):
+            raise processes.Stalled(f"{err}; {partial}") from err
         # a full disk under TensorBoard's writer thread names no file: the folder it writes in
         raise OSError(f"{err.strerror or err}: {err.filename or out}; {partial}") from err
     except BaseException:

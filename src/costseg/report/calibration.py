@@ -9,17 +9,15 @@ before / after), ``figures/reliability.png``,
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 
-import numpy as np
 import torch
-from matplotlib.figure import Figure
 
 from costseg.classes import CLASS_NAMES, ROI_NAMES
 from costseg.costs import save_cost
 from costseg.metrics.names import PIXEL_RATES
-from costseg.report.curves import plot_curves
-from costseg.report.drawing import Batch
+from costseg.report.curves import Curves, calibration_figures
+from costseg.report.drawing import Job, job
 from costseg.report.files import write_csv, write_json
 from costseg.report.results import EvalResults
 from costseg.report.sweep import SWEEP_ROIS
@@ -58,9 +56,9 @@ def calibration_line(rows: list[dict]) -> str:
     )
 
 
-def write_calibration(results: EvalResults) -> list[tuple[str, Batch]]:
+def write_calibration(results: EvalResults) -> list[tuple[str, Job]]:
     """Calibration figures, reliability diagrams, temperature sweep and guarantee, as far as
-    evaluated; returns the figures, undrawn, as ``(TensorBoard prefix, batch)``
+    evaluated; returns the figures, undrawn, as ``(TensorBoard prefix, job)``
     (:mod:`costseg.report.drawing`)."""
     out, extra = results.output_dir, results.extra
     ece = extra.get("ece", {})
@@ -72,48 +70,21 @@ def write_calibration(results: EvalResults) -> list[tuple[str, Batch]]:
         print(calibration_line(rows))
     if "certificate" in extra:
         _write_certificate(results)
-    return [("calibration", _figures(results, ece))]
+    return [("calibration", job(calibration_figures, ece, _temperature_sweep(results)))]
 
 
-def _figures(results: EvalResults, ece: Mapping) -> Iterator[tuple[str, Figure]]:
-    if ece:
-        yield "reliability", plot_reliability(ece)
-    yield from _temperature_sweep(results).items()
-
-
-def plot_reliability(bins: Mapping[str, Mapping[str, torch.Tensor]]) -> Figure:
-    """Accuracy against confidence per bin, one line per set of probabilities (raw, scaled).
-
-    >>> from costseg.metrics import CalibrationError
-    >>> m = CalibrationError(3, n_bins=4)
-    >>> m.update(torch.tensor([[0.7, 0.2, 0.1]]).view(1, 3, 1, 1), torch.tensor([[[0]]]))
-    >>> plot_reliability({"raw": m.compute()}).axes[0].get_xlabel()
-    'confidence'
-    """
-    fig = Figure(figsize=(5, 5), layout="constrained")
-    ax = fig.add_subplot()
-    ax.plot([0, 1], [0, 1], color="grey", linestyle="--", label="perfect calibration")
-    for name, b in bins.items():
-        conf, acc = b["confidence"].cpu().numpy(), b["accuracy"].cpu().numpy()
-        keep = np.isfinite(conf) & np.isfinite(acc)
-        ax.plot(conf[keep], acc[keep], marker="o", label=f"{name} (ECE {float(b['ece']):.4f})")
-    ax.set(xlabel="confidence", ylabel="accuracy", xlim=(0, 1), ylim=(0, 1))
-    ax.set_title("reliability (top label)")
-    ax.legend()
-    return fig
-
-
-def _temperature_sweep(results: EvalResults) -> dict[str, Figure]:
+def _temperature_sweep(results: EvalResults) -> list[Curves]:
+    """``temperature_sweep.csv|json``; returns the curves of its figures."""
     groups = sorted(
         (g for g in results.groups if g.group.temperature), key=lambda g: g.group.temperature
     )
     if not groups:
-        return {}
+        return []
     rows = [row for g in groups for row in g.rows(results.class_ids, SWEEP_ROIS)]
     write_csv(results.output_dir / "temperature_sweep.csv", rows)
     write_json(results.output_dir / "temperature_sweep.json", {"rows": rows})
     temps = [g.group.temperature for g in groups]
-    figures = {}
+    curves = []
     for cls in results.class_ids:
         name = CLASS_NAMES[cls]
         series = {
@@ -121,10 +92,11 @@ def _temperature_sweep(results: EvalResults) -> dict[str, Figure]:
             for k, rule in enumerate(c["matrix"] for c in groups[0].group.columns)
             for metric in PIXEL_RATES
         }
-        figures[f"temperature_{name}"] = plot_curves(
-            temps, series, "temperature T of softmax(z / T)", f"{name} in RoI 1 ({ROI_NAMES[1]})"
+        title = f"{name} in RoI 1 ({ROI_NAMES[1]})"
+        curves.append(
+            (f"temperature_{name}", temps, series, "temperature T of softmax(z / T)", title)
         )
-    return figures
+    return curves
 
 
 def _write_certificate(results: EvalResults) -> None:

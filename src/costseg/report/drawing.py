@@ -1,166 +1,201 @@
-"""Figures drawn side by side on forked processes, one batch at a time.
+"""Figures drawn side by side in worker processes that cannot inherit a held lock.
 
-Matplotlib holds the GIL while it draws, so threads would take turns; forked processes inherit
-the figures' data without pickling it. A batch is an iterable of ``(tag, figure)``, typically a
-generator that redraws one figure (e.g. :func:`costseg.report.ternary.ternary_figures`), so
-each batch is drawn by one process. Every process takes the next batch until none is left,
-writes ``folder/<tag>.png`` and reports the tags and image shapes; the calling process draws
-too, then logs every image to TensorBoard in the batches' order. Importing this module imports
-neither matplotlib nor TensorBoard, so that drawing can start before this process needs them.
+Matplotlib holds the GIL while it draws, so threads would take turns. The workers come from the
+forkserver (:mod:`costseg.processes`), never from a fork of this process, whose torch thread
+pool and threads may hold locks. A job is a picklable callable that returns ``(tag, figure)``
+pairs, typically ``functools.partial`` of a generator that redraws one figure (e.g.
+:func:`costseg.report.ternary.ternary_figures`) over plain data: NumPy arrays and Python values.
+:func:`job` turns the tensors among its arguments into NumPy arrays in this process, so that no
+worker runs a torch operation; :meth:`Drawing.submit` refuses a tensor that slipped through.
+
+Each worker takes the next job, writes ``folder/<tag>.png`` for every figure and reports each
+one, while the calling process goes on; :meth:`Drawing.finish` returns every job's figures in
+the jobs' order. A worker that ends with figures undrawn, or that reports nothing for
+:data:`costseg.processes.STALL_SECONDS`, ends the wait with :class:`costseg.processes.Stalled`.
+Importing this module imports neither matplotlib nor torch.
 """
 
 from __future__ import annotations
 
+import functools
+import io
 import multiprocessing
 import os
+import pickle
 import queue
 import signal
+import time
 import traceback
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING
+
+from costseg import processes
+from costseg.processes import Stalled
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
-    from torch.utils.tensorboard import SummaryWriter
 
 
-Batch = Iterable[tuple[str, "Figure"]]
-Drawn = list[tuple[str, tuple[int, ...]]]  # (tag, (H, W, 3)) of each figure of a batch
+Job = Callable[[], Iterable[tuple[str, "Figure"]]]
+Drawn = list[tuple[str, tuple[int, ...]]]  # (tag, (H, W, 3)) of each figure of a job
 
 
-class Started(Protocol):
-    """Drawing started earlier (a :class:`Drawing`, ``report.early_figures.EarlyFigures``)."""
+def job(function: Callable[..., Iterable[tuple[str, Figure]]], *args, **kwargs) -> Job:
+    """``function(*args, **kwargs)`` as a job, with every tensor in the arguments (also inside
+    lists, tuples and dicts) turned into a NumPy array here (float16 stays float16).
 
-    def finish(self) -> list[tuple[str, Drawn]]: ...
-
-
-def save_and_log_all(
-    writer: SummaryWriter,
-    batches: Sequence[tuple[str, Batch]],
-    folder: Path,
-    started: Started | None = None,
-) -> None:
-    """Draw each ``(prefix, batch)`` to ``folder/<tag>.png`` and to TensorBoard as
-    ``prefix/<tag>``, on as many processes as there are usable cores; ``started``: batches
-    already being drawn, e.g. while the images were evaluated, logged first.
-
-    >>> import tempfile
-    >>> from matplotlib.figure import Figure
-    >>> from torch.utils.tensorboard import SummaryWriter
-    >>> with tempfile.TemporaryDirectory() as d, SummaryWriter(d) as w:
-    ...     batches = [("eval", {"empty": Figure(figsize=(1, 1))}.items())]
-    ...     save_and_log_all(w, batches, Path(d) / "figures")
-    ...     sorted(p.name for p in (Path(d) / "figures").iterdir())
-    ['empty.png']
+    >>> import torch
+    >>> job(dict, a=[torch.ones(2)]).keywords["a"][0].dtype
+    dtype('float32')
     """
-    from costseg.report.tensorboard import log_png
+    return functools.partial(function, *_numpy(args), **_numpy(kwargs))
 
-    workers = min(len(os.sched_getaffinity(0)), len(batches)) - 1
-    drawn = Drawing(batches, folder, workers).finish()
-    for prefix, figures in (started.finish() if started else []) + drawn:
-        for tag, shape in figures:
-            log_png(writer, f"{prefix}/{tag}", _path(folder, tag).read_bytes(), shape)
+
+def _numpy(value):
+    if type(value).__module__.startswith("torch"):
+        return value.detach().cpu().numpy()
+    if isinstance(value, dict):
+        return {k: _numpy(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return type(value)(_numpy(v) for v in value)
+    return value
 
 
 class Drawing:
-    """``(prefix, batch)`` pairs drawn to ``folder`` by ``workers`` forked processes from now
-    on, while this one goes on.
+    """``workers`` forkserver processes that draw the jobs :meth:`submit` gives them into
+    ``folder``, while this process goes on; :meth:`finish` waits for all of them, a bounded
+    wait, and stops the workers; :meth:`cancel` stops them at once."""
 
-    :meth:`finish` draws the batches that no worker has taken yet in this process and waits
-    for the others; without ``fork`` (or workers) it draws them all. :meth:`cancel` stops the
-    workers.
-    """
-
-    def __init__(self, batches: Sequence[tuple[str, Batch]], folder: Path, workers: int) -> None:
-        self.prefixes = [prefix for prefix, _ in batches]
-        self.batches, self.folder, self.workers = [b for _, b in batches], folder, []
-        if workers < 1 or "fork" not in multiprocessing.get_all_start_methods():
-            self.claimed = multiprocessing.Value("i", 0)
-            return
-        context = multiprocessing.get_context("fork")
-        self.claimed, self.reports = context.Value("i", 0), context.Queue()
-        args = (self.batches, folder, self.claimed, self.reports)
+    def __init__(self, folder: Path, workers: int) -> None:
+        self.folder, self.prefixes = folder, []
+        self.tasks, self.reports = processes.CONTEXT.Queue(), processes.CONTEXT.Queue()
         self.workers = [
-            context.Process(target=_work, args=args, daemon=True) for _ in range(workers)
+            processes.CONTEXT.Process(target=_work, args=(folder, self.tasks, self.reports))
+            for _ in range(max(1, workers))
         ]
         for worker in self.workers:
+            worker.daemon = True
             worker.start()
 
+    def submit(self, prefix: str, drawn_job: Job) -> None:
+        """Queue ``drawn_job`` (its figures logged under ``prefix``); it must pickle without a
+        tensor (:func:`job` makes one)."""
+        buffer = io.BytesIO()
+        _NoTensors(buffer, protocol=pickle.HIGHEST_PROTOCOL).dump(drawn_job)
+        self.tasks.put((len(self.prefixes), buffer.getvalue()))
+        self.prefixes.append(prefix)
+
     def finish(self) -> list[tuple[str, Drawn]]:
-        """``(prefix, tags and image shapes)`` of each batch, in order, once all are drawn."""
+        """``(prefix, tags and image shapes)`` of each job, in order, once all are drawn."""
+        drawn: dict[int, Drawn] = {i: [] for i in range(len(self.prefixes))}
         try:
-            done = dict(_claim_and_draw(self.batches, self.folder, self.claimed))
-            while len(done) < len(self.batches):
-                index, outcome = _next_report(self.reports, self.workers)
-                if isinstance(outcome, OSError):  # e.g. a full disk: the user's to fix
-                    raise outcome
-                if isinstance(outcome, str):
-                    raise RuntimeError(f"drawing figures failed in a worker process:\n{outcome}")
-                done[index] = outcome
-        finally:
-            self.cancel(timeout=5)
-        return [(prefix, done[i]) for i, prefix in enumerate(self.prefixes)]
+            for _ in self.workers:
+                self.tasks.put(None)  # each worker ends after the jobs queued before it
+            pending, at = set(drawn), {}  # at: the job and figure a worker was last heard on
+            heard = time.monotonic()
+            while pending:
+                try:
+                    kind, pid, index, value = self.reports.get(timeout=1)
+                except queue.Empty:
+                    self._check(at, time.monotonic() - heard)
+                    continue
+                heard, at[pid] = time.monotonic(), (index, value)
+                if kind == "figure":
+                    drawn[index].append(value)
+                elif kind == "done":
+                    pending.discard(index)
+                elif isinstance(value, OSError):  # e.g. a full disk: the user's to fix
+                    raise value
+                elif kind == "error":
+                    raise RuntimeError(f"drawing figures failed in a worker process:\n{value}")
+        except BaseException:
+            self.cancel()
+            raise
+        self.cancel(timeout=5)  # each has taken its None and ends
+        return [(prefix, drawn[i]) for i, prefix in enumerate(self.prefixes)]
+
+    def _check(self, at: dict, silent: float) -> None:
+        """Raise :class:`Stalled` if a worker ended before the jobs did, or none was heard
+        from for :data:`costseg.processes.STALL_SECONDS`."""
+        for worker in self.workers:  # one that ended well took its None: others draw
+            if worker.exitcode or all(w.exitcode is not None for w in self.workers):
+                where = self._where(at.get(worker.pid))
+                raise Stalled(
+                    f"a figure worker (pid {worker.pid}) ended with exit code {worker.exitcode}"
+                    f"{where} before the figures in {self.folder} were drawn"
+                )
+        if silent > processes.STALL_SECONDS:
+            where = "; ".join(f"pid {pid}{self._where(a)}" for pid, a in sorted(at.items()))
+            raise Stalled(
+                f"the figure workers drew nothing for {silent:.0f} s "
+                f"({where or 'none started a job'}); figures in {self.folder} are incomplete"
+            )
+
+    def _where(self, at: tuple[int, object] | None) -> str:
+        """Where a worker was last heard: after a figure, or in a job (its prefix)."""
+        if at is None or at[0] < 0:
+            return ""
+        prefix, value = self.prefixes[at[0]], at[1]
+        return f" after {prefix}/{value[0]}" if isinstance(value, tuple) else f" in {prefix}"
 
     def cancel(self, timeout: float = 0) -> None:
         """Wait up to ``timeout`` seconds for the workers to end, then stop them."""
         for worker in self.workers:
             worker.join(timeout=timeout)
             if worker.is_alive():
-                worker.terminate()
+                worker.kill()
+                worker.join(timeout=5)
+        self.tasks.cancel_join_thread()  # jobs no worker will read must not hold up the exit
 
 
-def _draw(batch: Batch, folder: Path) -> Drawn:
+class _NoTensors(pickle.Pickler):
+    """A pickler that refuses torch objects: a worker must not run torch."""
+
+    def reducer_override(self, obj):
+        if type(obj).__module__.startswith("torch"):
+            raise TypeError(f"a drawing job carries a {type(obj).__name__}; use job(...)")
+        return NotImplemented
+
+
+def figure_path(folder: Path, tag: str) -> Path:
+    """Where the figure ``tag`` is written in ``folder``."""
+    return folder / f"{tag.replace('/', '_')}.png"
+
+
+def _work(folder: Path, tasks, reports) -> None:
+    """A worker: for each job until ``None``, report ``("start", pid, index, None)``, then
+    ``("figure", pid, index, (tag, shape))`` per figure and ``("done", pid, index, None)``, or
+    ``("error", pid, index, OSError or traceback)``. Ctrl-C is the parent's to handle."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     import matplotlib
 
     from costseg.report.files import render, write_png
 
-    drawn = []
-    # A fixed title height: matplotlib's default measures every tick label at each draw to
-    # lift the title over ticks at the top, and none of these figures has any.
-    with matplotlib.rc_context({"axes.titley": 1.0}):
-        for tag, fig in batch:
-            image = render(fig)
-            write_png(_path(folder, tag), image)
-            drawn.append((tag, image.shape))
-    return drawn
-
-
-def _path(folder: Path, tag: str) -> Path:
-    return folder / f"{tag.replace('/', '_')}.png"
-
-
-def _claim_and_draw(batches: Sequence[Batch], folder: Path, claimed):
-    """Yield ``(index, drawn)`` of each batch that this process claims, until none is left."""
-    while True:
-        with claimed.get_lock():
-            index = claimed.value
-            claimed.value += 1
-        if index >= len(batches):
-            return
-        yield index, _draw(batches[index], folder)
-
-
-def _work(batches: Sequence[Batch], folder: Path, claimed, reports) -> None:
-    """A worker process: report ``(index, drawn)`` per batch, ``(index, OSError)`` or
-    ``(index, traceback)``. Ctrl-C is the parent's to handle: it stops the workers."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    index = -1
+    pid, index = os.getpid(), -1
     try:
-        for index, drawn in _claim_and_draw(batches, folder, claimed):
-            reports.put((index, drawn))
+        # A fixed title height: matplotlib's default measures every tick label at each draw to
+        # lift the title over ticks at the top, and none of these figures has any.
+        with matplotlib.rc_context({"axes.titley": 1.0}):
+            while (task := _next_task(tasks)) is not None:
+                index, payload = task
+                reports.put(("start", pid, index, None))
+                for tag, fig in pickle.loads(payload)():
+                    image = render(fig)
+                    write_png(figure_path(folder, tag), image)
+                    reports.put(("figure", pid, index, (tag, image.shape)))
+                reports.put(("done", pid, index, None))
     except OSError as err:
-        reports.put((index, OSError(err.errno, err.strerror, err.filename)))
+        reports.put(("error", pid, index, OSError(err.errno, err.strerror, err.filename)))
     except BaseException:
-        reports.put((index, traceback.format_exc()))
+        reports.put(("error", pid, index, traceback.format_exc()))
 
 
-def _next_report(reports, workers: list) -> tuple[int, Drawn | OSError | str]:
-    """The next report; an error report if every worker has ended with reports missing."""
+def _next_task(tasks):
+    """The next task; None once the parent has ended (killed: nobody would send one)."""
     while True:
         try:
-            return reports.get(timeout=1)
+            return tasks.get(timeout=1)
         except queue.Empty:
-            if not any(worker.is_alive() for worker in workers):
-                codes = [worker.exitcode for worker in workers]
-                return -1, f"the worker processes ended (exit codes {codes}) with figures undrawn"
+            if not multiprocessing.parent_process().is_alive():
+                return None

@@ -11,7 +11,7 @@ from torch.utils.tensorboard import SummaryWriter
 
 from costseg.classes import CLASS_NAMES, ROI_NAMES
 from costseg.metrics.names import DEFER_RULE_RATES, ERROR_COLUMNS, INSTANCE_COLUMNS
-from costseg.report.drawing import Batch, save_and_log_all
+from costseg.report.drawing import Drawing, Job, figure_path, job
 from costseg.report.early_figures import EarlyFigures, example_figures, plan_figures
 from costseg.report.figures import heatmap_grid_figures
 from costseg.report.files import write_csv, write_json, write_text
@@ -25,7 +25,13 @@ from costseg.report.tables import (
     format_value,
     paper_table,
 )
-from costseg.report.tensorboard import log_evaluation, log_masks, log_table, markdown_table
+from costseg.report.tensorboard import (
+    log_evaluation,
+    log_masks,
+    log_png,
+    log_table,
+    markdown_table,
+)
 from costseg.report.uncertainty import uncertainty_strip
 from costseg.rules import DEFER_COLUMN
 
@@ -35,10 +41,11 @@ DEFER_SUMMARY = (DEFER_COLUMN, "coverage", "handled_recall", *DEFER_RULE_RATES)
 every column)."""
 
 
-def write_evaluation(results: EvalResults, early: EarlyFigures | None = None) -> None:
+def write_evaluation(results: EvalResults, early: EarlyFigures) -> None:
     """Write the named rules' results, then each sweep's, into ``results.output_dir``.
 
-    ``early``: the figures started while the images were evaluated; the others are drawn here."""
+    ``early``: the figures started while the images were evaluated, and the workers that draw
+    the others."""
     from costseg.report.calibration import calibration_rows, write_calibration
     from costseg.report.sweep import write_sweeps
 
@@ -72,16 +79,26 @@ def write_evaluation(results: EvalResults, early: EarlyFigures | None = None) ->
                 maps = {k: v.float().numpy() for k, v in ex.uncertainty.items()}
                 strip = uncertainty_strip(maps, len(CLASS_NAMES))
                 writer.add_image(f"evaluation/uncertainty/{i}", strip, dataformats="HWC")
-        batches = [] if early and early.plan_started else plan_figures(named.group, results.roi)
-        if not (early and early.examples_started):
-            batches.append(("evaluation", example_figures(named.group.names, results.examples)))
-        batches += write_sweeps(results) + _figures(results) + write_calibration(results)
-        save_and_log_all(writer, batches, out / "figures", early)
+        jobs = [] if early.plan_started else plan_figures(named.group, results.roi)
+        if not early.examples_started:
+            jobs.append(("evaluation", example_figures(named.group.names, results.examples)))
+        jobs += write_sweeps(results) + _figures(results) + write_calibration(results)
+        _draw_and_log(writer, jobs, early.drawing)
     if results.options.get("explorer"):
         from costseg.report.explorer_points import write_evaluation_explorer
 
         write_evaluation_explorer(results)
     print(f"results written to {out}")
+
+
+def _draw_and_log(writer: SummaryWriter, jobs: list[tuple[str, Job]], drawing: Drawing) -> None:
+    """Draw each ``(prefix, job)`` after those already submitted to ``drawing``, then log every
+    figure to TensorBoard as ``prefix/<tag>`` in the jobs' order."""
+    for prefix, drawn_job in jobs:
+        drawing.submit(prefix, drawn_job)
+    for prefix, figures in drawing.finish():
+        for tag, shape in figures:
+            log_png(writer, f"{prefix}/{tag}", figure_path(drawing.folder, tag).read_bytes(), shape)
 
 
 def _probability_note(results: EvalResults) -> str:
@@ -180,24 +197,24 @@ def _calibration(results: EvalResults) -> dict:
     return calibration_record(calibration_rows(results.extra.get("ece", {})))
 
 
-def _figures(results: EvalResults) -> list[tuple[str, Batch]]:
-    """The named rules' figures from their results, undrawn, in batches: figures of one kind
+def _figures(results: EvalResults) -> list[tuple[str, Job]]:
+    """The named rules' figures from their results, undrawn, as jobs: figures of one kind
     are one figure redrawn."""
     named = results.named
     names, segments, instances = named.group.names, named.segments, named.instances
     grids = []
     for kind, key in (("FP", "fp_map"), ("FN", "fn_map")):
         maps = {
-            (n, CLASS_NAMES[cls]): segments[key][k, c].cpu().numpy()
+            (n, CLASS_NAMES[cls]): segments[key][k, c]
             for k, n in enumerate(names)
             for c, cls in enumerate(results.class_ids)
         }
         grids.append((f"{kind.lower()}_segments", maps, kind))
     if instances and instances["missed_map"].shape[-1] > 0:
         maps = {
-            (n, CLASS_NAMES[cls]): instances["missed_map"][k, c].numpy()
+            (n, CLASS_NAMES[cls]): instances["missed_map"][k, c]
             for k, n in enumerate(names)
             for c, cls in enumerate(instances["classes"].tolist())
         }
         grids.append(("missed_instances", maps, "missed instances"))
-    return [("evaluation", heatmap_grid_figures(grids))]
+    return [("evaluation", job(heatmap_grid_figures, grids))]

@@ -184,6 +184,31 @@ def mask_figures(
         yield tag, fig
 
 
+def example_mask_figures(
+    names: Sequence[str], examples: Iterable[tuple]
+) -> Iterator[tuple[str, Figure]]:
+    """``masks_<i>`` of each ``(image (H, W, 3), labels, preds (K, H, W), uncertainty maps)``:
+    the image, the ground truth, the labels of each of the rules ``names`` and the uncertainty
+    maps, each titled with its scale (docs/definitions.md §13).
+
+    >>> ex = (np.zeros((4, 8, 3), np.uint8), np.zeros((4, 8), np.uint8), np.zeros((1, 4, 8)), {})
+    >>> [tag for tag, _ in example_mask_figures(["ml"], [ex])]
+    ['masks_0']
+    """
+    from costseg.report.uncertainty import uncertainty_tiles
+
+    yield from mask_figures(
+        (
+            f"masks_{i}",
+            image,
+            label,
+            dict(zip(names, preds, strict=True)),
+            {t.scale: t.rgb for t in uncertainty_tiles(maps, len(CLASS_NAMES))},
+        )
+        for i, (image, label, preds, maps) in enumerate(examples)
+    )
+
+
 def _mask_legend(fig: Figure, handles: list[Patch], ncols: int) -> None:
     fig.legend(
         handles=handles, loc="outside lower center", ncols=ncols, fontsize="small", frameon=False

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 from matplotlib.colors import ListedColormap
@@ -49,6 +49,11 @@ def plot_roi_map(roi: ArrayLike) -> Figure:
         frameon=False,
     )
     return fig
+
+
+def roi_map_figures(roi: ArrayLike) -> Iterator[tuple[str, Figure]]:
+    """``("roi_map", plot_roi_map(roi))``, as a drawing job."""
+    yield "roi_map", plot_roi_map(roi)
 
 
 def plot_priors(

@@ -12,10 +12,10 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
 
-from matplotlib.figure import Figure
-
 from costseg.classes import CLASS_NAMES, ROI_NAMES
 from costseg.metrics.functional.deferral import risk_coverage_area, selective_error
+from costseg.report.curves import Panel, risk_coverage_figures
+from costseg.report.drawing import Job, job
 from costseg.report.files import write_csv, write_json
 from costseg.report.results import EvalResults, GroupResult
 from costseg.report.tables import PAPER_ROIS, format_value
@@ -74,16 +74,16 @@ def curve_rows(result: GroupResult, class_ids: Sequence[int]) -> list[dict]:
     return rows
 
 
-def write_risk_coverage(results: EvalResults, result: GroupResult) -> list[tuple[str, Iterator]]:
-    """``defer_sweep.csv`` / ``.json``; returns the figures, undrawn, as a batch of
-    :mod:`costseg.report.drawing` (not imported here: it reaches this module through
-    :mod:`costseg.report.tensorboard`)."""
+def write_risk_coverage(results: EvalResults, result: GroupResult) -> list[tuple[str, Job]]:
+    """``defer_sweep.csv`` / ``.json``; returns the figures, undrawn, as a job of
+    :mod:`costseg.report.drawing`."""
     group, out = result.group, results.output_dir
     rows = curve_rows(result, results.class_ids)
     write_csv(out / f"{group.output}.csv", rows)
     record = {"note": group.note, "probabilities": results.probabilities, "rows": rows}
     write_json(out / f"{group.output}.json", record | {"risk_coverage_area": _areas(results)})
-    return [(group.output, risk_coverage_figures(result, results.class_ids))]
+    panels = risk_coverage_panels(result, results.class_ids)
+    return [(group.output, job(risk_coverage_figures, panels, group.note))]
 
 
 def _areas(results: EvalResults) -> dict:
@@ -121,24 +121,20 @@ def risk_coverage_table(results: EvalResults) -> str:
     )
 
 
-def risk_coverage_figures(result: GroupResult, class_ids: Sequence[int]) -> Iterator[tuple]:
-    """``risk_coverage_<class>`` (and ``_all``): per RoI, one curve per rule."""
-    group = result.group
+def risk_coverage_panels(result: GroupResult, class_ids: Sequence[int]) -> list[list[Panel]]:
+    """Per class (and :data:`ALL`), the panels of its figure: per RoI, one curve per rule."""
+    group, figures = result.group, []
     for cls in [*class_ids, ALL]:
-        name = cls if cls == ALL else CLASS_NAMES[cls]
-        fig = Figure(figsize=(5 * len(CURVE_ROIS), 4), dpi=100, layout="constrained")
-        for ax, roi in zip(fig.subplots(1, len(CURVE_ROIS)), CURVE_ROIS, strict=True):
+        name, panels = (cls if cls == ALL else CLASS_NAMES[cls]), []
+        for roi in CURVE_ROIS:
+            curves = []
             for path in group.paths:
                 coverage, risk = curve(result, path, cls, roi)
                 area = format_value(risk_coverage_area(coverage, risk))
-                label = f"{group.rules[path[0]].name} (AURC {area})"
-                ax.plot(coverage, risk, marker="o", markersize=3, label=label)
-            ax.set(xlabel="coverage", ylabel="selective error", xlim=(0, 1.02))
-            ax.set_title(f"{name}, RoI {roi} ({ROI_NAMES[roi]})")
-            ax.grid(alpha=0.3)
-            ax.legend(fontsize=8)
-        fig.suptitle(f"risk–coverage: {group.note}", fontsize=9)
-        yield f"risk_coverage_{name}", fig
+                curves.append((f"{group.rules[path[0]].name} (AURC {area})", (coverage, risk)))
+            panels.append((name, f"{name}, RoI {roi} ({ROI_NAMES[roi]})", curves))
+        figures.append(panels)
+    return figures
 
 
 def risk_coverage_curves(result: GroupResult, class_ids: Sequence[int]) -> Iterator[tuple]:

@@ -11,14 +11,12 @@ it over the first group of candidates.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-
 from costseg.classes import CLASS_NAMES
 from costseg.costs import save_cost
 from costseg.metrics.names import PIXEL_RATES, SEGMENT_RATES
 from costseg.metrics.selection import choose
-from costseg.report.curves import plot_curves
-from costseg.report.drawing import Batch
+from costseg.report.curves import Curves, curve_figures
+from costseg.report.drawing import Job, job
 from costseg.report.files import write_csv, write_json
 from costseg.report.results import EvalResults, GroupResult
 from costseg.report.risk_coverage import write_risk_coverage
@@ -30,10 +28,10 @@ SWEEP_ROIS = (0, *PAPER_ROIS)
 """The RoIs of a sweep's rows: the whole image and the paper's."""
 
 
-def write_sweeps(results: EvalResults) -> list[tuple[str, Batch]]:
+def write_sweeps(results: EvalResults) -> list[tuple[str, Job]]:
     """Files of every sweeping group and the ``--target`` answer; returns their figures,
-    undrawn, as ``(TensorBoard prefix, batch)`` (:mod:`costseg.report.drawing`)."""
-    batches: list[tuple[str, Batch]] = []
+    undrawn, as ``(TensorBoard prefix, job)`` (:mod:`costseg.report.drawing`)."""
+    batches: list[tuple[str, Job]] = []
     for result in results.groups:
         group, out = result.group, results.output_dir
         if group.output is None:
@@ -48,14 +46,14 @@ def write_sweeps(results: EvalResults) -> list[tuple[str, Batch]]:
         if group.weights is not None:
             batches += _triangle_figures(results, result)
         if group.line is not None:
-            batches.append((group.output, _line_figures(results, result)))
+            batches.append((group.output, job(curve_figures, _line_curves(results, result))))
     candidates = next((r for r in results.groups if r.group.candidates), None)
     if results.options.get("target") and candidates is not None:
         _write_choice(results, candidates)
     return batches
 
 
-def _triangle_figures(results: EvalResults, grid: GroupResult) -> list[tuple[str, Batch]]:
+def _triangle_figures(results: EvalResults, grid: GroupResult) -> list[tuple[str, Job]]:
     group, pixels, segments = grid.group, grid.pixels, grid.segments
     labels = tuple(v.capitalize() for v in group.corners)
     ternary, edges = [], []
@@ -72,13 +70,13 @@ def _triangle_figures(results: EvalResults, grid: GroupResult) -> list[tuple[str
             ternary.append((f"ternary_{name}_{metric}", segments[metric][:, c, 0], title, metric))
         ternary += _instance_ternaries(grid, cls)
     return [
-        (group.output, ternary_figures(group.weights, ternary, labels, note=group.note)),
-        (group.output, edge_tradeoff_figures(group.weights, edges, labels, note=group.note)),
+        (group.output, job(ternary_figures, group.weights, ternary, labels, note=group.note)),
+        (group.output, job(edge_tradeoff_figures, group.weights, edges, labels, note=group.note)),
     ]
 
 
-def _line_figures(results: EvalResults, result: GroupResult) -> Iterator[tuple]:
-    group = result.group
+def _line_curves(results: EvalResults, result: GroupResult) -> list[Curves]:
+    group, curves = result.group, []
     for cls in results.class_ids:
         name = CLASS_NAMES[cls]
         series = {
@@ -86,8 +84,9 @@ def _line_figures(results: EvalResults, result: GroupResult) -> Iterator[tuple]:
             for roi in PAPER_ROIS
             for metric in PIXEL_RATES
         }
-        figure = plot_curves(list(group.line), series, group.axis, f"{name}: {group.note}")
-        yield f"{group.family}_{name}", figure
+        title = f"{name}: {group.note}"
+        curves.append((f"{group.family}_{name}", list(group.line), series, group.axis, title))
+    return curves
 
 
 def _instance_ternaries(grid: GroupResult, cls: int) -> list[tuple]:
