@@ -35,6 +35,7 @@ from matplotlib.figure import Figure
 from torch.utils.data import DataLoader, Subset
 from tqdm import tqdm
 
+from costseg import workers
 from costseg.calibration.guarantee import learn_then_test_paths, tests_sharing_delta
 from costseg.checkpoints import find_checkpoint
 from costseg.data.prior_maps import PriorMaps
@@ -134,10 +135,10 @@ def compute_counts(args: argparse.Namespace, source: tuple, indices: range) -> d
     ``source`` = (network, (priors, RoI map), size) from :func:`load_source`."""
     net, (priors, roi), size = source
     scenes = StreetScenes("test", indices.stop, size, args.seed)
-    loader = DataLoader(Subset(scenes, indices), args.batch_size, num_workers=1)
+    loader = DataLoader(Subset(scenes, indices), args.batch_size, **workers.loader_options(1))
     group, device = candidates(args), next(net.parameters()).device
     out: dict[str, list[torch.Tensor]] = {"target": [], "maximize": []}
-    with torch.inference_mode():
+    with torch.inference_mode(), workers.loader_errors(f"scenes {indices.start}-{indices.stop}"):
         for images, labels in tqdm(loader, f"images {indices.start}-{indices.stop}", unit="batch"):
             images, labels = images.to(device), labels.to(device)
             preds = group.decide(net(images).float().softmax(1), priors)

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from costseg import workers
 from costseg.classes import TRAIN_ID_TO_LABEL_ID
 from costseg.data.cityscapes import IMAGE_SUFFIX, INSTANCE_SUFFIX, LABEL_SUFFIX
 from costseg.data.toy import StreetScenes
@@ -54,7 +55,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=None, help="processes (default: all)")
     args = parser.parse_args()
-    with ProcessPoolExecutor(args.workers) as pool:
+    with ProcessPoolExecutor(args.workers, mp_context=workers.CONTEXT) as pool:
         for split, count in (("train", args.train), ("val", args.val)):
             scenes = StreetScenes(split, count, tuple(args.size), args.seed)
             list(pool.map(partial(write_item, scenes, args.root), range(count), chunksize=4))

@@ -95,11 +95,12 @@ def test_a_full_disk_is_one_line_and_the_folder_stays_incomplete(
     write = files.write_bytes
 
     def full(path, data):
-        if str(path).endswith(".png"):
+        if str(path).endswith(".csv"):
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
         return write(path, data)
 
-    monkeypatch.setattr(files, "write_bytes", full)  # drawing processes fork: they see it too
+    # this process's writes; a figure worker's failed write: tests/test_drawing.py
+    monkeypatch.setattr(files, "write_bytes", full)
     out = tmp_path / "out"
     args = ["--ckpt_path", ckpt, "--cost", "robotistic", "--limit", "1", "--output_dir", str(out)]
     with pytest.raises(SystemExit) as exit_info:

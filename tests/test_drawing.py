@@ -14,14 +14,14 @@ import pytest
 import torch
 from matplotlib.figure import Figure
 
-from costseg import processes
-from costseg.processes import Stalled
+from costseg import workers
 from costseg.report.drawing import Drawing, job
+from costseg.workers import Stalled
 
 
-def draw(jobs, folder, workers):
-    """Each job's drawn tags and shapes, on ``workers`` processes."""
-    drawing = Drawing(folder, workers)
+def draw(jobs, folder, processes):
+    """Each job's drawn tags and shapes, on ``processes`` worker processes."""
+    drawing = Drawing(folder, processes)
     for drawn_job in jobs:
         drawing.submit("prefix", drawn_job)
     return [figures for _, figures in drawing.finish()]
@@ -43,8 +43,8 @@ def _jobs():
 
 
 def test_two_workers_draw_what_one_draws(tmp_path):
-    one = draw(_jobs(), tmp_path / "one", workers=1)
-    two = draw(_jobs(), tmp_path / "two", workers=2)
+    one = draw(_jobs(), tmp_path / "one", processes=1)
+    two = draw(_jobs(), tmp_path / "two", processes=2)
     assert one == two
     assert [tag for figures in two for tag, _ in figures] == [
         f"b{b}_{i}" for b in range(5) for i in range(b + 1)
@@ -63,7 +63,14 @@ def failing(message: str):
 
 def test_an_error_in_a_worker_is_raised_with_its_traceback(tmp_path):
     with pytest.raises(RuntimeError, match=r"(?s)failed in a worker.*ValueError: boom"):
-        draw([job(failing, "boom")], tmp_path, workers=2)
+        draw([job(failing, "boom")], tmp_path, processes=2)
+
+
+def test_a_failed_write_in_a_worker_is_the_os_error_naming_the_file(tmp_path):
+    (tmp_path / "b.png").mkdir()  # the figure's file cannot be written
+    with pytest.raises(OSError, match="Is a directory") as error:
+        draw([job(redrawn, ["a", "b"], 0)], tmp_path, processes=1)
+    assert str(tmp_path) in error.value.filename
 
 
 def dies(code: int):
@@ -73,7 +80,7 @@ def dies(code: int):
 
 def test_a_dead_worker_is_one_error_not_a_hang(tmp_path):
     with pytest.raises(Stalled, match=r"ended with exit code 3 in prefix"):
-        draw([job(dies, 3), job(redrawn, ["b"], 0)], tmp_path, workers=1)
+        draw([job(dies, 3), job(redrawn, ["b"], 0)], tmp_path, processes=1)
 
 
 def stalls(seconds: float):
@@ -83,17 +90,17 @@ def stalls(seconds: float):
 
 
 def test_a_stalled_worker_ends_the_wait_naming_where_it_stopped(tmp_path, monkeypatch):
-    monkeypatch.setattr(processes, "STALL_SECONDS", 2.0)
+    monkeypatch.setattr(workers, "STALL_SECONDS", 2.0)
     start = time.monotonic()
     with pytest.raises(Stalled, match=r"drew nothing for \d+ s \(pid \d+ after prefix/before\)"):
-        draw([job(stalls, 600)], tmp_path, workers=1)
+        draw([job(stalls, 600)], tmp_path, processes=1)
     assert time.monotonic() - start < 30
 
 
 def test_a_job_that_carries_a_tensor_is_refused(tmp_path):
     import functools
 
-    drawing = Drawing(tmp_path, workers=1)
+    drawing = Drawing(tmp_path, processes=1)
     with pytest.raises(TypeError, match="carries a Tensor"):
         drawing.submit("prefix", functools.partial(redrawn, ["a"], torch.zeros(1)))
     drawing.cancel()
@@ -101,7 +108,7 @@ def test_a_job_that_carries_a_tensor_is_refused(tmp_path):
 
 
 def test_a_drawing_draws_while_the_caller_goes_on(tmp_path):
-    drawing = Drawing(tmp_path, workers=1)
+    drawing = Drawing(tmp_path, processes=1)
     drawing.submit("p", job(redrawn, ["early"], 0))
     deadline = time.monotonic() + 60
     while not (tmp_path / "early.png").exists():  # drawn by the worker, before finish()
@@ -129,7 +136,7 @@ def deadline(seconds: float, what: str):
 def busy_threads(stop: threading.Event) -> list[threading.Thread]:
     """Threads like an evaluation's: torch's intra-op pool kept busy above its grain size (a
     256 × 512 map) and costseg's thread pool, while the figures are started."""
-    from costseg.threads import threads
+    from costseg.workers import threads
 
     def torch_ops():
         x = torch.rand(4, 256, 512)
@@ -154,7 +161,7 @@ def test_the_example_figures_never_hang_behind_busy_threads(tmp_path, monkeypatc
     from costseg.report.results import Example
     from costseg.rules.named import parse_rules, rules_group
 
-    monkeypatch.setattr(processes, "STALL_SECONDS", 10.0)
+    monkeypatch.setattr(workers, "STALL_SECONDS", 10.0)
     rng = torch.Generator().manual_seed(0)
     h, w = 256, 512
     example = Example(

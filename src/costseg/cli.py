@@ -24,7 +24,7 @@ from typing import Any, NoReturn
 
 from costseg import CONFIGS
 from costseg.options import EvalOptions, PredictOptions
-from costseg.processes import Stalled
+from costseg.workers import Stalled
 
 
 def fail(message: str, join: bool = False) -> NoReturn:
@@ -47,7 +47,7 @@ def interrupted(message: str = "") -> NoReturn:
 @contextlib.contextmanager
 def user_errors(*extra: type[BaseException]) -> Iterator[None]:
     """Turn a user mistake (ValueError, OSError and ``extra``) or a stalled worker
-    (:class:`costseg.processes.Stalled`) into one line and exit status 2,
+    (:class:`costseg.workers.Stalled`) into one line and exit status 2,
     and Ctrl-C into one line (the interrupt's message: where partial outputs are) and 130.
 
     An OSError in another thread (a full disk under TensorBoard's writer thread) prints no

@@ -18,6 +18,7 @@ from torch.utils.data import DataLoader, Dataset, Subset
 from torchvision import tv_tensors
 from torchvision.transforms import v2
 
+from costseg import workers
 from costseg.classes import CLASS_NAMES, NUM_CLASSES
 from costseg.data.cityscapes import CityscapesSegmentation, train_transform
 from costseg.data.from_config import CityscapesSettings, StreetScenesSettings
@@ -99,8 +100,8 @@ class _SegmentationDataModule(LightningDataModule, ABC):
             batch_size=self.batch_size if train else self.eval_batch_size,
             shuffle=train,
             drop_last=train,
-            num_workers=self.num_workers,
             persistent_workers=self.num_workers > 0,
+            **workers.loader_options(self.num_workers),
             pin_memory=torch.cuda.is_available(),
         )
 
@@ -123,7 +124,9 @@ class _SegmentationDataModule(LightningDataModule, ABC):
         labels = _Labels(self.make_dataset("train", augment=False))
         count = len(labels) if self.prior_images is None else min(self.prior_images, len(labels))
         return DataLoader(
-            Subset(labels, range(count)), batch_size=None, num_workers=self.num_workers
+            Subset(labels, range(count)),
+            batch_size=None,
+            **workers.loader_options(self.num_workers),
         )
 
 

@@ -5,6 +5,7 @@ share of the reported images."""
 
 from __future__ import annotations
 
+import datetime
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -13,6 +14,7 @@ import torch
 import torch.distributed as dist
 from torch.utils.data import Dataset
 
+from costseg import workers
 from costseg.classes import CLASS_NAMES, class_indices
 from costseg.data.from_config import build_dataset, data_settings
 from costseg.data.prior_maps import PriorMaps, heatmap_canvas
@@ -57,7 +59,9 @@ def plan(opts: EvalOptions) -> EvalPlan:
     groups = check_options(opts)
     device = resolve_device(opts.device)
     if world_size() > 1 and not dist.is_initialized():
-        dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
+        # a peer that stops answering ends each collective after STALL_SECONDS (evaluate())
+        timeout = datetime.timedelta(seconds=workers.STALL_SECONDS)
+        dist.init_process_group("nccl" if device.type == "cuda" else "gloo", timeout=timeout)
     protocol = Protocol.from_options(opts)
     source = open_sources(
         opts.ckpt_path, opts.network, opts.probs, device, protocol, opts.mc_dropout, opts.seed

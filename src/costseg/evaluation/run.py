@@ -14,8 +14,9 @@ from collections.abc import Callable
 from dataclasses import asdict
 
 import torch
+import torch.distributed as dist
 
-from costseg import processes
+from costseg import workers
 from costseg.calibration.scaling import Scaling
 from costseg.classes import CLASS_NAMES, NUM_ROIS
 from costseg.evaluation.held_out import as_logits, certify, fit_scaling
@@ -137,10 +138,10 @@ def evaluate(opts: EvalOptions) -> EvalResults:
     """Plan, run, and (on rank 0) write every output; returns the results.
 
     Figures known before the loop ends are drawn meanwhile, by workers of the forkserver
-    (:mod:`costseg.processes`), which starts first, while the network loads. The output
+    (:mod:`costseg.workers`), which starts first, while the network loads. The output
     folder is marked ``INCOMPLETE`` until every file is written; an interrupt or a failed write
     says where the partial outputs are."""
-    processes.start()
+    workers.start()
     planned, early = plan(opts), None
     out = planned.output_dir
     try:
@@ -154,14 +155,17 @@ def evaluate(opts: EvalOptions) -> EvalResults:
             from costseg.report.evaluation import write_evaluation
 
             write_evaluation(results, early)
-    except (KeyboardInterrupt, OSError, processes.Stalled) as err:
+    except (KeyboardInterrupt, OSError, workers.Stalled, dist.DistError) as err:
         if early:
             early.cancel()
         partial = f"the partial outputs in {out} are marked {INCOMPLETE}"
         if isinstance(err, KeyboardInterrupt):
             raise KeyboardInterrupt(partial) from None
-        if isinstance(err, processes.Stalled):
-            raise processes.Stalled(f"{err}; {partial}") from err
+        if isinstance(err, dist.DistError):  # a peer process that stopped answering
+            first = str(err).strip().splitlines()[0]
+            raise workers.Stalled(f"another evaluation process: {first}; {partial}") from err
+        if isinstance(err, workers.Stalled):
+            raise workers.Stalled(f"{err}; {partial}") from err
         # a full disk under TensorBoard's writer thread names no file: the folder it writes in
         raise OSError(f"{err.strerror or err}: {err.filename or out}; {partial}") from err
     except BaseException:

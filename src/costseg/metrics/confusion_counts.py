@@ -16,7 +16,7 @@ import torch
 from torch import Tensor
 
 from costseg.metrics.functional.inputs import check_batch
-from costseg.threads import in_pieces
+from costseg.workers import in_pieces
 
 LANES = 4  # histograms per rule, each taking every fourth pixel
 

@@ -15,7 +15,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from costseg.threads import in_pieces
+from costseg.workers import in_pieces
 
 LOW7, HIGH = np.uint64(0x7F7F7F7F7F7F7F7F), np.uint64(0x8080808080808080)
 EVERY_BYTE = np.uint64(0x0101010101010101)

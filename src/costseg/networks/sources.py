@@ -16,6 +16,7 @@ import torch
 from torch import Tensor
 from torch.utils.data import DataLoader, Dataset
 
+from costseg import workers
 from costseg.checkpoints import find_checkpoint
 from costseg.classes import CLASS_NAMES
 from costseg.data.from_config import image_stems
@@ -191,21 +192,22 @@ def batches(
     loader = DataLoader(
         _Indexed(dataset, list(indices)),
         batch_size=batch_size,
-        num_workers=num_workers,
         collate_fn=_collate_by_size,
+        **workers.loader_options(num_workers),
     )
     seen = 0
-    for group in progress(loader, desc):
-        for images, labels, chosen, ids in group:
-            images, labels = images.to(device), labels.to(device)
-            stems = image_stems(dataset, chosen)
-            ids = None if ids is None else ids.to(device)
-            if entropy_images is None or seen < entropy_images:
-                scores, expected_entropy = source.scores_and_entropy(images, stems)
-            else:
-                scores, expected_entropy = source.scores(images, stems), None
-            seen += len(images)
-            yield Batch(images, labels, stems, scores, ids, expected_entropy)
+    with workers.loader_errors(f"{len(indices)} images"):
+        for group in progress(loader, desc):
+            for images, labels, chosen, ids in group:
+                images, labels = images.to(device), labels.to(device)
+                stems = image_stems(dataset, chosen)
+                ids = None if ids is None else ids.to(device)
+                if entropy_images is None or seen < entropy_images:
+                    scores, expected_entropy = source.scores_and_entropy(images, stems)
+                else:
+                    scores, expected_entropy = source.scores(images, stems), None
+                seen += len(images)
+                yield Batch(images, labels, stems, scores, ids, expected_entropy)
 
 
 class _Indexed(Dataset):

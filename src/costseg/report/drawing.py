@@ -1,7 +1,7 @@
 """Figures drawn side by side in worker processes that cannot inherit a held lock.
 
 Matplotlib holds the GIL while it draws, so threads would take turns. The workers come from the
-forkserver (:mod:`costseg.processes`), never from a fork of this process, whose torch thread
+forkserver (:mod:`costseg.workers`), never from a fork of this process, whose torch thread
 pool and threads may hold locks. A job is a picklable callable that returns ``(tag, figure)``
 pairs, typically ``functools.partial`` of a generator that redraws one figure (e.g.
 :func:`costseg.report.ternary.ternary_figures`) over plain data: NumPy arrays and Python values.
@@ -11,7 +11,7 @@ worker runs a torch operation; :meth:`Drawing.submit` refuses a tensor that slip
 Each worker takes the next job, writes ``folder/<tag>.png`` for every figure and reports each
 one, while the calling process goes on; :meth:`Drawing.finish` returns every job's figures in
 the jobs' order. A worker that ends with figures undrawn, or that reports nothing for
-:data:`costseg.processes.STALL_SECONDS`, ends the wait with :class:`costseg.processes.Stalled`.
+:data:`costseg.workers.STALL_SECONDS`, ends the wait with :class:`costseg.workers.Stalled`.
 Importing this module imports neither matplotlib nor torch.
 """
 
@@ -30,8 +30,8 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from costseg import processes
-from costseg.processes import Stalled
+from costseg import workers
+from costseg.workers import Stalled
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -63,16 +63,16 @@ def _numpy(value):
 
 
 class Drawing:
-    """``workers`` forkserver processes that draw the jobs :meth:`submit` gives them into
+    """``processes`` forkserver processes that draw the jobs :meth:`submit` gives them into
     ``folder``, while this process goes on; :meth:`finish` waits for all of them, a bounded
     wait, and stops the workers; :meth:`cancel` stops them at once."""
 
-    def __init__(self, folder: Path, workers: int) -> None:
+    def __init__(self, folder: Path, processes: int) -> None:
         self.folder, self.prefixes = folder, []
-        self.tasks, self.reports = processes.CONTEXT.Queue(), processes.CONTEXT.Queue()
+        self.tasks, self.reports = workers.CONTEXT.Queue(), workers.CONTEXT.Queue()
         self.workers = [
-            processes.CONTEXT.Process(target=_work, args=(folder, self.tasks, self.reports))
-            for _ in range(max(1, workers))
+            workers.CONTEXT.Process(target=_work, args=(folder, self.tasks, self.reports))
+            for _ in range(max(1, processes))
         ]
         for worker in self.workers:
             worker.daemon = True
@@ -117,7 +117,7 @@ class Drawing:
 
     def _check(self, at: dict, silent: float) -> None:
         """Raise :class:`Stalled` if a worker ended before the jobs did, or none was heard
-        from for :data:`costseg.processes.STALL_SECONDS`."""
+        from for :data:`costseg.workers.STALL_SECONDS`."""
         for worker in self.workers:  # one that ended well took its None: others draw
             if worker.exitcode or all(w.exitcode is not None for w in self.workers):
                 where = self._where(at.get(worker.pid))
@@ -125,7 +125,7 @@ class Drawing:
                     f"a figure worker (pid {worker.pid}) ended with exit code {worker.exitcode}"
                     f"{where} before the figures in {self.folder} were drawn"
                 )
-        if silent > processes.STALL_SECONDS:
+        if silent > workers.STALL_SECONDS:
             where = "; ".join(f"pid {pid}{self._where(a)}" for pid, a in sorted(at.items()))
             raise Stalled(
                 f"the figure workers drew nothing for {silent:.0f} s "

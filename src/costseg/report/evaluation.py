@@ -31,6 +31,7 @@ from costseg.report.tensorboard import (
     log_png,
     log_table,
     markdown_table,
+    summary_writer,
 )
 from costseg.report.uncertainty import uncertainty_strip
 from costseg.rules import DEFER_COLUMN
@@ -62,7 +63,7 @@ def write_evaluation(results: EvalResults, early: EarlyFigures) -> None:
     write_text(out / "table.md", tables)
     write_csv(out / "results.csv", rows)
     write_json(out / "results.json", _json(results, rows))
-    with SummaryWriter(str(out)) as writer:
+    with summary_writer(out) as writer:
         log_table(writer, "evaluation/table", tables)
         log_evaluation(writer, results, rows)
         if calibration := calibration_rows(results.extra.get("ece", {})):

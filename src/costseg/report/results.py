@@ -101,8 +101,8 @@ class Example:
 
 @dataclass
 class EvalResults:
-    """Everything the report needs about one evaluation, on the CPU (the report draws on forked
-    processes, which cannot use CUDA; see :mod:`costseg.report.drawing`).
+    """Everything the report needs about one evaluation, on the CPU (its figures are drawn in
+    worker processes from NumPy copies; see :mod:`costseg.report.drawing`).
 
     Attributes:
         output_dir: where the outputs go.

@@ -12,6 +12,7 @@ sweeps, as curves over the grid index, α or T. One card per metric; the classes
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
@@ -24,6 +25,7 @@ from costseg.metrics.names import DEFER_RATES
 from costseg.report.figures import ArrayLike, masks_side_by_side
 from costseg.report.risk_coverage import risk_coverage_curves
 from costseg.rules import DEFER_FAMILY
+from costseg.workers import within
 
 if TYPE_CHECKING:
     from torch.utils.tensorboard import SummaryWriter
@@ -180,7 +182,25 @@ def log_evaluation(writer: SummaryWriter, results: EvalResults, rows: Sequence[M
         for step, value in zip(steps, values, strict=True):
             log_scalars(target, {tag: value}, step)
     for run_writer in runs.values():
-        run_writer.close()
+        close_writer(run_writer)
+
+
+@contextlib.contextmanager
+def summary_writer(folder: Path) -> Iterator[SummaryWriter]:
+    """A ``SummaryWriter`` of ``folder``, closed by :func:`close_writer` at the end."""
+    from torch.utils.tensorboard import SummaryWriter
+
+    writer = SummaryWriter(str(folder))
+    try:
+        yield writer
+    finally:
+        close_writer(writer)
+
+
+def close_writer(writer: SummaryWriter) -> None:
+    """Close ``writer`` once its events are on disk, waiting a bounded time for its writer
+    thread (a hung file system ends in one line, :class:`costseg.workers.Stalled`)."""
+    within(writer.close, f"TensorBoard's writer of {writer.log_dir}")
 
 
 Curve = tuple[str, str | None, list[int], list[float]]  # tag, run (class or None), steps, values

@@ -23,6 +23,7 @@ from lightning.pytorch import LightningDataModule, Trainer
 from lightning.pytorch.callbacks import RichProgressBar, TQDMProgressBar
 from lightning.pytorch.cli import LightningCLI
 
+from costseg import workers
 from costseg.checkpoints import find_checkpoint, read_checkpoint
 from costseg.data.priors import roi_map, save_priors
 from costseg.training.module import SegmentationModule
@@ -99,8 +100,9 @@ def run_training(args: Sequence[str]) -> tuple[SegmentationModule, Trainer]:
         if ckpt_path:
             print(f"resuming from {ckpt_path}")
         else:
-            model.priors = _compute_priors(model, data, trainer)
-        with warnings.catch_warnings():
+            with workers.loader_errors("the labels of the priors"):
+                model.priors = _compute_priors(model, data, trainer)
+        with warnings.catch_warnings(), workers.loader_errors("the data"):
             # Lightning's pytree helpers call an API that torch deprecates, at every start
             warnings.filterwarnings("ignore", r"`isinstance\(treespec, LeafSpec\)`", FutureWarning)
             trainer.fit(model, data, ckpt_path=ckpt_path)

@@ -22,7 +22,7 @@ from costseg.decision.cpu import VERTICES
 from costseg.decision.cpu.block_steps import certify64
 from costseg.decision.cpu.mixture_kernel import decide_chunk
 from costseg.decision.reference import reference_labels
-from costseg.threads import in_pieces
+from costseg.workers import in_pieces
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False, error_model="numpy")

@@ -36,7 +36,7 @@ from costseg.decision import certificate as cert
 from costseg.decision.certified import CertifiedCosts
 from costseg.decision.cpu.row_groups import PASS, program, shared_rows, supports, with_zeros
 from costseg.decision.cpu.sparse_kernel import BLOCK, decide_blocks, reference_pixels
-from costseg.threads import in_pieces
+from costseg.workers import in_pieces
 
 CHUNK = 1 << 20  # pixels converted to float32 q at once (other types, pixel-wise priors)
 

@@ -25,7 +25,7 @@ from torch import Tensor
 
 from costseg.classes import IGNORE_INDEX
 from costseg.metrics.functional.segments import label_segments, mask_segment_errors
-from costseg.threads import threads
+from costseg.workers import threads
 
 _BITS = (128, 64, 32, 16, 8, 4, 2, 1)  # np.packbits' order: first pixel in the high bit
 
