@@ -6,7 +6,7 @@
 #    and scripts/bench_triton_configs.py: the kernel's block configurations side by side;
 # 3. scripts/bench_pipeline.py's full-resolution section: the 231-point sweep per 1024 x 2048 image
 #    (8 stand-in scenes), and where a sweep's time goes (cProfile, 4 images);
-# 4. one evaluation with every figure, written by forked processes from results on the GPU.
+# 4. one evaluation with every figure, drawn by worker processes from results on the GPU.
 # Runs from the source tree (PYTHONPATH=src): no installation needed beyond torch's image.
 set -uo pipefail
 ckpt=$1

@@ -22,7 +22,7 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
-from costseg import CONFIGS
+from costseg import CONFIGS, workers
 from costseg.options import EvalOptions, PredictOptions
 from costseg.workers import Stalled
 
@@ -236,6 +236,7 @@ def evaluate_main(args: Sequence[str] | None = None) -> Any:
     """``python evaluate.py --cost egoistic`` (see ``--help``); returns the results."""
     with user_errors():
         opts = EvalOptions(**vars(evaluate_parser().parse_args(args)))
+        workers.start()  # the workers' forkserver imports its modules while this one does
         from costseg.evaluation.run import evaluate
 
         return evaluate(opts)

@@ -41,9 +41,10 @@ PRELOAD = [
     "costseg.report.priors",
     "costseg.report.uncertainty",
     "costseg.data.toy",
-    "costseg.data.cityscapes",
 ]
-"""Modules the forkserver imports once, so that a worker forked from it starts at once."""
+"""Modules the forkserver imports once, so that a worker forked from it starts at once: the
+drawing jobs' and the procedural scenes' (a Cityscapes loader's workers import torchvision
+themselves, 1.3 s, rather than every evaluation's forkserver)."""
 
 STALL_SECONDS = 600.0
 """How long a wait on a worker may pass without a figure drawn or a batch loaded. One figure of
