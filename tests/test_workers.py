@@ -39,14 +39,14 @@ def test_a_batch_that_never_comes_is_one_stalled_error(monkeypatch):
     monkeypatch.setattr(workers, "STALL_SECONDS", 1.0)
     loader = DataLoader(SlowItems(60), batch_size=None, **loader_options(1))
     start = time.monotonic()
-    with pytest.raises(Stalled, match=r"^DataLoader timed out after 1.0 seconds while loading x$"):
-        with loader_errors("x"):
-            next(iter(loader))
+    timed_out = r"^DataLoader timed out after 1.0 seconds while loading x$"
+    with pytest.raises(Stalled, match=timed_out), loader_errors("x"):
+        next(iter(loader))
     assert time.monotonic() - start < 30
 
 
 def test_other_errors_pass_through_loader_errors():
-    with pytest.raises(RuntimeError, match="^other$"), loader_errors("x"):
+    with pytest.raises(RuntimeError, match=r"^other$"), loader_errors("x"):
         raise RuntimeError("other")
 
 
@@ -55,5 +55,5 @@ def test_within_returns_raises_or_gives_up(monkeypatch):
     with pytest.raises(KeyError):
         within(lambda: {}["k"], "a lookup")
     monkeypatch.setattr(workers, "STALL_SECONDS", 0.2)
-    with pytest.raises(Stalled, match="^a sleep did not finish within 0 s$"):
+    with pytest.raises(Stalled, match=r"^a sleep did not finish within 0 s$"):
         within(lambda: time.sleep(5), "a sleep")

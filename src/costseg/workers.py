@@ -25,6 +25,7 @@ import contextlib
 import functools
 import multiprocessing
 import os
+import signal
 import threading
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -56,10 +57,21 @@ CONTEXT.set_forkserver_preload(PRELOAD)
 
 def start() -> None:
     """Start the forkserver now (it imports :data:`PRELOAD` while this process goes on), so
-    that the first worker does not wait for it. Returns at once; later calls do nothing."""
+    that the first worker does not wait for it. Returns at once; later calls do nothing.
+
+    It starts with Ctrl-C ignored, as do the workers it forks: Ctrl-C is this process's to
+    handle (it stops the workers), and a worker or the forkserver itself must not print a
+    traceback of its own."""
     from multiprocessing import forkserver
 
-    forkserver.ensure_running()
+    if threading.current_thread() is not threading.main_thread():
+        forkserver.ensure_running()  # only the main thread may set signal handlers
+        return
+    handler = signal.signal(signal.SIGINT, signal.SIG_IGN)  # inherited through exec
+    try:
+        forkserver.ensure_running()
+    finally:
+        signal.signal(signal.SIGINT, handler)
 
 
 class Stalled(RuntimeError):
@@ -76,6 +88,7 @@ def loader_options(num_workers: int) -> dict:
     """
     if num_workers == 0:
         return {"num_workers": 0}
+    start()
     return {
         "num_workers": num_workers,
         "multiprocessing_context": CONTEXT,

@@ -69,6 +69,7 @@ class Drawing:
 
     def __init__(self, folder: Path, processes: int) -> None:
         self.folder, self.prefixes = folder, []
+        workers.start()
         self.tasks, self.reports = workers.CONTEXT.Queue(), workers.CONTEXT.Queue()
         self.workers = [
             workers.CONTEXT.Process(target=_work, args=(folder, self.tasks, self.reports))

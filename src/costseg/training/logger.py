@@ -11,8 +11,6 @@ from typing import Any
 
 from lightning.pytorch.loggers import TensorBoardLogger
 
-from costseg.workers import within
-
 
 class RunLogger(TensorBoardLogger):
     """``TensorBoardLogger`` without the ``hp_metric`` and ``epoch`` cards (same arguments)."""
@@ -28,10 +26,3 @@ class RunLogger(TensorBoardLogger):
 
     def log_metrics(self, metrics: Mapping[str, float], step: int | None = None) -> None:
         super().log_metrics({k: v for k, v in metrics.items() if k != "epoch"}, step)
-
-    def finalize(self, status: str) -> None:
-        """Flush and close the writer, a bounded wait (:func:`costseg.workers.within`)."""
-        within(
-            lambda: super(RunLogger, self).finalize(status),
-            f"TensorBoard's writer of {self.log_dir}",
-        )
