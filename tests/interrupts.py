@@ -15,15 +15,19 @@ ENV = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
 
 def start_job(command: list[str]) -> subprocess.Popen:
     """The job in a process group of its own, with Ctrl-C's default handling even when the tests
-    run in the background (a shell starts background jobs with SIGINT ignored)."""
+    run in the background (a shell starts background jobs with SIGINT ignored, and an ignored
+    signal stays ignored through exec). ``command[0]`` must be Python: a first interpreter
+    restores SIGINT's default, then becomes the job by exec (no Python code runs between fork
+    and exec, which is unsafe in a process with threads such as this one)."""
+    restore = "import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); "
+    restore += "os.execv(sys.argv[1], sys.argv[1:])"
     return subprocess.Popen(
-        command,
+        [command[0], "-c", restore, *command],
         env=ENV,
         start_new_session=True,
         text=True,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
 
 
