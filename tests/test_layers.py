@@ -137,3 +137,12 @@ def test_evaluation_imports_no_lightning_at_run_time():
 def test_few_modules_at_the_top_level():
     top = sorted(p.name for p in SRC.glob("*.py") if p.name != "__init__.py")
     assert len(top) <= 10, top
+
+
+def test_configs_live_once_at_the_top():
+    """configs/ at the repository's top is what the package reads; src/costseg/configs links it."""
+    from costseg import CONFIGS
+
+    top = SRC.parents[1] / "configs"
+    assert (SRC / "configs").is_symlink() and (SRC / "configs").resolve() == top
+    assert Path(str(CONFIGS)).resolve() == top and (top / "costs" / "egoistic.yaml").is_file()

@@ -4,6 +4,7 @@ from importlib.resources import files
 
 __version__ = "0.1.0"
 
-# The package data: the LightningCLI configs and, in costs/, the cost matrices (read wherever
-# the package is installed).
+# The package data: the LightningCLI configs and, in costs/, the cost matrices. They live once,
+# in the repository's top-level configs/; src/costseg/configs is a link to it, so a checkout reads
+# them there and the wheel carries them as files (read wherever the package is installed).
 CONFIGS = files("costseg") / "configs"

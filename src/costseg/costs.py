@@ -133,7 +133,7 @@ def with_defer(
 def load_cost(name_or_path: str | Path, class_names: Sequence[str] = CLASS_NAMES) -> torch.Tensor:
     """Load a preset (``robotistic``, ``altruistic``, ``egoistic``) or a YAML cost file.
 
-    Three YAML formats (see the presets in ``src/costseg/configs/costs/``):
+    Three YAML formats (see the presets in ``configs/costs/``):
 
     * ``off_diagonal: λ`` — the symmetric matrix with every off-diagonal entry λ;
     * ``classes: [...]`` + ``matrix: N×N`` — a full matrix over named classes (any order);
@@ -171,7 +171,7 @@ def load_cost(name_or_path: str | Path, class_names: Sequence[str] = CLASS_NAMES
             raise ValueError(
                 f"{path} is an aggregate table (which class is in which aggregate), not a cost "
                 "matrix: a cost file names it under 'aggregates' with 'order' and 'matrix' "
-                "(see the preset costseg/configs/costs/egoistic.yaml)"
+                "(see the preset configs/costs/egoistic.yaml)"
             )
         cost = expand_aggregates(spec, folder, class_names)
     elif "classes" in spec:

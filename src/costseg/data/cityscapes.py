@@ -13,16 +13,16 @@ training images does not mean decoding them all.
 
 from __future__ import annotations
 
-import re
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
+from PIL import Image
 from torch import Tensor
 from torch.utils.data import Dataset
 from torchvision import tv_tensors
-from torchvision.io import ImageReadMode, decode_image, read_file
 from torchvision.transforms import v2
 from torchvision.transforms.v2 import functional as F
 
@@ -90,7 +90,7 @@ class CityscapesSegmentation(Dataset[tuple[Tensor, Tensor]]):
 
     def __getitem__(self, index: int) -> tuple[Tensor, Tensor]:
         image_path, label_path = self.files[index]
-        image = _decode(image_path, ImageReadMode.RGB)
+        image = _decode(image_path, rgb=True)
         label = self._train_ids(label_path)
         if image.shape[-2:] != label.shape:
             raise ValueError(
@@ -105,9 +105,9 @@ class CityscapesSegmentation(Dataset[tuple[Tensor, Tensor]]):
         """Item ``index`` (un-augmented) with its (H, W) int64 instance ids, read from the 16-bit
         ``*_gtFine_instanceIds.png`` (``docs/definitions.md §9``)."""
         image_path, label_path = self.files[index]
-        image, label = _decode(image_path, ImageReadMode.RGB), self._train_ids(label_path)
+        image, label = _decode(image_path, rgb=True), self._train_ids(label_path)
         path = self.instance_files[index]
-        ids = _decode(path, ImageReadMode.UNCHANGED)
+        ids = _decode(path)
         if ids.shape[0] != 1 or ids.shape[-2:] != label.shape:
             raise ValueError(
                 f"{path} should be a single-channel instance-id PNG of {tuple(label.shape)} "
@@ -122,7 +122,7 @@ class CityscapesSegmentation(Dataset[tuple[Tensor, Tensor]]):
     @staticmethod
     def _train_ids(path: Path) -> Tensor:
         """(H, W) uint8 train ids of a label-id PNG; ValueError for unknown ids."""
-        ids = _decode(path, ImageReadMode.UNCHANGED)
+        ids = _decode(path)
         if ids.dtype != torch.uint8 or ids.shape[0] != 1:
             raise ValueError(
                 f"{path} should be a single-channel 8-bit label-id PNG; "
@@ -136,15 +136,17 @@ class CityscapesSegmentation(Dataset[tuple[Tensor, Tensor]]):
         return _TRAIN_ID.take(ids[0].long())
 
 
-def _decode(path: Path, mode: ImageReadMode) -> Tensor:
-    """(C, H, W) tensor of an image file; one-line ValueError naming a corrupt file."""
+def _decode(path: Path, rgb: bool = False) -> Tensor:
+    """(C, H, W) tensor of an image file (Pillow): RGB with ``rgb``, else the stored channels
+    and bit depth (8-bit label ids, 16-bit instance ids); one-line ValueError naming a file
+    that cannot be decoded."""
     try:
-        return decode_image(read_file(str(path)), mode=mode)
-    except RuntimeError as err:
-        # torchvision prefixes its messages with the C++ source location; keep the reason only.
-        lines = str(err).strip().splitlines() or [type(err).__name__]
-        reason = re.sub(r"^.*\.cpp:\d+,\s*", "", lines[0])
-        raise ValueError(f"cannot decode {path}: {reason}") from None
+        with Image.open(path) as image:
+            array = np.asarray(image.convert("RGB") if rgb and image.mode != "RGB" else image)
+    except (OSError, SyntaxError) as err:  # Pillow: unknown format, truncated or corrupt data
+        raise ValueError(f"cannot decode {path}: {err}") from None
+    array = array[..., None] if array.ndim == 2 else array
+    return torch.from_numpy(np.ascontiguousarray(array.transpose(2, 0, 1)))
 
 
 def _find_pairs(root: Path, split: str) -> list[tuple[Path, Path]]:
