@@ -77,15 +77,6 @@ SETTINGS = {
 }
 
 
-def cityscapes_config(root: str | Path) -> dict[str, Any]:
-    """The data configuration of a Cityscapes tree at ``root`` (for networks costseg did not
-    train)."""
-    return {
-        "class_path": "costseg.data.datamodule.CityscapesDataModule",
-        "init_args": {"root": str(root)},
-    }
-
-
 def data_settings(
     config: dict[str, Any], root: str | Path | None = None
 ) -> StreetScenesSettings | CityscapesSettings:

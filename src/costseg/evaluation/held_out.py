@@ -113,7 +113,7 @@ def certify(
         priors, roi = priors_at(tuple(batch.labels.shape[-2:]))
         metrics.to(batch.labels.device)  # a no-op after the first batch
         probs, ids = probabilities(batch), batch.instances
-        (preds,) = score_batch([group], [metrics], probs, batch.labels, priors, roi, ids)
+        preds = score_batch(group, metrics, probs, batch.labels, priors, roi, ids)
         counts.append(
             per_image_counts(preds, batch.labels, roi, t.cls, t.roi, t.metric, instances=ids).cpu()
         )

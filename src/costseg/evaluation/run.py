@@ -101,17 +101,10 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> 
                 writer.save_probs(batch.stems, probs, uncertainty)
             _update_ece(ece, plan, batch, probs)
             priors, roi = plan.priors.at(tuple(batch.labels.shape[-2:]))
+            ids = batch.instances
             by_temperature = _tempered(plan, batch, probs)
             preds = [
-                score_batch(
-                    [g],
-                    [m],
-                    by_temperature[g.temperature],
-                    batch.labels,
-                    priors,
-                    roi,
-                    batch.instances,
-                )[0]
+                score_batch(g, m, by_temperature[g.temperature], batch.labels, priors, roi, ids)
                 for g, m in zip(plan.groups, metrics, strict=True)
             ]
             writer.save_predictions(batch.stems, preds[named])

@@ -2,10 +2,10 @@
 
 >>> import torch
 >>> from costseg.rules import parse_rules, rules_group
->>> groups = [rules_group(parse_rules(["robotistic", "egoistic"]))]
->>> metrics = GroupMetrics(groups[0], num_classes=19, num_rois=0)
+>>> group = rules_group(parse_rules(["robotistic", "egoistic"]))
+>>> metrics = GroupMetrics(group, num_classes=19, num_rois=0)
 >>> probs = torch.rand(1, 19, 4, 4).softmax(1)
->>> preds = score_batch(groups, [metrics], probs, probs.argmax(1))
+>>> preds = score_batch(group, metrics, probs, probs.argmax(1))
 >>> metrics.compute()["pixels"]["miou"][0].item()       # robotistic = argmax
 1.0
 """
@@ -87,21 +87,6 @@ class GroupMetrics(WrapperMetric):
             elif instances is not None:
                 metric.update(preds, target, instances, roi)
 
-    def forward(
-        self,
-        preds: Tensor,
-        target: Tensor,
-        roi: Tensor | None = None,
-        instances: Tensor | None = None,
-    ) -> dict:
-        """Add a batch and return its metrics alone (as :meth:`compute` does for all)."""
-        out = {"pixels": self.pixels(preds, target, roi), "segments": {}, "instances": {}}
-        if self.segments is not None:
-            out["segments"] = self.segments(preds, target, roi)
-        if self.instances is not None and instances is not None:
-            out["instances"] = self.instances(preds, target, instances, roi)
-        return out
-
     def compute(self) -> dict[str, dict[str, Tensor]]:
         """``{"pixels": RoIPrecisionRecall.compute(), "segments": SegmentErrors.compute(),
         "instances": InstanceMisses.compute()}`` (``{}`` for metrics not measured)."""
@@ -117,19 +102,19 @@ class GroupMetrics(WrapperMetric):
 
 
 def score_batch(
-    groups: Sequence[RuleGroup],
-    metrics: Sequence[GroupMetrics],
+    group: RuleGroup,
+    metrics: GroupMetrics,
     probs: Tensor,
     labels: Tensor,
     priors: Tensor | None = None,
     roi: Tensor | None = None,
     instances: Tensor | None = None,
 ) -> list[Tensor]:
-    """Decide every group on (B, N, H, W) probabilities, update its metrics, return the maps.
+    """Decide the group on (B, N, H, W) probabilities, update its metrics, return the maps.
 
     Args:
-        groups: the rule groups.
-        metrics: one :class:`GroupMetrics` per group.
+        group: the rule group.
+        metrics: its :class:`GroupMetrics`.
         probs: (B, N, H, W) probabilities.
         labels: (B, H, W) train ids (255 = ignore).
         priors: None, (N,) or (N, H, W) pixel-wise priors.
@@ -137,9 +122,8 @@ def score_batch(
         instances: None or (B, H, W) instance ids (for groups with instance metrics).
 
     Returns:
-        per group the (B, K, H, W) label maps.
+        the (B, K, H, W) label maps.
     """
-    preds = [g.decide(probs, priors) for g in groups]
-    for m, p in zip(metrics, preds, strict=True):
-        m.update(p, labels, roi, instances)
+    preds = group.decide(probs, priors)
+    metrics.update(preds, labels, roi, instances)
     return preds

@@ -78,11 +78,6 @@ class Protocol:
         return cls(shape, tuple(stride) if stride else None, opts.tta == "flip", scales)
 
     @property
-    def slides(self) -> bool:
-        """Whether the network runs on sliding windows."""
-        return self.crop is not None
-
-    @property
     def augments(self) -> bool:
         """Whether there is more than one view (flip, or a scale other than 1 alone)."""
         return self.flip or self.scales != (1.0,)

@@ -116,7 +116,7 @@ class SegmentationModule(L.LightningModule):
             priors, roi = priors.to(self.device), roi.to(self.device)
         probs = logits.float().softmax(1)
         self.val_ece.update(probs, labels)
-        (preds,) = score_batch([self.rules], [self.val_metrics], probs, labels, priors, roi)
+        preds = score_batch(self.rules, self.val_metrics, probs, labels, priors, roi)
         return {"preds": preds, "names": self.rules.names}
 
     def on_validation_epoch_end(self) -> None:

@@ -57,24 +57,6 @@ def render_scene(
     return image, label
 
 
-def render_scene_instances(
-    rng: np.random.Generator, size: tuple[int, int] = (256, 512)
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`render_scene` (same image and label) plus its instance ids.
-
-    Returns:
-        image (H, W, 3) uint8, label (H, W) uint8 and instance ids (H, W) int32 in Cityscapes'
-        encoding (:mod:`costseg.data.toy.instances`; ``docs/definitions.md §9``).
-
-    >>> _, label, ids = render_scene_instances(np.random.default_rng(0), size=(64, 128))
-    >>> ids.shape, ids.dtype.name, bool((ids[label == 11] // 1000 == 24).all())
-    ((64, 128), 'int32', True)
-    """
-    image, label, ids = _render(rng, size, instances=True)
-    assert ids is not None
-    return image, label, ids
-
-
 def _render(
     rng: np.random.Generator, size: tuple[int, int], instances: bool
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
