@@ -12,8 +12,23 @@ metric names from here. A metric reported per rule, class and RoI is a *rate* (a
 
 from __future__ import annotations
 
-PIXEL_RATES: tuple[str, ...] = ("precision", "recall")
+from collections.abc import Callable
+
+PIXEL_RATE_PARTS: dict[str, Callable] = {
+    "precision": lambda tp, fp, fn: (tp, tp + fp),
+    "recall": lambda tp, fp, fn: (tp, tp + fn),
+}
+"""Each pixel rate per rule, class and RoI as (numerator, denominator) of the class's true
+positives, false positives and false negatives (a deferred pixel is a false negative of its
+class; docs/definitions.md §4, §14). One entry is a new rate everywhere: the metrics
+(:func:`~costseg.metrics.functional.roi.pixel_rates`, the per-image losses), result rows,
+CSV / JSON, table.md, TensorBoard in training and evaluation, sweep figures and ``--target``."""
+
+PIXEL_RATES: tuple[str, ...] = tuple(PIXEL_RATE_PARTS)
 """Per rule, class and RoI, from :class:`~costseg.metrics.RoIPrecisionRecall` (pixels)."""
+
+PAPER_RATES: tuple[str, ...] = ("precision", "recall")
+"""The two pixel rates of the paper's table (docs/definitions.md §5)."""
 
 DEFER_RATES: tuple[str, ...] = ("coverage", "selective_recall", "handled_recall")
 """Per rule, class and RoI, from :class:`~costseg.metrics.RoIPrecisionRecall`: what deferring

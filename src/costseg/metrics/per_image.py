@@ -51,6 +51,7 @@ from costseg.metrics.names import (
     DEFER_RATES,
     HIGHER_IS_BETTER,
     INSTANCE_RATES,
+    PIXEL_RATE_PARTS,
     PIXEL_RATES,
     SEGMENT_COUNTS,
     SEGMENT_RATE_PARTS,
@@ -159,13 +160,14 @@ def _pixel_counts(
         else:
             tp, predicted = cm[:, cls, cls], cm[:, :, cls].sum(-1)
             gt, deferred = cm[:, cls].sum(-1), cm[:, cls, n]
-        parts = {
-            "recall": (tp, gt),
-            "precision": (tp, predicted),
-            "coverage": (gt - deferred, gt),
-            "selective_recall": (tp, gt - deferred),
-            "handled_recall": (tp + deferred, gt),
-        }[metric]
+        if metric in PIXEL_RATE_PARTS:  # a deferred pixel is a false negative
+            parts = PIXEL_RATE_PARTS[metric](tp, predicted - tp, gt - tp)
+        else:
+            parts = {
+                "coverage": (gt - deferred, gt),
+                "selective_recall": (tp, gt - deferred),
+                "handled_recall": (tp + deferred, gt),
+            }[metric]
         out.append(torch.stack(parts, -1))
     return torch.stack(out)
 

@@ -10,6 +10,7 @@ import torch
 
 from costseg.classes import CLASS_NAMES
 from costseg.costs import rescale, symmetric_cost
+from costseg.metrics.names import PAPER_RATES, SEGMENT_RATES
 from costseg.metrics.selection import choose
 from costseg.report.explorer import ExplorerExample, Marks, SweepData, embedded, write_explorer
 from costseg.report.results import EvalResults, GroupResult
@@ -47,12 +48,12 @@ def named_points(
 def sweep_data(grid: GroupResult, class_ids: Sequence[int]) -> SweepData:
     """The grid's pixel metrics (RoI 0-4) and segment rates of the ``--classes``."""
     metrics: dict[str, dict[str, dict[str, list[float]]]] = {}
-    for metric in ("precision", "recall"):
+    for metric in PAPER_RATES:
         values = grid.pixels[metric]  # (K, R, N)
         metrics[metric] = {
             CLASS_NAMES[c]: {str(r): values[:, r, c].tolist() for r in ROIS} for c in class_ids
         }
-    for metric in ("fp_rate", "fn_rate"):
+    for metric in SEGMENT_RATES:
         if metric in grid.segments:
             values = grid.segments[metric]  # (K, C, R)
             metrics[metric] = {

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from costseg.classes import CLASS_NAMES
 from costseg.costs import save_cost
-from costseg.metrics.names import PIXEL_RATES, SEGMENT_RATES
+from costseg.metrics.names import PAPER_RATES, PIXEL_RATES, SEGMENT_RATES
 from costseg.metrics.selection import choose
 from costseg.report.curves import Curves, curve_figures
 from costseg.report.drawing import Job, job
@@ -60,10 +60,10 @@ def _triangle_figures(results: EvalResults, grid: GroupResult) -> list[tuple[str
     for c, cls in enumerate(results.class_ids):
         name = CLASS_NAMES[cls]
         for roi in PAPER_ROIS:
-            precision, recall = (pixels[m][:, roi, cls] for m in PIXEL_RATES)
-            for metric, values in zip(PIXEL_RATES, (precision, recall), strict=True):
-                title = f"{metric} of {name}, RoI {roi}"
+            for metric in PIXEL_RATES:
+                values, title = pixels[metric][:, roi, cls], f"{metric} of {name}, RoI {roi}"
                 ternary.append((f"ternary_{name}_roi{roi}_{metric}", values, title, metric))
+            precision, recall = (pixels[m][:, roi, cls] for m in PAPER_RATES)
             edges.append((f"edges_{name}_roi{roi}", precision, recall))
         for metric in SEGMENT_RATES:
             title = f"{metric.replace('_', ' ')} of {name} segments"

@@ -18,6 +18,7 @@ from costseg.classes import CLASS_NAMES, NUM_CLASSES, NUM_ROIS, ROI_NAMES
 from costseg.metrics.names import (
     DEFER_COLUMNS,
     INSTANCE_COLUMNS,
+    PAPER_RATES,
     PIXEL_RATES,
     RATES,
     RULE_RATES,
@@ -28,7 +29,14 @@ from costseg.rules import DEFER_COLUMN
 Row = Mapping[str, Any]
 
 PERCENT = RATES
-EXTRA_COLUMNS = (*DEFER_COLUMNS, *SEGMENT_COLUMNS, *INSTANCE_COLUMNS[:3], *RULE_RATES)
+EXTRA_RATES = tuple(m for m in PIXEL_RATES if m not in PAPER_RATES)
+EXTRA_COLUMNS = (
+    *EXTRA_RATES,
+    *DEFER_COLUMNS,
+    *SEGMENT_COLUMNS,
+    *INSTANCE_COLUMNS[:3],
+    *RULE_RATES,
+)
 """Columns added to the paper's layout when the rows have them (and ``defer``, the rule's defer
 cost, after ``matrix``)."""
 
@@ -54,7 +62,7 @@ precision and recall in percent as printed there."""
 
 PAPER_ROIS: tuple[int, ...] = tuple(dict.fromkeys(r["roi"] for r in PAPER_TABLE))
 """The RoIs of the paper's table (1 street, 2 sidewalk): the headline rows."""
-PAPER_COLUMNS = ("matrix", "class", "roi", *PIXEL_RATES)
+PAPER_COLUMNS = ("matrix", "class", "roi", *PAPER_RATES)
 """The columns every row of a paper-style table needs."""
 
 MISSING = "—"
@@ -170,13 +178,13 @@ def _roi_label(roi: Any) -> str:
 
 
 _PAPER = {_key(r): r for r in PAPER_TABLE}
-_PAPER_RATES = tuple(f"paper {m}" for m in PIXEL_RATES)
+_PAPER_RATES = tuple(f"paper {m}" for m in PAPER_RATES)
 _PERCENT_WITH_PAPER = (*PERCENT, *_PAPER_RATES)
 
 
 def _paper_fractions(paper: Row) -> dict[str, float | None]:
     # The paper prints percent; as fractions they share the measured columns' formatting.
-    return {f"paper {k}": paper[k] / 100 if k in paper else None for k in PIXEL_RATES}
+    return {f"paper {k}": paper[k] / 100 if k in paper else None for k in PAPER_RATES}
 
 
 def paper_table(rows: Sequence[Row]) -> str:
@@ -210,7 +218,7 @@ def paper_table(rows: Sequence[Row]) -> str:
         previous = group
         paper = _PAPER.get(_key(r), {})
         table.append({**r, "class": shown[0], "roi": shown[1], **_paper_fractions(paper)})
-    columns = ["class", "roi", "matrix", *defer, *PIXEL_RATES, *extra]
+    columns = ["class", "roi", "matrix", *defer, *PAPER_RATES, *extra]
     columns += list(_PAPER_RATES) if with_paper else []
     headers = ["RoI" if c == "roi" else c for c in columns]
     return markdown_table(table, columns, headers, percent=_PERCENT_WITH_PAPER)
@@ -254,7 +262,7 @@ def compare_with_paper(rows: Sequence[Row]) -> str:
                 "matrix": p["matrix"],
                 "class": p["class"],
                 "roi": _roi_label(p["roi"]),
-                **{k: m.get(k) for k in PIXEL_RATES},
+                **{k: m.get(k) for k in PAPER_RATES},
                 **_paper_fractions(p),
             }
         )

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 from matplotlib.figure import Figure
 
 from costseg.classes import CLASS_NAMES
-from costseg.metrics.names import DEFER_RATES
+from costseg.metrics.names import DEFER_RATES, PIXEL_RATES, SEGMENT_RATES
 from costseg.report.figures import ArrayLike, masks_side_by_side
 from costseg.report.risk_coverage import risk_coverage_curves
 from costseg.rules import DEFER_FAMILY
@@ -216,7 +216,7 @@ def _sweep_curves(results: EvalResults) -> Iterator[Curve]:
         prefix, steps = result.group.output, list(range(len(result.group.names)))
         yield from _group_curves(prefix, result, results.class_ids, steps)
         for c, cls in enumerate(results.class_ids):
-            for metric in ("fp_rate", "fn_rate"):
+            for metric in SEGMENT_RATES:
                 if result.segments and metric in result.segments:
                     values = result.segments[metric][:, c, 0].tolist()
                     yield f"{prefix}/{metric}", CLASS_NAMES[cls], steps, values
@@ -227,7 +227,7 @@ def _sweep_curves(results: EvalResults) -> Iterator[Curve]:
     defers = bool(tempered) and tempered[0].group.defers
     for k, rule in enumerate(tempered[0].group.names if tempered else []):
         for cls in results.class_ids:
-            for metric in ("precision", "recall", *(DEFER_RATES if defers else ())):
+            for metric in (*PIXEL_RATES, *(DEFER_RATES if defers else ())):
                 values = [g.pixels[metric][k, 1, cls].item() for g in tempered]
                 yield f"temperature_sweep/{rule}/{metric}_roi1", CLASS_NAMES[cls], steps, values
         if defers:
@@ -238,10 +238,10 @@ def _sweep_curves(results: EvalResults) -> Iterator[Curve]:
 def _group_curves(
     prefix: str, result: GroupResult, class_ids: Sequence[int], steps: list[int]
 ) -> Iterator[Curve]:
-    """mIoU, and precision and recall of each class in RoI 1 and 2, along a group's rules."""
+    """mIoU, and each pixel rate of each class in RoI 1 and 2, along a group's rules."""
     yield f"{prefix}/miou", None, steps, result.pixels["miou"].tolist()
     for cls in class_ids:
         for roi in (1, 2):
-            for metric in ("precision", "recall"):
+            for metric in PIXEL_RATES:
                 values = result.pixels[metric][:, roi, cls].tolist()
                 yield f"{prefix}/{metric}_roi{roi}", CLASS_NAMES[cls], steps, values

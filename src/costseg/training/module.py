@@ -20,6 +20,7 @@ from costseg.checkpoints import CHECKPOINT_KEY
 from costseg.classes import CLASS_NAMES, IGNORE_INDEX, class_index
 from costseg.data.prior_maps import PriorMaps
 from costseg.metrics import CalibrationError
+from costseg.metrics.names import PIXEL_RATES
 from costseg.metrics.scoring import GroupMetrics, score_batch
 from costseg.models.deeplabv3plus import DeepLabV3Plus
 from costseg.networks.base import IMAGENET_MEAN, IMAGENET_STD
@@ -134,7 +135,9 @@ class SegmentationModule(L.LightningModule):
             for c, name in enumerate(names):
                 self.log(f"val/iou/{rule}/{name}", out["iou"][k, c].float())
             for c, name in ((person, "person"), (building, "building")):
-                self.log(f"val/recall_street/{rule}/{name}", out["recall"][k, 1, c].float())
+                for metric in PIXEL_RATES:
+                    value = out[metric][k, 1, c].float()
+                    self.log(f"val/{metric}_street/{rule}/{name}", value)
             if self.rules.rules[k].defers:  # a deferred pixel is a false negative in IoU
                 self.log(f"val/deferred_rate/{rule}", out["deferred_rate"][k, 0].float())
 

@@ -26,6 +26,7 @@ from torch import Tensor
 from costseg.classes import IGNORE_INDEX, NUM_CLASSES, NUM_ROIS
 from costseg.metrics.functional.deferral import deferral_metrics
 from costseg.metrics.functional.inputs import as_rules, check_batch, describe
+from costseg.metrics.names import PIXEL_RATE_PARTS
 
 CONFUSION_CHUNK = 1 << 20  # rule x pixel entries indexed at once in roi_confusion
 COMPILED_MIN_RULES = 16  # from this many rules on (sweeps), the CPU counts in one compiled pass;
@@ -195,8 +196,21 @@ def precision_recall(cm: Tensor, deferred: Tensor | None = None) -> tuple[Tensor
     >>> precision_recall(torch.tensor([[2, 0], [1, 1]]), torch.tensor([2, 0]))[1].tolist()
     [0.5, 0.5]
     """
+    rates = pixel_rates(cm, deferred)
+    return rates["precision"], rates["recall"]
+
+
+def pixel_rates(cm: Tensor, deferred: Tensor | None = None) -> dict[str, Tensor]:
+    """Every rate of :data:`~costseg.metrics.names.PIXEL_RATE_PARTS` per class of (..., N, N)
+    counts (and the (..., N) ``deferred`` pixels, false negatives): float64 (..., N), NaN for
+    0/0.
+
+    >>> pixel_rates(torch.tensor([[2, 0], [1, 1]]))["precision"].tolist()
+    [0.6666666666666666, 1.0]
+    """
     tp, fp, fn = tp_fp_fn(cm, deferred)
-    return tp / (tp + fp), tp / (tp + fn)
+    rates = {name: parts(tp, fp, fn) for name, parts in PIXEL_RATE_PARTS.items()}
+    return {name: numerator / denominator for name, (numerator, denominator) in rates.items()}
 
 
 def iou_from_confusion(cm: Tensor, deferred: Tensor | None = None) -> Tensor:
@@ -213,7 +227,8 @@ def iou_from_confusion(cm: Tensor, deferred: Tensor | None = None) -> Tensor:
 def roi_metrics(confmat: Tensor, deferred: Tensor | None = None) -> dict[str, Tensor]:
     """Everything :class:`~costseg.metrics.RoIPrecisionRecall` reports from its (K, R+1, N, N)
     counts of the pixels that were not deferred and its (K, R+1, N) deferred pixels per target
-    class (None: none): "confmat", "deferred"; "precision", "recall" (K, R+1, N); "iou" (K, N)
+    class (None: none): "confmat", "deferred"; each pixel rate ("precision", "recall", ...) (K,
+    R+1, N); "iou" (K, N)
     and "miou" (K,) over the whole image (the mean over the classes whose IoU is defined); the
     metrics of deferral (:func:`~costseg.metrics.functional.deferral.deferral_metrics`).
 
@@ -223,13 +238,11 @@ def roi_metrics(confmat: Tensor, deferred: Tensor | None = None) -> dict[str, Te
     """
     if deferred is None:
         deferred = confmat.new_zeros(confmat.shape[:-1])
-    precision, recall = precision_recall(confmat, deferred)
     iou = iou_from_confusion(confmat[:, 0], deferred[:, 0])
     return {
         "confmat": confmat,
         "deferred": deferred,
-        "precision": precision,
-        "recall": recall,
+        **pixel_rates(confmat, deferred),
         "iou": iou,
         "miou": iou.nanmean(-1),
         **deferral_metrics(confmat, deferred),
