@@ -17,6 +17,7 @@ from collections.abc import Callable
 PIXEL_RATE_PARTS: dict[str, Callable] = {
     "precision": lambda tp, fp, fn: (tp, tp + fp),
     "recall": lambda tp, fp, fn: (tp, tp + fn),
+    "dice": lambda tp, fp, fn: (2 * tp, 2 * tp + fp + fn),  # F1: precision and recall's mean
 }
 """Each pixel rate per rule, class and RoI as (numerator, denominator) of the class's true
 positives, false positives and false negatives (a deferred pixel is a false negative of its
