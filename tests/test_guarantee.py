@@ -15,12 +15,7 @@ from costseg.calibration.guarantee import (
     hoeffding_pvalue,
     learn_then_test,
 )
-from costseg.calibration.losses import (
-    fn_segment_rate,
-    fp_segment_rate,
-    precision_loss,
-    recall_loss,
-)
+from costseg.metrics.per_image import per_image_loss
 
 # (successes k, images n, alpha): binary losses, so R̂ = k / n exactly in the reference.
 CASES = [(0, 50, 0.2), (5, 50, 0.2), (3, 10, 0.5), (12, 100, 0.2), (30, 100, 0.1), (7, 7, 0.3)]
@@ -162,27 +157,28 @@ def test_learn_then_test_rejects_bad_inputs() -> None:
         learn_then_test(np.zeros((3, 2)), 0.1, 0.1, order=[2])
 
 
-def test_loss_helpers() -> None:
+def test_per_image_losses_from_hand_counted_cases() -> None:
     tp = torch.tensor([[3, 0, 0], [1, 2, 5]])  # (n_images, L)
     fn = torch.tensor([[1, 2, 0], [0, 2, 0]])
     fp = torch.tensor([[0, 4, 0], [1, 0, 5]])
-    want_recall = [[1 / 4, 1.0, math.nan], [0.0, 0.5, 0.0]]
-    want_precision = [[0.0, 1.0, math.nan], [0.5, 0.0, 0.5]]
-    for got, want in ((recall_loss(tp, fn), want_recall), (precision_loss(tp, fp), want_precision)):
+    want = {
+        "recall": (tp + fn, [[1 / 4, 1.0, math.nan], [0.0, 0.5, 0.0]]),
+        "precision": (tp + fp, [[0.0, 1.0, math.nan], [0.5, 0.0, 0.5]]),
+    }
+    for metric, (whole, losses) in want.items():
+        got = per_image_loss(torch.stack([tp, whole], -1), metric)
         assert got.dtype == torch.float64
-        torch.testing.assert_close(got, torch.tensor(want).double(), equal_nan=True)
-    n_gt, n_pred = np.array([[4, 0], [2, 1]]), np.array([[3, 0], [0, 2]])
+        torch.testing.assert_close(got, torch.tensor(losses).double(), equal_nan=True)
+    n_gt, n_pred = torch.tensor([[4, 0], [2, 1]]), torch.tensor([[3, 0], [0, 2]])
     torch.testing.assert_close(
-        fn_segment_rate(np.array([[1, 0], [2, 0]]), n_gt),
+        per_image_loss(torch.stack([torch.tensor([[1, 0], [2, 0]]), n_gt], -1), "fn_rate"),
         torch.tensor([[0.25, math.nan], [1.0, 0.0]]).double(),
         equal_nan=True,
     )
     torch.testing.assert_close(
-        fp_segment_rate(np.array([[3, 0], [0, 1]]), n_pred),
+        per_image_loss(torch.stack([torch.tensor([[3, 0], [0, 1]]), n_pred], -1), "fp_rate"),
         torch.tensor([[1.0, math.nan], [math.nan, 0.5]]).double(),
         equal_nan=True,
     )
-    with pytest.raises(ValueError, match="equal shapes"):
-        fn_segment_rate(torch.ones(2, 3), torch.ones(3, 2))
     with pytest.raises(ValueError, match="numerator <= denominator"):
-        fp_segment_rate(torch.tensor([3]), torch.tensor([2]))
+        per_image_loss(torch.tensor([[[3, 2]]]), "fp_rate")

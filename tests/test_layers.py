@@ -8,7 +8,6 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "costseg"
 # Packages (and top-level modules), lower layers first; each may import its own layer or lower.
 CHAIN = [
     {"atomic", "classes", "checkpoints", "options", "progress", "workers"},
-    {"cost_files"},
     {"costs"},
     {"decision"},
     {"rules", "calibration"},
@@ -17,9 +16,9 @@ CHAIN = [
     {"evaluation", "prediction", "training"},
     {"cli"},
 ]
-NO_LIGHTNING = {"cost_files", "costs", "decision", "rules", "calibration", "metrics", "networks",
+NO_LIGHTNING = {"costs", "decision", "rules", "calibration", "metrics", "networks",
                 "report", "evaluation", "prediction", "workers", "compile_kernels"}  # fmt: skip
-NO_MODEL = {"cost_files", "costs", "decision", "rules", "calibration", "metrics", "report"}
+NO_MODEL = {"costs", "decision", "rules", "calibration", "metrics", "report"}
 
 
 def _imports() -> dict[str, set[str]]:

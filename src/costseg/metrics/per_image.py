@@ -35,12 +35,6 @@ import torch
 from numpy.typing import ArrayLike
 from torch import Tensor
 
-from costseg.calibration.losses import (
-    fn_segment_rate,
-    fp_segment_rate,
-    precision_loss,
-    recall_loss,
-)
 from costseg.classes import IGNORE_INDEX, NUM_CLASSES, NUM_ROIS
 from costseg.decision.label_maps import DEFERRED
 from costseg.metrics.functional.inputs import check_batch
@@ -218,11 +212,9 @@ def per_image_loss(counts: ArrayLike | Tensor, metric: str) -> Tensor:
         raise ValueError(f"expected (n, K, 2) counts, got shape {tuple(counts.shape)}")
     if metric not in TARGET_METRICS:
         raise ValueError(f"metric must be one of {', '.join(TARGET_METRICS)}; got {metric!r}")
-    part, whole = counts.unbind(-1)
-    if metric == "precision":
-        return precision_loss(part, whole - part)
-    if metric in HIGHER_IS_BETTER:  # 1 − part / whole
-        return recall_loss(part, whole - part)
-    if metric == "fn_rate":
-        return fn_segment_rate(part, whole)
-    return fp_segment_rate(part, whole)
+    part, whole = counts.double().unbind(-1)
+    if bool((part < 0).any() | (part > whole).any()):
+        raise ValueError(f"{metric}: expected counts 0 <= numerator <= denominator")
+    if metric in HIGHER_IS_BETTER:  # the loss is 1 − part / whole; the segment rates are losses
+        part = whole - part
+    return torch.where(whole > 0, part / whole.clamp(min=1), torch.nan)
