@@ -4,11 +4,15 @@ from pathlib import Path
 
 import pytest
 import torch
+import yaml
 from conftest import TINY_TRAIN
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from costseg.checkpoints import find_checkpoint
+from costseg.classes import CLASS_NAMES
 from costseg.cli import train_main
 from costseg.data.toy import StreetScenes
+from costseg.models.deeplabv3plus import DeepLabV3Plus
 from costseg.training.module import SegmentationModule
 
 
@@ -36,6 +40,52 @@ def test_run_folder_holds_checkpoints_priors_and_figures(tiny_run):
     for name in ("priors.pt", "priors.png", "roi_map.png", "config.yaml", "checkpoints/last.ckpt"):
         assert (run / name).is_file(), name
     assert _last(runs).parent == run / "checkpoints"
+
+
+def test_run_folder_config_and_priors_match_the_trained_module(tiny_run):
+    module, trainer, _ = tiny_run
+    run = Path(trainer.log_dir)
+    config = yaml.safe_load((run / "config.yaml").read_text())
+    hparams = {k: v for k, v in module.hparams.items() if not k.startswith("_")}
+    assert config["model"] == hparams
+    saved = torch.load(run / "priors.pt", map_location="cpu", weights_only=True)
+    assert saved["class_names"] == list(CLASS_NAMES)
+    assert torch.equal(saved["priors"], module.priors)
+
+
+def test_last_checkpoint_weights_rebuild_the_trained_network(tiny_run):
+    module, trainer, runs = tiny_run
+    config = yaml.safe_load((Path(trainer.log_dir) / "config.yaml").read_text())["model"]
+    fresh = DeepLabV3Plus(
+        config["num_classes"],
+        config["backbone"],
+        config["output_stride"],
+        decoder_channels=config["decoder_channels"],
+    ).to(memory_format=torch.channels_last)  # as config["channels_last"]: the same kernels
+    state = torch.load(_last(runs), map_location="cpu", weights_only=True)
+    fresh.load_state_dict(
+        {k.removeprefix("net."): v for k, v in state["state_dict"].items() if k.startswith("net.")}
+    )
+    x = torch.randn(2, 3, 64, 128, generator=torch.Generator().manual_seed(0))
+    module.eval(), fresh.eval()
+    with torch.no_grad():
+        assert torch.equal(fresh(x), module.net(x))
+
+
+def test_event_file_holds_the_validation_scalars_the_trainer_reports(tiny_run):
+    _, trainer, _ = tiny_run
+    acc = EventAccumulator(trainer.log_dir).Reload()
+    reported = {k: v.item() for k, v in trainer.logged_metrics.items() if k.startswith("val/")}
+    assert sorted(acc.Tags()["scalars"]) == sorted(reported)
+    logged = {tag: [e.value for e in acc.Scalars(tag)] for tag in reported}
+    # One validation, at the last step; NaN (an empty class) is logged as NaN.
+    torch.testing.assert_close(
+        torch.tensor([logged[tag] for tag in reported]),
+        torch.tensor([[v] for v in reported.values()]),
+        rtol=0,
+        atol=0,
+        equal_nan=True,
+    )
 
 
 def test_checkpoint_reload_gives_identical_predictions(tiny_run):

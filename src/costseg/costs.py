@@ -23,6 +23,7 @@ import yaml
 from costseg import CONFIGS
 from costseg.atomic import write_bytes
 from costseg.classes import CLASS_NAMES
+from costseg.options import steps_per_unit
 
 if TYPE_CHECKING:
     from importlib.resources.abc import Traversable
@@ -250,9 +251,7 @@ def barycentric_grid(step: float) -> torch.Tensor:
     >>> barycentric_grid(0.5).tolist()[:3]
     [[1.0, 0.0, 0.0], [0.5, 0.5, 0.0], [0.5, 0.0, 0.5]]
     """
-    n = round(1 / step) if step > 0 else 0
-    if n < 1 or not math.isclose(n * step, 1.0, rel_tol=1e-9):
-        raise ValueError(f"grid step must be 1/n for a whole number n >= 1, got {step}")
+    n = steps_per_unit(step, "grid step")
     points = [(n - i - j, i, j) for i in range(n + 1) for j in range(n + 1 - i)]
     points.sort(key=lambda w: (-w[0], -w[1]))
     return torch.tensor(points, dtype=torch.float64) / n

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -46,6 +47,18 @@ def whole_number(minimum: int) -> Callable[[str], int]:
     return parse
 
 
+def steps_per_unit(step: float, what: str = "step") -> int:
+    """n for a grid step ``step`` = 1/n with n a whole number >= 1; ValueError otherwise.
+
+    >>> steps_per_unit(0.1), steps_per_unit(0.05)
+    (10, 20)
+    """
+    n = round(1 / step) if 0 < step <= 1 else 0
+    if n < 1 or not math.isclose(n * step, 1.0, rel_tol=1e-9):
+        raise ValueError(f"{what} must be 1/n for a whole number n >= 1, got {step}")
+    return n
+
+
 def step_size(text: str) -> float:
     """Value type: a grid step 1/n in (0, 1].
 
@@ -56,40 +69,42 @@ def step_size(text: str) -> float:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a step such as 0.1, got {text!r}") from None
-    n = round(1 / value) if 0 < value <= 1 else 0
-    if n < 1 or abs(n * value - 1) > 1e-9:
-        raise argparse.ArgumentTypeError(f"expected a step 1/n in (0, 1], e.g. 0.1, got {text}")
-    return value
-
-
-def positive_number(text: str) -> float:
-    """Value type: a finite number > 0.
-
-    >>> positive_number("0.75")
-    0.75
-    """
     try:
-        value = float(text)
+        steps_per_unit(value)
     except ValueError:
-        value = -1.0
-    if not 0 < value < float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a number > 0 such as 0.75, got {text!r}")
+        raise argparse.ArgumentTypeError(
+            f"expected a step 1/n in (0, 1], e.g. 0.1, got {text}"
+        ) from None
     return value
 
 
-def defer_cost(text: str) -> float:
-    """Value type: a cost for deferring, a finite number >= 0.
+def number_above(
+    minimum: float, inclusive: bool, what: str, example: str
+) -> Callable[[str], float]:
+    """Value type: a finite number > ``minimum`` (>= with ``inclusive``), called ``what``.
 
-    >>> defer_cost("0.3")
-    0.3
+    >>> number_above(0, True, "a defer cost", "0.3")("0")
+    0.0
     """
-    try:
-        value = float(text)
-    except ValueError:
-        value = -1.0
-    if not 0 <= value < float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a defer cost >= 0 such as 0.3, got {text!r}")
-    return value
+    sign = ">=" if inclusive else ">"
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not ((value >= minimum if inclusive else value > minimum) and value < math.inf):
+            raise argparse.ArgumentTypeError(
+                f"expected {what} {sign} {minimum:g} such as {example}, got {text!r}"
+            )
+        return value
+
+    parse.__name__ = f"number {sign} {minimum:g}"
+    return parse
+
+
+positive_number = number_above(0, False, "a number", "0.75")
+defer_cost = number_above(0, True, "a defer cost", "0.3")
 
 
 def option(default: Any = None, help: str | None = None, **metadata: Any) -> Any:

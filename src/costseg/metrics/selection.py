@@ -106,7 +106,7 @@ def metric_values(
 ) -> torch.Tensor:
     """(K,) values of ``metric`` for every rule of a group (NaN where undefined)."""
     if metric.cls is None:  # all:roi:coverage
-        return 1 - pixels["deferred_rate"][:, metric.roi]
+        return pixels["coverage_all_classes"][:, metric.roi]
     if metric.metric in (*PIXEL_RATES, *DEFER_RATES):
         return pixels[metric.metric][:, metric.roi, metric.cls]
     if metric.metric in INSTANCE_RATES:

@@ -40,7 +40,7 @@ def curve(result: GroupResult, path: Sequence[int], cls: int | str, roi: int) ->
     :data:`ALL`) in RoI ``roi``; NaN where undefined."""
     pixels, path = result.pixels, list(path)
     if cls == ALL:
-        coverage = 1 - pixels["deferred_rate"][path, roi]
+        coverage = pixels["coverage_all_classes"][path, roi]
         risk = selective_error(pixels["confmat"][path, roi])
     else:
         coverage = pixels["coverage"][path, roi, cls]
@@ -69,7 +69,7 @@ def curve_rows(result: GroupResult, class_ids: Sequence[int]) -> list[dict]:
     for i, row in enumerate(rows):
         k, r = i // per_rule, row["roi"]
         row["selective_error"] = 1 - row["selective_recall"]
-        row["coverage_all_classes"] = 1 - pixels["deferred_rate"][k, r].item()
+        row["coverage_all_classes"] = pixels["coverage_all_classes"][k, r].item()
         row["selective_error_all_classes"] = selective_error(pixels["confmat"][k, r]).item()
     return rows
 

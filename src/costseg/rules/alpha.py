@@ -7,7 +7,6 @@ for α from 0 (Bayes) to 1 (maximum likelihood), decided as one group (docs/defi
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -15,6 +14,7 @@ import torch
 
 from costseg.classes import CLASS_NAMES
 from costseg.decision import decide
+from costseg.options import steps_per_unit
 from costseg.rules.base import RuleGroup, adapted_priors
 from costseg.rules.named import parse_rules
 
@@ -40,9 +40,7 @@ def alpha_grid(step: float) -> list[float]:
     >>> alpha_grid(0.25)
     [0.0, 0.25, 0.5, 0.75, 1.0]
     """
-    n = round(1 / step) if step > 0 else 0
-    if n < 1 or not math.isclose(n * step, 1.0, rel_tol=1e-9):
-        raise ValueError(f"alpha step must be 1/n for a whole number n >= 1, got {step}")
+    n = steps_per_unit(step, "alpha step")
     return [i / n for i in range(n + 1)]
 
 

@@ -46,7 +46,7 @@ def deferral_metrics(confmat: Tensor, deferred: Tensor) -> dict[str, Tensor]:
 
     Returns:
         float64 (K, R+1, N) "coverage", "selective_recall", "handled_recall"; float64
-        (K, R+1) "deferred_rate".
+        (K, R+1) "deferred_rate" and "coverage_all_classes" (1 − "deferred_rate").
     """
     if deferred.shape != confmat.shape[:-1]:
         raise ValueError(
@@ -62,6 +62,7 @@ def deferral_metrics(confmat: Tensor, deferred: Tensor) -> dict[str, Tensor]:
         "selective_recall": tp / decided,
         "handled_recall": (tp + d) / every,
         "deferred_rate": d.sum(-1) / every.sum(-1),
+        "coverage_all_classes": decided.sum(-1) / every.sum(-1),
     }
 
 
