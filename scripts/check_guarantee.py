@@ -45,7 +45,7 @@ from costseg.metrics.selection import best_points, meets, parse_metric, parse_ta
 from costseg.networks import load_costseg_checkpoint, load_network
 from costseg.options import RULES as DEFAULT_RULES
 from costseg.report.files import save_figure, write_json
-from costseg.rules import RuleGroup, defer_costs, defer_group, grid_group
+from costseg.rules import RuleGroup, defer_costs, defer_group, grid_group, require_priors
 
 RULES = {"ltt": "Learn-then-Test", "naive": "naive --target"}
 
@@ -124,8 +124,7 @@ def load_source(args: argparse.Namespace, path: Path | None) -> tuple[Any, Any, 
         priors, roi = PriorMaps(ckpt.priors, ckpt.class_names, device).at(size)
     if (args.target_spec.roi or args.max_spec.roi) and roi is None:
         raise ValueError("a RoI target or --maximize needs a checkpoint with priors (RoI map)")
-    if candidates(args).needs_priors and priors is None:
-        raise ValueError("ml needs pixel-wise priors: a checkpoint with priors")
+    require_priors([candidates(args)], priors)
     net = load_network(args.network, device) if args.network else ckpt.network.to(device).eval()
     return net, (priors, roi), (int(size[0]), int(size[1]))
 

@@ -1,6 +1,7 @@
 """The training precision: chosen by the machine when unset, the user's when set."""
 
 import pytest
+import torch
 from conftest import TINY_TRAIN
 
 from costseg.cli import train_main
@@ -9,19 +10,38 @@ from costseg.training import precision
 UNSET = [a for a in TINY_TRAIN if not a.startswith("--trainer.precision")]
 
 
-@pytest.mark.parametrize("native", [True, False])
-def test_cpu_choice_follows_native_bf16(monkeypatch, native):
-    monkeypatch.setattr(precision, "cpu_has_native_bf16", lambda: native)
-    chosen, why = precision.choose_precision("cpu")
-    assert chosen == ("bf16-mixed" if native else "32-true")
-    assert ("natively" in why) == native
+# The machine, as torch's probes report it, and the expected choice: (accelerator, AVX512-BF16,
+# AMX, CUDA available, CUDA bf16) → (precision, the device its reason names).
+MACHINES = [
+    ("cpu", False, False, False, False, "32-true", "CPU"),
+    ("cpu", True, False, False, False, "bf16-mixed", "CPU"),
+    ("cpu", False, True, False, False, "bf16-mixed", "CPU"),
+    ("cpu", False, False, True, True, "32-true", "CPU"),  # a GPU the run does not use
+    ("auto", True, True, False, False, "bf16-mixed", "CPU"),
+    ("auto", False, False, False, True, "32-true", "CPU"),
+    ("auto", True, True, True, False, "32-true", "GPU"),  # auto trains on the GPU
+    ("auto", False, False, True, True, "bf16-mixed", "GPU"),
+    ("gpu", False, False, True, True, "bf16-mixed", "GPU"),
+    ("cuda", True, True, True, False, "32-true", "GPU"),
+    ("gpu", True, True, False, True, "32-true", "GPU"),  # no CUDA: its bf16 answer is moot
+    ("mps", True, True, True, True, "32-true", "mps"),
+]
 
 
-def test_gpu_choice_follows_native_bf16(monkeypatch):
-    monkeypatch.setattr(precision, "cuda_has_native_bf16", lambda: True)
-    assert precision.choose_precision("gpu")[0] == "bf16-mixed"
-    monkeypatch.setattr(precision, "cuda_has_native_bf16", lambda: False)
-    assert precision.choose_precision("cuda")[0] == "32-true"
+@pytest.mark.parametrize(
+    ("accelerator", "avx512_bf16", "amx", "cuda", "cuda_bf16", "expected", "device"), MACHINES
+)
+def test_choice_follows_the_hardware_probes(
+    monkeypatch, accelerator, avx512_bf16, amx, cuda, cuda_bf16, expected, device
+):
+    monkeypatch.setattr(torch.cpu, "_is_avx512_bf16_supported", lambda: avx512_bf16, raising=False)
+    monkeypatch.setattr(torch.cpu, "_is_amx_tile_supported", lambda: amx, raising=False)
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: cuda)
+    monkeypatch.setattr(torch.cuda, "is_bf16_supported", lambda *args, **kwargs: cuda_bf16)
+    chosen, why = precision.choose_precision(accelerator)
+    assert chosen == expected
+    assert device in why
+    assert ("natively" in why) == (expected == "bf16-mixed")
 
 
 @pytest.mark.parametrize(

@@ -14,7 +14,7 @@ from PIL import Image
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 from torch.utils.tensorboard import SummaryWriter
 
-from costseg.classes import CLASS_NAMES, colorize
+from costseg.classes import CLASS_NAMES, PALETTE, ROI_CLASSES, class_indices, colorize
 from costseg.report import files
 from costseg.report.cost_matrix import plot_cost_matrix
 from costseg.report.figures import (
@@ -342,6 +342,39 @@ def test_every_figure_saves_png_of_figsize_times_dpi(tmp_path, name):
         assert img.format == "PNG"
         expected = tuple(round(v) for v in fig.get_size_inches() * dpi)
         assert img.size == expected
+
+
+def _cell_colours(fig, png, ax, shape):
+    """(h, w, 3) RGB of the saved ``png`` at the centre of each cell of ``ax``'s image."""
+    with Image.open(png) as img:
+        rgb = np.asarray(img.convert("RGB"))
+    rows, cols = np.mgrid[: shape[0], : shape[1]]
+    xy = (ax.transData + fig.transFigure.inverted()).transform(np.c_[cols.ravel(), rows.ravel()])
+    x = (xy[:, 0] * rgb.shape[1]).astype(int)
+    y = ((1 - xy[:, 1]) * rgb.shape[0]).astype(int)  # figure y runs up, PNG rows down
+    return rgb[y, x].reshape(*shape, 3)
+
+
+BLACK = np.zeros(3, np.uint8)
+PANEL_COLOURS = {  # title → (H, W, 3): the image, or the palette colour of each class
+    "masks": {
+        "image": IMAGE,
+        "ground truth": np.where((TARGET == 255)[..., None], BLACK, PALETTE[TARGET % 255]),
+        **{rule: PALETTE[pred] for rule, pred in PREDS.items()},
+    },
+    "roi": {"regions of interest": PALETTE[class_indices(ROI_CLASSES)][ROI - 1]},
+}
+
+
+@pytest.mark.parametrize("name", PANEL_COLOURS)
+@pytest.mark.parametrize("dpi", [30, 50])
+def test_saved_png_shows_each_pixel_in_its_image_or_palette_colour(tmp_path, name, dpi):
+    fig = FIGURES[name]()
+    png = save_figure(fig, tmp_path / f"{name}.png", dpi=dpi)
+    panels = [ax for ax in fig.axes if ax.images]
+    assert [ax.get_title() for ax in panels] == list(PANEL_COLOURS[name])
+    for ax, expected in zip(panels, PANEL_COLOURS[name].values(), strict=True):
+        np.testing.assert_array_equal(_cell_colours(fig, png, ax, (H, W)), expected, ax.get_title())
 
 
 # ---------------------------------------------------------------- tensorboard

@@ -134,11 +134,6 @@ def instance_classes(dataset, opts: EvalOptions) -> tuple[list[int], str]:
     return chosen, note
 
 
-def needs_priors(groups: list[RuleGroup]) -> bool:
-    """Whether some rule divides by the pixel-wise priors (``ml``, the α sweep)."""
-    return any(g.needs_priors for g in groups)
-
-
 def source_priors(source, opts: EvalOptions, config: dict, cache_dir: Path) -> torch.Tensor | None:
     """The priors of a costseg checkpoint, or, for another network, the dataset's training
     labels' priors (docs/definitions.md §3, §8), computed once and cached in ``cache_dir``

@@ -20,20 +20,16 @@ from costseg.metrics.names import INSTANCE_RATES, SEGMENT_RATES
 from costseg.metrics.per_image import per_image_counts, per_image_loss
 from costseg.metrics.scoring import GroupMetrics, score_batch
 from costseg.metrics.selection import metric_values, parse_metric, parse_target, risk_level
-from costseg.networks.sources import Batch
+from costseg.networks.sources import Source
 from costseg.rules import RuleGroup
 
 
-def as_logits(batch: Batch, kind: str) -> torch.Tensor:
-    """Logits of a batch: the network's, or ``log p`` of saved probabilities."""
-    return batch.scores if kind == "network" else batch.scores.clamp_min(1e-30).log()
-
-
-def fit_scaling(batches, kind: str, source_kind: str, pixels_per_image: int = 4096) -> Scaling:
-    """Fit ``kind`` ("temperature" or "vector") on a sample of pixels of every batch."""
+def fit_scaling(batches, kind: str, source: Source, pixels_per_image: int = 4096) -> Scaling:
+    """Fit ``kind`` ("temperature" or "vector") on a sample of pixels of every batch of
+    ``source``'s scores."""
     sampler = PixelSampler(pixels_per_image)
     for batch in batches:
-        sampler.update(as_logits(batch, source_kind).cpu(), batch.labels.cpu())
+        sampler.update(source.logits_of(batch.scores).cpu(), batch.labels.cpu())
     if sampler.num_images == 0:
         raise ValueError("no calibration image to fit the scaling on")
     return sampler.fit(kind)

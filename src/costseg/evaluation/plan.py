@@ -22,7 +22,6 @@ from costseg.evaluation.checks import (
     check_calibration_size,
     check_options,
     instance_classes,
-    needs_priors,
     source_priors,
 )
 from costseg.networks.ensemble import open_sources
@@ -30,7 +29,7 @@ from costseg.networks.protocols import Protocol
 from costseg.networks.sources import Source, resolve_device
 from costseg.options import EvalOptions
 from costseg.report.outputs import claim_output_dir
-from costseg.rules import RuleGroup, named_group
+from costseg.rules import RuleGroup, named_group, require_priors
 
 
 @dataclass
@@ -82,8 +81,7 @@ def plan(opts: EvalOptions) -> EvalPlan:
     base = source.default_output("evaluation", "eval")
     cache = (Path(opts.output_dir).resolve().parent if opts.output_dir else base.parent) / "priors"
     priors = PriorMaps(source_priors(source, opts, config, cache), CLASS_NAMES, device)
-    if priors.priors is None and needs_priors(groups):
-        raise ValueError("ml and --alpha_sweep need pixel-wise priors, and this source has none")
+    require_priors(groups, priors.priors)
     return EvalPlan(
         options=opts,
         device=device,

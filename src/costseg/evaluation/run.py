@@ -19,7 +19,7 @@ import torch.distributed as dist
 from costseg import workers
 from costseg.calibration.scaling import Scaling
 from costseg.classes import CLASS_NAMES, NUM_ROIS
-from costseg.evaluation.held_out import as_logits, certify, fit_scaling
+from costseg.evaluation.held_out import certify, fit_scaling
 from costseg.evaluation.plan import EvalPlan, plan, rank
 from costseg.metrics import CalibrationError
 from costseg.metrics.scoring import GroupMetrics, score_batch
@@ -41,7 +41,7 @@ def run(plan: EvalPlan, after_batch: Callable[[list[Example]], None] | None = No
     scaling = Scaling()
     if opts.calibrate:
         scaling = fit_scaling(
-            _calibration_batches(plan, "fit scaling"), opts.calibrate, plan.source.kind
+            _calibration_batches(plan, "fit scaling"), opts.calibrate, plan.source
         )
         print(f"calibration: {scaling.describe()}")
         extra["scaling"] = scaling.to_dict()
@@ -181,15 +181,15 @@ def _calibration_batches(plan: EvalPlan, what: str):
 
 def _probabilities(plan: EvalPlan, batch: Batch, scaling: Scaling) -> torch.Tensor:
     if scaling.kind != "none":
-        return scaling.apply(as_logits(batch, plan.source.kind))
-    return batch.scores if plan.source.kind == "probs" else batch.scores.softmax(1)
+        return scaling.apply(plan.source.logits_of(batch.scores))
+    return plan.source.probabilities_of(batch.scores)
 
 
 def _tempered(plan: EvalPlan, batch: Batch, probs: torch.Tensor) -> dict:
     """The probabilities of every temperature a group asks for (None: the main ones)."""
     out = {None: probs}
     for t in {g.temperature for g in plan.groups if g.temperature}:
-        out[t] = Scaling("temperature", temperature=t).apply(as_logits(batch, plan.source.kind))
+        out[t] = Scaling("temperature", temperature=t).apply(plan.source.logits_of(batch.scores))
     return out
 
 

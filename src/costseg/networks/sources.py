@@ -57,6 +57,14 @@ class Source:
         name = "ensemble" if "members" in self.description else Path(name).stem
         return Path(elsewhere) / (name or "network")
 
+    def probabilities_of(self, scores: Tensor) -> Tensor:
+        """The probabilities of this source's ``scores``: the softmax of logits, or themselves."""
+        return scores if self.kind == "probs" else scores.softmax(1)
+
+    def logits_of(self, scores: Tensor) -> Tensor:
+        """The logits of this source's ``scores``: themselves, or ``log p`` of probabilities."""
+        return scores if self.kind == "network" else scores.clamp_min(1e-30).log()
+
     def scores(self, images: Tensor, stems: list[str]) -> Tensor:
         """(B, N, H, W) float logits (network) or probabilities (files, Monte-Carlo dropout)."""
         if self.network is not None and self.kind == "probs":  # MCDropout, seeded by the names

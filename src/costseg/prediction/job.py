@@ -22,7 +22,14 @@ from costseg.prediction.outputs import PredictionWriter
 from costseg.progress import progress
 from costseg.report.explorer import ExplorerExample, embedded
 from costseg.report.outputs import claim_output_dir, mark_complete
-from costseg.rules import Rule, apply_rules, parse_rules, vertex_matrices
+from costseg.rules import (
+    Rule,
+    apply_rules,
+    parse_rules,
+    require_priors,
+    rules_group,
+    vertex_matrices,
+)
 
 
 @dataclass
@@ -56,8 +63,7 @@ def plan(opts: PredictOptions) -> PredictPlan:
     source = open_sources(
         opts.ckpt_path, opts.network, None, device, protocol, opts.mc_dropout, opts.seed
     )
-    if any(r.priors_alpha for r in rules) and source.priors is None:
-        raise ValueError("ml needs pixel-wise priors, and this source has none")
+    require_priors([rules_group(rules)], source.priors)
     base = source.default_output("prediction", "predict")
     argmax = next((k for k, r in enumerate(rules) if _is_argmax(r)), None)
     if argmax is None:
@@ -103,7 +109,7 @@ def decide_image(
     x = torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1)[None].to(plan.device)
     with torch.inference_mode():
         scores, expected_entropy = plan.source.scores_and_entropy(x, [stem])
-        probs = scores if plan.source.kind == "probs" else scores.softmax(1)
+        probs = plan.source.probabilities_of(scores)
         uncertainty = {k: v[0].cpu() for k, v in output_maps(probs, expected_entropy).items()}
         if plan.options.save_probs:
             probs = probs.half().float()

@@ -10,7 +10,14 @@ any group from what it carries.
 """
 
 from costseg.rules.alpha import alpha_grid, alpha_group
-from costseg.rules.base import DEFER_COLUMN, Rule, RuleGroup, adapted_priors, named_group
+from costseg.rules.base import (
+    DEFER_COLUMN,
+    Rule,
+    RuleGroup,
+    adapted_priors,
+    named_group,
+    require_priors,
+)
 from costseg.rules.defer_sweep import DEFER_FAMILY, defer_costs, defer_group
 from costseg.rules.named import RULE_NAMES, apply_rules, parse_rules, rules_group
 from costseg.rules.temperatures import TEMPERATURES, temperature_group
@@ -33,6 +40,7 @@ __all__ = [
     "named_group",
     "parse_rules",
     "point_name",
+    "require_priors",
     "rules_group",
     "temperature_group",
     "vertex_matrices",

@@ -137,6 +137,13 @@ class RuleGroup:
         return None
 
 
+def require_priors(groups: Sequence[RuleGroup], priors: torch.Tensor | None) -> None:
+    """ValueError if a rule of ``groups`` divides by pixel-wise priors (``ml``, the α sweep)
+    and there are none."""
+    if priors is None and any(g.needs_priors for g in groups):
+        raise ValueError("ml and --alpha_sweep need pixel-wise priors, and this source has none")
+
+
 def named_group(groups: Sequence[RuleGroup]) -> RuleGroup:
     """The group of the named rules (``--cost``) among ``groups``."""
     return next(g for g in groups if g.is_named)
