@@ -23,6 +23,7 @@ from costseg.report.tables import (
     compare_with_paper,
     console_table,
     format_value,
+    markdown_table,
     paper_table,
 )
 from costseg.report.tensorboard import (
@@ -30,7 +31,6 @@ from costseg.report.tensorboard import (
     log_masks,
     log_png,
     log_table,
-    markdown_table,
     summary_writer,
 )
 from costseg.report.uncertainty import uncertainty_strip

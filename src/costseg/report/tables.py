@@ -103,17 +103,19 @@ def _check_headers(columns: Sequence[str], headers: Sequence[str] | None) -> lis
 
 def markdown_table(
     rows: Sequence[Row],
-    columns: Sequence[str],
+    columns: Sequence[str] | None = None,
     headers: Sequence[str] | None = None,
     percent: Sequence[str] = PERCENT,
 ) -> str:
-    """GitHub Markdown table of ``rows`` restricted to ``columns`` (missing keys shown as ``—``).
+    """GitHub Markdown table of ``rows`` restricted to ``columns`` (None: every key of the rows,
+    in order; missing keys shown as ``—``).
 
     >>> print(markdown_table([{"matrix": "ml", "recall": 0.5}], ["matrix", "recall"]))
     | matrix | recall |
     |---|---|
     | ml | 50.00 |
     """
+    columns = list(dict.fromkeys(k for r in rows for k in r)) if columns is None else columns
     head = _check_headers(columns, headers)
     lines = [_md_line(head), "|" + "---|" * len(head)]
     lines += [_md_line(cells) for cells in _cells(rows, columns, percent)]
@@ -139,6 +141,7 @@ def console_table(
     ml         50.00
     egoistic  100.00
     """
+    columns = list(dict.fromkeys(k for r in rows for k in r)) if columns is None else columns
     head = _check_headers(columns, headers)
     body = _cells(rows, columns, percent)
     widths = [max(len(s) for s in col) for col in zip(head, *body, strict=True)]

@@ -16,7 +16,7 @@ import contextlib
 import math
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from matplotlib.figure import Figure
 
@@ -24,6 +24,7 @@ from costseg.classes import CLASS_NAMES
 from costseg.metrics.names import DEFER_RATES, PIXEL_RATES, SEGMENT_RATES
 from costseg.report.figures import ArrayLike, masks_side_by_side
 from costseg.report.risk_coverage import risk_coverage_curves
+from costseg.report.tables import markdown_table
 from costseg.rules import DEFER_FAMILY
 from costseg.workers import within
 
@@ -134,26 +135,6 @@ def log_png(
     height, width, channels = shape
     image = Summary.Image(height=height, width=width, colorspace=channels, encoded_image_string=png)
     writer.file_writer.add_summary(Summary(value=[Summary.Value(tag=tag, image=image)]), step)
-
-
-def markdown_table(rows: Sequence[Mapping[str, Any]]) -> str:
-    """Dict rows as a Markdown table (numbers to 4 decimals, NaN as "nan").
-
-    >>> print(markdown_table([{"rule": "ml", "recall": 0.5}]))
-    | rule | recall |
-    |---|---|
-    | ml | 0.5000 |
-    """
-    columns = list(dict.fromkeys(k for row in rows for k in row))
-    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
-    for row in rows:
-        cells = (_cell(row.get(c, "")) for c in columns)
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
-
-
-def _cell(value: Any) -> str:
-    return f"{value:.4f}" if isinstance(value, float) else str(value)
 
 
 def log_evaluation(writer: SummaryWriter, results: EvalResults, rows: Sequence[Mapping]) -> None:
