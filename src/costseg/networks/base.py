@@ -8,10 +8,20 @@ import torch
 from torch import Tensor, nn
 from torch.nn import functional as F
 
-__all__ = ["IMAGENET_MEAN", "IMAGENET_STD", "ImageNetwork", "check_state_keys"]
+__all__ = ["IMAGENET_MEAN", "IMAGENET_STD", "ImageNetwork", "check_state_keys", "normalised"]
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
+
+
+def normalised(
+    images: Tensor, mean: Tensor, std: Tensor, divisor: float = 255.0, channels_last: bool = False
+) -> Tensor:
+    """(B, 3, H, W) uint8 images as a network's float input: ``(x / divisor − mean) / std``
+    (mean, std: (1, 3, 1, 1)), channels-last if asked. Dividing by 255 (not multiplying by
+    1/255) is what costseg trains on, bit for bit."""
+    x = (images.float() / divisor - mean) / std
+    return x.contiguous(memory_format=torch.channels_last) if channels_last else x
 
 
 class ImageNetwork(nn.Module):
@@ -42,9 +52,7 @@ class ImageNetwork(nn.Module):
         self.net = net.to(memory_format=torch.channels_last) if channels_last else net
         self.register_buffer("mean", torch.tensor(mean).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(std).view(1, 3, 1, 1), persistent=False)
-        # Dividing by 255 (not multiplying by 1/255) reproduces costseg's training inputs bit
-        # for bit; 1 / (1/255) rounds back to exactly 255 in float32.
-        self.divisor = 1.0 / rescale
+        self.divisor = 1.0 / rescale  # 1 / (1/255) rounds back to exactly 255 in float32
         self.channels_last = channels_last
         self.eval()
 
@@ -55,10 +63,7 @@ class ImageNetwork(nn.Module):
                 "expected (B, 3, H, W) uint8 RGB images; "
                 f"got {tuple(images.shape)} {str(images.dtype).removeprefix('torch.')}"
             )
-        x = (images.float() / self.divisor - self.mean) / self.std
-        if self.channels_last:
-            x = x.contiguous(memory_format=torch.channels_last)
-        logits = self.net(x)
+        logits = self.net(normalised(images, self.mean, self.std, self.divisor, self.channels_last))
         if logits.shape[-2:] != images.shape[-2:]:
             logits = F.interpolate(
                 logits, size=images.shape[-2:], mode="bilinear", align_corners=False

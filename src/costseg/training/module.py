@@ -23,7 +23,7 @@ from costseg.metrics import CalibrationError
 from costseg.metrics.names import PIXEL_RATES
 from costseg.metrics.scoring import GroupMetrics, score_batch
 from costseg.models.deeplabv3plus import DeepLabV3Plus
-from costseg.networks.base import IMAGENET_MEAN, IMAGENET_STD
+from costseg.networks.base import IMAGENET_MEAN, IMAGENET_STD, normalised
 from costseg.rules import parse_rules, rules_group
 
 
@@ -87,10 +87,7 @@ class SegmentationModule(L.LightningModule):
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
         """(B, 3, H, W) uint8 RGB → (B, N, H, W) logits."""
-        x = (images.float() / 255 - self.mean) / self.std
-        if self.hparams.channels_last:
-            x = x.contiguous(memory_format=torch.channels_last)
-        return self.net(x)
+        return self.net(normalised(images, self.mean, self.std, 255.0, self.hparams.channels_last))
 
     @property
     def priors(self) -> torch.Tensor | None:
