@@ -24,6 +24,7 @@ from costseg.models.deeplabv3plus import DeepLabV3Plus
 from costseg.networks import (
     IMAGENET_MEAN,
     IMAGENET_STD,
+    LOADERS,
     export_vainf_state,
     load_costseg_checkpoint,
     load_network,
@@ -199,8 +200,17 @@ def test_vainf_errors(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("spec", ["onnx:model.onnx", "model.ckpt", "vainf:", "hf"])
 def test_unknown_spec_lists_the_valid_prefixes(spec: str) -> None:
-    with pytest.raises(ValueError, match=r"costseg:PATH, vainf:PATH.*hf:DIR or segformer:DIR"):
+    with pytest.raises(ValueError, match=r"costseg:PATH, vainf:PATH.*hf:DIR, segformer:DIR$"):
         load_network(spec)
+
+
+def test_every_network_source_has_a_loader_and_its_help():
+    from costseg.cli import evaluate_parser
+    from costseg.options import NETWORK_SPECS
+
+    assert LOADERS.keys() == NETWORK_SPECS.keys()
+    helps = {a.dest: a.help for a in evaluate_parser()._actions}
+    assert all(f"{prefix}:{rest}" in helps["network"] for prefix, rest in NETWORK_SPECS.items())
 
 
 @pytest.mark.parametrize("option", ["os=4", "backbone=resnet18", "depth=50"])

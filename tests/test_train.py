@@ -61,7 +61,9 @@ def test_last_checkpoint_weights_rebuild_the_trained_network(tiny_run):
         config["backbone"],
         config["output_stride"],
         decoder_channels=config["decoder_channels"],
-    ).to(memory_format=torch.channels_last)  # as config["channels_last"]: the same kernels
+    )
+    if config["channels_last"]:  # the trained network's memory format: the same kernels run
+        fresh = fresh.to(memory_format=torch.channels_last)
     state = torch.load(_last(runs), map_location="cpu", weights_only=True)
     fresh.load_state_dict(
         {k.removeprefix("net."): v for k, v in state["state_dict"].items() if k.startswith("net.")}

@@ -25,6 +25,16 @@ CALIBRATION = "calibration and guarantees (fitted on held-out images)"
 PROTOCOL = "inference protocol (docs/definitions.md §13)"
 RULES = ["robotistic", "altruistic", "egoistic"]
 
+NETWORK_SPECS = {
+    "costseg": "PATH",
+    "vainf": "PATH[?os=8|16&backbone=resnet50|resnet101]",
+    "hf": "DIR",
+    "segformer": "DIR",
+}
+"""The ``--network`` sources, ``prefix: what follows it`` (read before torch is imported, for
+``--help``); :data:`costseg.networks.LOADERS` holds each one's loader under the same prefix."""
+NETWORK_USAGE = ", ".join(f"{prefix}:{rest}" for prefix, rest in NETWORK_SPECS.items())
+
 
 def whole_number(minimum: int) -> Callable[[str], int]:
     """Value type: an integer >= ``minimum``.
@@ -140,8 +150,7 @@ class NetworkOptions:
         group=SOURCE,
     )
     network: list[str] | None = option(
-        help="costseg:PATH, vainf:PATH, hf:DIR (alias segformer:DIR); several, or with "
-        "--ckpt_path: their ensemble",
+        help=f"{NETWORK_USAGE}; several, or with --ckpt_path: their ensemble",
         metavar="SPEC",
         group=SOURCE,
     )

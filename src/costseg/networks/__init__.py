@@ -19,6 +19,7 @@ float logits at the input resolution. Nothing is ever downloaded.
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -28,11 +29,12 @@ from costseg.networks.base import IMAGENET_MEAN, IMAGENET_STD, ImageNetwork
 from costseg.networks.costseg import CostsegCheckpoint, load_costseg_checkpoint
 from costseg.networks.hf import load_hf
 from costseg.networks.vainf import VAINF_DEPTHS, export_vainf_state, load_vainf
+from costseg.options import NETWORK_SPECS, NETWORK_USAGE
 
 __all__ = [
     "IMAGENET_MEAN",
     "IMAGENET_STD",
-    "PREFIXES",
+    "LOADERS",
     "CostsegCheckpoint",
     "ImageNetwork",
     "export_vainf_state",
@@ -42,8 +44,14 @@ __all__ = [
     "load_vainf",
 ]
 
-PREFIXES = ("costseg", "vainf", "hf", "segformer")
-_USAGE = "costseg:PATH, vainf:PATH[?os=8|16&backbone=resnet50|resnet101], hf:DIR or segformer:DIR"
+LOADERS: dict[str, Callable[[str, dict[str, Any]], ImageNetwork]] = {
+    "costseg": lambda location, _: load_costseg_checkpoint(location).network,
+    "vainf": lambda location, options: load_vainf(location, **options),
+    "hf": lambda location, _: load_hf(location),
+    "segformer": lambda location, _: load_hf(location),
+}
+"""The loader of each ``--network`` prefix of :data:`costseg.options.NETWORK_SPECS`: a new
+source is an entry in both (``tests/test_networks.py`` checks that they agree)."""
 _OPTIONS = re.compile(r"\?(\w+=[^&?=]+(?:&\w+=[^&?=]+)*)$")
 
 
@@ -65,16 +73,10 @@ def load_network(spec: str, device: str | torch.device = "cpu") -> ImageNetwork:
         >>> load_network("onnx:model.onnx")  # doctest: +ELLIPSIS
         Traceback (most recent call last):
         ...
-        ValueError: unknown network spec 'onnx:model.onnx': expected costseg:PATH, ...
+        ValueError: unknown network spec 'onnx:model.onnx': expected one of costseg:PATH, ...
     """
     prefix, location, options = _parse_spec(spec)
-    if prefix == "costseg":
-        net = load_costseg_checkpoint(location).network
-    elif prefix == "vainf":
-        net = load_vainf(location, **options)
-    else:
-        net = load_hf(location)
-    return net.to(torch.device(device)).eval()
+    return LOADERS[prefix](location, options).to(torch.device(device)).eval()
 
 
 def check_spec(spec: str) -> None:
@@ -93,8 +95,8 @@ def check_spec(spec: str) -> None:
 
 def _parse_spec(spec: str) -> tuple[str, str, dict[str, Any]]:
     prefix, sep, location = spec.partition(":")
-    if not sep or prefix not in PREFIXES or not location:
-        raise ValueError(f"unknown network spec {spec!r}: expected {_USAGE}")
+    if not sep or prefix not in LOADERS or not location:
+        raise ValueError(f"unknown network spec {spec!r}: expected one of {NETWORK_USAGE}")
     match = _OPTIONS.search(location) if prefix == "vainf" else None
     if match is None:
         return prefix, location, {}
@@ -106,5 +108,5 @@ def _parse_spec(spec: str) -> tuple[str, str, dict[str, Any]]:
         elif key == "backbone" and value in VAINF_DEPTHS.values():
             options["backbone"] = value
         else:
-            raise ValueError(f"bad option {item!r} in {spec!r}: expected {_USAGE}")
+            raise ValueError(f"bad option {item!r} in {spec!r}: expected {NETWORK_SPECS['vainf']}")
     return prefix, location[: match.start()], options
