@@ -1,7 +1,9 @@
-"""Ctrl-C for the tests: a job started as a terminal would, interrupted once it is busy."""
+"""Ctrl-C for the tests: a job started as a terminal would, interrupted once it is busy; and a
+deadline that turns a hang into a failure."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -47,3 +49,19 @@ def interrupt_when(
     finally:
         if job.poll() is None:
             os.killpg(job.pid, signal.SIGKILL)  # leave no job behind a failed test
+
+
+@contextlib.contextmanager
+def deadline(seconds: float, what: str):
+    """Raise TimeoutError in the main thread after ``seconds`` (a hang becomes a failure)."""
+
+    def expire(*_):
+        raise TimeoutError(f"{what} hung for {seconds} s")
+
+    previous = signal.signal(signal.SIGALRM, expire)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 import torch
 from conftest import CITYSCAPES_SIZE
-from torch.utils.data import Dataset
+from pid_items import PidItems
 
 from costseg.classes import CLASS_NAMES
 from costseg.data.cityscapes import CityscapesSegmentation
@@ -69,19 +69,6 @@ def test_toy_prior_labels(toy: StreetScenesDataModule) -> None:
     assert len(everything.prior_labels()) == 3
 
 
-class _Pids(Dataset):
-    """``length`` items (the id of the process that read it, the index): who loads what."""
-
-    def __init__(self, length: int) -> None:
-        self.length = length
-
-    def __len__(self) -> int:
-        return self.length
-
-    def __getitem__(self, index: int) -> tuple[torch.Tensor, torch.Tensor]:
-        return torch.tensor(os.getpid()), torch.tensor(index)
-
-
 def _epoch(loader) -> tuple[set[int], list[list[int]], list[bool]]:
     """The reading processes, the batches' indices, and whether each batch was pinned."""
     batches = list(loader)
@@ -97,7 +84,7 @@ def test_loader_settings(monkeypatch, workers: int) -> None:
     """Training drops the last partial batch and shuffles; evaluation keeps every item in
     order; worker processes read the items and survive the epoch; pinned only with CUDA."""
     data = StreetScenesDataModule(batch_size=2, num_workers=workers, size=SIZE, train_length=5)
-    monkeypatch.setattr(data, "make_dataset", lambda split, augment: _Pids(5))
+    monkeypatch.setattr(data, "make_dataset", lambda split, augment: PidItems(5))
     readers, train, pinned = _epoch(shuffled := data.train_dataloader())
     assert [len(b) for b in train] == [2, 2] and len({i for b in train for i in b}) == 4
     assert set(pinned) == {torch.cuda.is_available()}

@@ -3,15 +3,14 @@ and stalled workers end in one error; drawing cannot hang behind this process's 
 
 from __future__ import annotations
 
-import contextlib
 import os
-import signal
 import threading
 import time
 
 import numpy as np
 import pytest
 import torch
+from interrupts import deadline
 from matplotlib.figure import Figure
 
 from costseg import workers
@@ -115,22 +114,6 @@ def test_a_drawing_draws_while_the_caller_goes_on(tmp_path):
         assert time.monotonic() < deadline, "the worker drew nothing"
         time.sleep(0.05)
     assert drawing.finish() == [("p", [("early", (150, 200, 3))])]
-
-
-@contextlib.contextmanager
-def deadline(seconds: float, what: str):
-    """Raise TimeoutError in the main thread after ``seconds`` (a hang becomes a failure)."""
-
-    def expire(*_):
-        raise TimeoutError(f"{what} hung for {seconds} s")
-
-    previous = signal.signal(signal.SIGALRM, expire)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, previous)
 
 
 def busy_threads(stop: threading.Event) -> list[threading.Thread]:

@@ -4,35 +4,27 @@ to run (its grain size), finishes with its example figures, under a deadline."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
+from conftest import write_cityscapes_item
+from interrupts import deadline
 from PIL import Image
 
 from costseg.checkpoints import find_checkpoint
-
-ROOT = Path(__file__).resolve().parents[1]
+from costseg.cli import evaluate_main
 
 
 def test_an_evaluation_of_256x512_cityscapes_images_finishes_with_its_figures(tiny_run, tmp_path):
     tree, out = tmp_path / "cityscapes", tmp_path / "out"
-    script = [sys.executable, str(ROOT / "scripts" / "toy_as_cityscapes.py"), str(tree)]
-    subprocess.run(
-        [*script, "--train", "1", "--val", "2", "--size", "256", "512", "--workers", "1"],
-        check=True,
-        capture_output=True,
-        timeout=120,
-    )
+    for split, item in (("train", 0), ("val", 1), ("val", 2)):
+        write_cityscapes_item(tree, split, f"city_000000_00000{item}", item, size=(256, 512))
     network = f"costseg:{find_checkpoint(None, runs_dir=tiny_run[2])}"
-    command = [sys.executable, str(ROOT / "evaluate.py"), "--network", network]
-    command += ["--data_root", str(tree), "--cost", "robotistic", "egoistic", "--defer", "0.3"]
-    command += ["--save-probs", "--num_examples", "2", "--no-progress", "--output_dir", str(out)]
-    done = subprocess.run(command, capture_output=True, text=True, timeout=240)
-    assert done.returncode == 0, done.stderr[-3000:]
+    args = ["--network", network, "--data_root", str(tree), "--cost", "robotistic", "egoistic"]
+    args += ["--defer", "0.3", "--save-probs", "--num_examples", "2", "--no-progress"]
+    with deadline(240, "the evaluation"):
+        evaluate_main([*args, "--output_dir", str(out)])
     assert json.loads((out / "results.json").read_text())["images"] == 2
     for i in (0, 1):
         masks = np.asarray(Image.open(out / "figures" / f"masks_{i}.png"))
-        # image, ground truth, two rules and the entropy tile, each a 256 × 512 panel or more
+        # image, ground truth, two rules and the entropy tile side by side
         assert masks.shape[1] >= 5 * 256 and masks.std() > 0

@@ -4,8 +4,8 @@ Every table, file, TensorBoard tag, ``--target`` / ``--maximize`` and per-image 
 metric names from here. A metric reported per rule, class and RoI is a *rate* (a fraction in
 [0, 1], NaN when undefined) or a *count*; a new metric adds its name to these lists.
 
->>> TARGET_METRICS[:5]
-('precision', 'recall', 'coverage', 'selective_recall', 'handled_recall')
+>>> TARGET_METRICS[:2], TARGET_METRICS[-1]
+(('precision', 'recall'), 'instance_recall')
 >>> segment_column("fp"), SEGMENT_RATE_PARTS["fn_rate"]
 ('fp_segments', ('fn', 'n_gt'))
 """
