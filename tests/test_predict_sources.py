@@ -41,7 +41,7 @@ def images(tmp_path_factory) -> Path:
 
 def _image(folder: Path, stem: str) -> torch.Tensor:
     """(1, 3, H, W) float the network sees: ImageNet-normalised RGB in [0, 1]."""
-    x = torch.from_numpy(np.asarray(Image.open(folder / f"{stem}.png"))).permute(2, 0, 1)
+    x = torch.from_numpy(np.array(Image.open(folder / f"{stem}.png"))).permute(2, 0, 1)
     return ((x.double() / 255 - IMAGENET[0][:, None, None]) / IMAGENET[1][:, None, None])[None]
 
 
@@ -88,7 +88,7 @@ def test_mc_dropout_is_the_mean_of_seeded_dropout_passes(checkpoint, images, tmp
     assert dropout and all(not m.training for m in module.modules())
     with torch.no_grad():
         for stem in SIZES:
-            x = torch.from_numpy(np.asarray(Image.open(images / f"{stem}.png")))
+            x = torch.from_numpy(np.array(Image.open(images / f"{stem}.png")))
             x = x.permute(2, 0, 1)[None]
             plain = module(x).double().softmax(1)[0]
             for m in dropout:

@@ -146,7 +146,7 @@ def _decode(path: Path, rgb: bool = False) -> Tensor:
     except (OSError, SyntaxError) as err:  # Pillow: unknown format, truncated or corrupt data
         raise ValueError(f"cannot decode {path}: {err}") from None
     array = array[..., None] if array.ndim == 2 else array
-    return torch.from_numpy(np.ascontiguousarray(array.transpose(2, 0, 1)))
+    return torch.from_numpy(array.transpose(2, 0, 1).copy())  # contiguous, writable
 
 
 def _find_pairs(root: Path, split: str) -> list[tuple[Path, Path]]:
