@@ -31,9 +31,18 @@ PIXEL_RATES: tuple[str, ...] = tuple(PIXEL_RATE_PARTS)
 PAPER_RATES: tuple[str, ...] = ("precision", "recall")
 """The two pixel rates of the paper's table (docs/definitions.md §5)."""
 
-DEFER_RATES: tuple[str, ...] = ("coverage", "selective_recall", "handled_recall")
+DEFER_RATE_PARTS: dict[str, Callable] = {
+    "coverage": lambda tp, decided, deferred: (decided, decided + deferred),
+    "selective_recall": lambda tp, decided, deferred: (tp, decided),
+    "handled_recall": lambda tp, decided, deferred: (tp + deferred, decided + deferred),
+}
+"""Each rate of deferral per rule, class and RoI as (numerator, denominator) of the class's
+true positives, its pixels that were decided and those deferred (docs/definitions.md §14;
+:mod:`costseg.metrics.functional.deferral`, the per-image losses)."""
+
+DEFER_RATES: tuple[str, ...] = tuple(DEFER_RATE_PARTS)
 """Per rule, class and RoI, from :class:`~costseg.metrics.RoIPrecisionRecall`: what deferring
-did (docs/definitions.md §14; :mod:`costseg.metrics.functional.deferral`)."""
+did."""
 
 DEFER_RULE_RATES: tuple[str, ...] = ("deferred_rate",)
 """Per rule and RoI: the share of the RoI's valid pixels that were deferred."""

@@ -42,6 +42,7 @@ from costseg.metrics.functional.instances import instance_misses
 from costseg.metrics.functional.roi import roi_confusion
 from costseg.metrics.functional.segment_rules import packed_masks, rule_errors
 from costseg.metrics.names import (
+    DEFER_RATE_PARTS,
     DEFER_RATES,
     HIGHER_IS_BETTER,
     INSTANCE_RATES,
@@ -157,11 +158,7 @@ def _pixel_counts(
         if metric in PIXEL_RATE_PARTS:  # a deferred pixel is a false negative
             parts = PIXEL_RATE_PARTS[metric](tp, predicted - tp, gt - tp)
         else:
-            parts = {
-                "coverage": (gt - deferred, gt),
-                "selective_recall": (tp, gt - deferred),
-                "handled_recall": (tp + deferred, gt),
-            }[metric]
+            parts = DEFER_RATE_PARTS[metric](tp, gt - deferred, deferred)
         out.append(torch.stack(parts, -1))
     return torch.stack(out)
 

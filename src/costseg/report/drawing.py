@@ -23,7 +23,6 @@ import multiprocessing
 import os
 import pickle
 import queue
-import signal
 import time
 import traceback
 from collections.abc import Callable, Iterable
@@ -71,13 +70,13 @@ class Drawing:
         self.folder, self.prefixes = folder, []
         workers.start()
         self.tasks, self.reports = workers.CONTEXT.Queue(), workers.CONTEXT.Queue()
+        args = (folder, self.tasks, self.reports)
         self.workers = [
-            workers.CONTEXT.Process(target=_work, args=(folder, self.tasks, self.reports))
+            workers.CONTEXT.Process(target=_work, args=args, daemon=True)
             for _ in range(max(1, processes))
         ]
-        for worker in self.workers:
-            worker.daemon = True
-            worker.start()
+        # each start waits for the forkserver to fork: a bounded wait too
+        workers.within(lambda: [w.start() for w in self.workers], "the forkserver")
 
     def submit(self, prefix: str, drawn_job: Job) -> None:
         """Queue ``drawn_job`` (its figures logged under ``prefix``); it must pickle without a
@@ -167,8 +166,8 @@ def figure_path(folder: Path, tag: str) -> Path:
 def _work(folder: Path, tasks, reports) -> None:
     """A worker: for each job until ``None``, report ``("start", pid, index, None)``, then
     ``("figure", pid, index, (tag, shape))`` per figure and ``("done", pid, index, None)``, or
-    ``("error", pid, index, OSError or traceback)``. Ctrl-C is the parent's to handle."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    ``("error", pid, index, OSError or traceback)``. Ctrl-C is the parent's to handle: the
+    forkserver's children ignore it (:func:`costseg.workers.start`)."""
     import matplotlib
 
     from costseg.report.files import render, write_png

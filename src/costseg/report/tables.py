@@ -141,7 +141,6 @@ def console_table(
     ml         50.00
     egoistic  100.00
     """
-    columns = list(dict.fromkeys(k for r in rows for k in r)) if columns is None else columns
     head = _check_headers(columns, headers)
     body = _cells(rows, columns, percent)
     widths = [max(len(s) for s in col) for col in zip(head, *body, strict=True)]

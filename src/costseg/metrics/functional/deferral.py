@@ -36,6 +36,8 @@ from collections.abc import Sequence
 
 from torch import Tensor
 
+from costseg.metrics.names import DEFER_RATE_PARTS
+
 
 def deferral_metrics(confmat: Tensor, deferred: Tensor) -> dict[str, Tensor]:
     """The metrics of deferral (the module's definitions) of K rules.
@@ -57,10 +59,9 @@ def deferral_metrics(confmat: Tensor, deferred: Tensor) -> dict[str, Tensor]:
     tp = cm.diagonal(dim1=-2, dim2=-1)
     decided = cm.sum(-1)  # pixels of each class that were not deferred
     every = decided + d
+    rates = {name: parts(tp, decided, d) for name, parts in DEFER_RATE_PARTS.items()}
     return {
-        "coverage": decided / every,
-        "selective_recall": tp / decided,
-        "handled_recall": (tp + d) / every,
+        **{name: numerator / denominator for name, (numerator, denominator) in rates.items()},
         "deferred_rate": d.sum(-1) / every.sum(-1),
         "coverage_all_classes": decided.sum(-1) / every.sum(-1),
     }
