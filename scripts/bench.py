@@ -26,6 +26,7 @@ import yaml
 from bench_decision import best_time  # the same timer as the decision benchmark
 
 from costseg import CONFIGS
+from costseg.models.entries import network_from_entry
 
 
 def bench_network_and_rules(steps: int = 2) -> None:
@@ -70,7 +71,9 @@ def bench_training(steps: int = 5) -> None:
     from costseg.training.module import SegmentationModule
 
     config = yaml.safe_load((CONFIGS / "toy.yaml").read_text())
-    module = SegmentationModule(**config["model"])
+    model = config["model"]
+    net = network_from_entry(model["net"], model["num_classes"], initial_weights=False)
+    module = SegmentationModule(**{**model, "net": net})
     data = StreetScenesDataModule(**{**config["data"]["init_args"], "num_workers": 0})
     images, labels = next(iter(_batches(data)))
     optimizer = torch.optim.AdamW(module.parameters(), lr=1e-3)
@@ -79,7 +82,7 @@ def bench_training(steps: int = 5) -> None:
     t_step = best_time(step, repeats=steps)
     size = tuple(images.shape[-2:])
     print(
-        f"training, default config on the CPU ({config['model']['backbone']}, {size}, batch "
+        f"training, default config on the CPU ({net.init_args['backbone']}, {size}, batch "
         f"{len(images)}, {precision}, {torch.get_num_threads()} threads): "
         f"{len(images) / t_step:.1f} images/s"
     )
@@ -91,7 +94,8 @@ def bench_training_cuda(steps: int = 10) -> None:
     config = yaml.safe_load((CONFIGS / "cityscapes.yaml").read_text())
     model, data = config["model"], config["data"]["init_args"]
     torch.backends.cudnn.benchmark = True
-    module = SegmentationModule(**{**model, "backbone_weights": None}).cuda().train()
+    net = network_from_entry(model["net"], model["num_classes"], initial_weights=False)
+    module = SegmentationModule(**{**model, "net": net}).cuda().train()
     batch, crop = data["batch_size"], data["crop_size"]
     images = torch.randint(0, 256, (batch, 3, crop, crop), dtype=torch.uint8, device="cuda")
     labels = torch.randint(0, model["num_classes"], (batch, crop, crop), device="cuda")
@@ -101,8 +105,9 @@ def bench_training_cuda(steps: int = 10) -> None:
     step = _training_step(module, images, labels, optimizer, bf16=True)
     t_step = best_time(lambda: [step() for _ in range(steps)], 3, torch.cuda.synchronize) / steps
     print(
-        f"training, Cityscapes config on {torch.cuda.get_device_name()} ({model['backbone']} "
-        f"OS{model['output_stride']}, crop {crop}, batch {batch}, bf16): "
+        f"training, Cityscapes config on {torch.cuda.get_device_name()} "
+        f"({net.init_args['backbone']} OS{net.init_args['output_stride']}, crop {crop}, "
+        f"batch {batch}, bf16): "
         f"{batch / t_step:.1f} images/s, peak memory "
         f"{torch.cuda.max_memory_allocated() / 2**30:.1f} GiB"
     )

@@ -43,7 +43,7 @@ class Recipe:
     @classmethod
     def read(cls, config: str, bf16: bool = False) -> Recipe:
         text = yaml.safe_load((CONFIGS / f"{config}.yaml").read_text())
-        model, data = text["model"], text["data"]["init_args"]
+        model, data = text["model"]["net"]["init_args"], text["data"]["init_args"]
         return cls(
             config,
             model["backbone"],

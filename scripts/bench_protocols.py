@@ -25,7 +25,7 @@ import yaml
 
 from costseg import CONFIGS
 from costseg.classes import NUM_CLASSES
-from costseg.models.deeplabv3plus import DeepLabV3Plus
+from costseg.models.entries import network_from_entry
 from costseg.networks.base import ImageNetwork
 from costseg.networks.protocols import Protocol, with_protocol
 from costseg.networks.sources import Source
@@ -37,9 +37,7 @@ RULES = ["robotistic", "altruistic", "egoistic"]
 def demo_network() -> ImageNetwork:
     """The network of configs/toy.yaml with random weights, channels-last as costseg runs it."""
     model = yaml.safe_load((CONFIGS / "toy.yaml").read_text())["model"]
-    net = DeepLabV3Plus(
-        NUM_CLASSES, model["backbone"], model["output_stride"], None, model["decoder_channels"]
-    )
+    net = network_from_entry(model["net"], NUM_CLASSES)
     return ImageNetwork(net, channels_last=True)
 
 

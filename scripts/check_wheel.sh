@@ -49,11 +49,11 @@ step "costseg-evaluate --help"
 "$bin/costseg-evaluate" --help | head -3
 
 step "costseg-train --print_config"
-"$bin/costseg-train" --print_config | grep -E '^  (max_steps|backbone)|class_path: costseg.data'
+"$bin/costseg-train" --print_config | grep -E '^  (max_steps|    backbone)|class_path: costseg'
 
 step "costseg-train: a tiny checkpoint (1 step)"
 # The tests' tiny model (tests/conftest.py TINY_TRAIN), one step.
-"$bin/costseg-train" --model.decoder_channels=16 --model.val_costs=[robotistic] \
+"$bin/costseg-train" --model.net.init_args.decoder_channels=16 --model.val_costs=[robotistic] \
     --data.init_args.size=[64,128] --data.init_args.batch_size=2 \
     --data.init_args.train_length=2 --data.init_args.val_length=1 \
     --data.init_args.test_length=1 --data.init_args.prior_images=2 \

@@ -78,8 +78,8 @@ def cityscapes_root(tmp_path: Path) -> Path:
 
 
 TINY_TRAIN = [
-    "--model.backbone=resnet18",
-    "--model.decoder_channels=16",
+    "--model.net.init_args.backbone=resnet18",
+    "--model.net.init_args.decoder_channels=16",
     "--model.val_costs=[robotistic, ml]",
     "--data.init_args.size=[64, 128]",
     "--data.init_args.batch_size=2",

@@ -69,6 +69,10 @@ EVALUATE_CASES = {
         ["--guarantee", "(0, 1)"],
     ),
     "guarantee without target": (["--sweep", "0.5", "--guarantee", "0.1"], ["needs --target"]),
+    "target over two sweeps": (
+        [*_target("person:roi1:recall>=0.9"), "--alpha_sweep", "0.5"],
+        ["one sweep", "2 (grid, alpha)"],
+    ),
     "guarantee without sweep": (
         [
             "--target",
@@ -78,7 +82,7 @@ EVALUATE_CASES = {
             "--guarantee",
             "0.1",
         ],
-        ["--sweep, --alpha_sweep or --defer_sweep"],
+        ["--guarantee chooses among the points of a sweep: --sweep, --defer_sweep, --alpha_sweep"],
     ),
     "too few calibration images": (
         [*_target("person:roi1:recall>=0.9"), "--guarantee", "0.1"],
@@ -158,7 +162,7 @@ TRAIN_CASES = {
         ["--trainer.accelerator cpu", "--trainer.precision 32-true"],
     ),
     "zero batch": (["--data.init_args.batch_size=0"], ["batch_size"]),
-    "unknown backbone": (["--model.backbone=resnet7"], ["resnet7"]),
+    "unknown backbone": (["--model.net.init_args.backbone=resnet7"], ["resnet7"]),
     "unknown rule": (["--model.val_costs=[selfish]"], ["unknown cost 'selfish'"]),
     "unknown option": (["--model.colour=blue"], ["colour"]),
     "missing config": (["--config=no/such.yaml"], ["no/such.yaml"]),

@@ -141,15 +141,15 @@ def test_a_cost_file_with_per_class_defer_costs(tmp_path) -> None:
 
 
 def test_validation_takes_a_rule_that_defers(tmp_path) -> None:
+    from costseg.models.deeplabv3plus import DeepLabV3Plus
     from costseg.training.module import SegmentationModule
 
     chow = tmp_path / "chow.yaml"
     save_cost(chow, with_defer(symmetric_cost(19), 0.1), "chow")  # defers where max p < 0.9
     torch.manual_seed(0)
     rules = ("robotistic", str(chow))
-    module = SegmentationModule(
-        backbone="resnet18", decoder_channels=16, val_costs=rules, channels_last=False
-    )
+    net = DeepLabV3Plus(19, "resnet18", decoder_channels=16)
+    module = SegmentationModule(net, val_costs=rules, channels_last=False)
     logged = {}
     module.log = lambda name, value, **_: logged.__setitem__(name, float(value))
     images = torch.randint(0, 256, (2, 3, 32, 64), dtype=torch.uint8)

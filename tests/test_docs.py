@@ -46,14 +46,26 @@ def _callback_steps(config: dict) -> int:
                 if "every_n_train_steps" in c.get("init_args", {}))  # fmt: skip
 
 
-def test_the_model_table_gives_each_config_s_values():
-    table = rows(section(USAGE, "### Model (`--model.*`)"))
-    assert len(table) >= 10
+@pytest.mark.parametrize(
+    "heading, keys",
+    [
+        ("### Model (`--model.*`)", ()),
+        ("### Network (`--model.net.init_args.*`)", ("net", "init_args")),
+    ],
+)
+def test_the_model_tables_give_each_config_s_values(heading, keys):
+    table = rows(section(USAGE, heading))
+    assert len(table) >= 4
     for key, cells in table.items():
+        if key == "net":
+            continue
         documented = [value(c) for c in cells[0].split(" / ")]
         documented = documented * 3 if len(documented) == 1 else documented
         for name, doc in zip(CONFIGS, documented, strict=True):
-            actual = CONFIGS[name]["model"].get(key, ABSENT)
+            entry = CONFIGS[name]["model"]
+            for k in keys:
+                entry = entry[k]
+            actual = entry.get(key, ABSENT)
             if actual != ABSENT or doc != ABSENT:  # a key left out has the code's default
                 assert doc == actual or actual == ABSENT, (key, name, doc, actual)
 

@@ -233,8 +233,11 @@ def _fake_costseg_checkpoint(path: Path, net: DeepLabV3Plus, classes: list[str])
         "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()},
         "hyper_parameters": {
             "num_classes": len(classes),
-            "backbone": "resnet18",
-            "decoder_channels": 16,
+            "net": {
+                "class_path": "costseg.models.deeplabv3plus.DeepLabV3Plus",
+                # initial weights named in the entry are not read again (the file is gone)
+                "init_args": {**net.init_args, "backbone_weights": "/gone/resnet18.pth"},
+            },
             "channels_last": False,
             "_instantiator": "lightning.pytorch.cli.instantiate_module",
         },
@@ -266,6 +269,28 @@ def test_costseg_checkpoint_without_lightning_objects(tmp_path: Path) -> None:
     torch.save({"state_dict": {}}, tmp_path / "c.ckpt")
     with pytest.raises(ValueError, match="is not a costseg checkpoint"):
         load_costseg_checkpoint(tmp_path / "c.ckpt")
+
+
+@pytest.mark.parametrize(
+    "entry, message",
+    [
+        (None, "records no network"),
+        ({"class_path": "os.system", "init_args": {"command": "exit 3"}}, "not a torch.nn.Module"),
+        ({"class_path": "costseg.models.Nothing"}, "cannot import the network"),
+    ],
+)
+def test_a_checkpoint_names_only_a_network_class(tmp_path: Path, entry, message) -> None:
+    from costseg.classes import CLASS_NAMES
+
+    net = DeepLabV3Plus(19, "resnet18", decoder_channels=16)
+    checkpoint = _fake_costseg_checkpoint(tmp_path / "a.ckpt", net, list(CLASS_NAMES))
+    if entry is None:
+        del checkpoint["hyper_parameters"]["net"]
+    else:
+        checkpoint["hyper_parameters"]["net"] = entry
+    torch.save(checkpoint, tmp_path / "a.ckpt")
+    with pytest.raises(ValueError, match=message):
+        load_costseg_checkpoint(tmp_path / "a.ckpt")
 
 
 def test_costseg_checkpoint_from_train_py(tiny_run) -> None:

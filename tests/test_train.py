@@ -47,6 +47,8 @@ def test_run_folder_config_and_priors_match_the_trained_module(tiny_run):
     run = Path(trainer.log_dir)
     config = yaml.safe_load((run / "config.yaml").read_text())
     hparams = {k: v for k, v in module.hparams.items() if not k.startswith("_")}
+    # the network's num_classes is linked to the model's, and recorded in the checkpoint
+    config["model"]["net"]["init_args"]["num_classes"] = config["model"]["num_classes"]
     assert config["model"] == hparams
     saved = torch.load(run / "priors.pt", map_location="cpu", weights_only=True)
     assert saved["class_names"] == list(CLASS_NAMES)
@@ -56,12 +58,8 @@ def test_run_folder_config_and_priors_match_the_trained_module(tiny_run):
 def test_last_checkpoint_weights_rebuild_the_trained_network(tiny_run):
     module, trainer, runs = tiny_run
     config = yaml.safe_load((Path(trainer.log_dir) / "config.yaml").read_text())["model"]
-    fresh = DeepLabV3Plus(
-        config["num_classes"],
-        config["backbone"],
-        config["output_stride"],
-        decoder_channels=config["decoder_channels"],
-    )
+    assert config["net"]["class_path"] == "costseg.models.deeplabv3plus.DeepLabV3Plus"
+    fresh = DeepLabV3Plus(config["num_classes"], **config["net"]["init_args"])
     if config["channels_last"]:  # the trained network's memory format: the same kernels run
         fresh = fresh.to(memory_format=torch.channels_last)
     state = torch.load(_last(runs), map_location="cpu", weights_only=True)

@@ -147,7 +147,7 @@ def print_train_help(args: Sequence[str]) -> None:
         "usage: train.py [--config FILE|toy|toy_long|cityscapes] [--KEY VALUE ...] "
         "[--ckpt_path PATH|last] [--print_config] [--help_all]\n\n"
         "Train DeepLabv3+ with LightningCLI. Every key of the config can be overridden, e.g.\n"
-        "  python train.py --trainer.max_steps 3000 --model.backbone resnet34\n"
+        "  python train.py --trainer.max_steps 3000 --model.net.init_args.backbone resnet34\n"
         "  python train.py --config cityscapes --data.init_args.root DIR\n"
         "  python train.py --ckpt_path last        # resume the newest runs/**/last.ckpt\n"
         "--help_all lists every option of the trainer, model and data classes.\n\n"
@@ -193,6 +193,7 @@ def build_parser(options: type, prog: str, description: str) -> argparse.Argumen
     for f in dataclasses.fields(options):
         meta = dict(f.metadata)
         title = meta.pop("group", None)
+        meta.pop("candidates", None)
         if title not in groups:
             groups[title] = parser.add_argument_group(title)
         flag = meta.pop("flag", f"--{f.name}")

@@ -124,7 +124,9 @@ def option(default: Any = None, help: str | None = None, **metadata: Any) -> Any
         default: the default value (a list is copied for each instance).
         help: the line ``--help`` shows.
         **metadata: ``flag`` (default ``--<name>``), ``type`` (a value type such as
-            :func:`whole_number`), ``nargs``, ``metavar``, ``group`` (an argument group's title).
+            :func:`whole_number`), ``nargs``, ``metavar``, ``group`` (an argument group's title),
+            ``candidates=True`` (the option builds a rule group whose rules ``--target`` and
+            ``--guarantee`` choose among: :func:`candidate_flags`).
     """
     metadata["help"] = help
     if isinstance(default, list):
@@ -235,6 +237,7 @@ class EvalOptions(SourceOptions):
         help="also sweep the barycentric grid of this step over the three --vertices",
         type=step_size,
         metavar="STEP",
+        candidates=True,
     )
     defer_sweep: list[float] | None = option(
         help="also decide every --cost rule with a defer row of each cost START, START + STEP, "
@@ -242,6 +245,7 @@ class EvalOptions(SourceOptions):
         type=defer_cost,
         nargs=3,
         metavar=("START", "STOP", "STEP"),
+        candidates=True,
     )
     target: str | None = option(
         help="constraint on the sweep, e.g. 'person:roi1:recall>=0.99' or "
@@ -254,6 +258,7 @@ class EvalOptions(SourceOptions):
         help="also sweep the prior-adapted rule from Bayes (α=0) to ML (α=1)",
         type=step_size,
         metavar="STEP",
+        candidates=True,
     )
     alpha_cost: str | None = option(help="cost matrix of the α sweep (default: symmetric)")
     calibrate: Literal["temperature", "vector"] | None = option(
@@ -281,6 +286,16 @@ class EvalOptions(SourceOptions):
         "rule's defer costs from the smallest up)",
         group=CALIBRATION,
     )
+
+
+def candidate_flags() -> str:
+    """The flags whose rule groups ``--target`` and ``--guarantee`` choose among.
+
+    >>> candidate_flags()
+    '--sweep, --defer_sweep, --alpha_sweep'
+    """
+    fields = dataclasses.fields(EvalOptions)
+    return ", ".join(f"--{f.name}" for f in fields if f.metadata.get("candidates"))
 
 
 @dataclass

@@ -17,7 +17,7 @@ from costseg.classes import CLASS_NAMES, INSTANCE_CLASSES, class_indices
 from costseg.evaluation.held_out import minimum_images
 from costseg.metrics.selection import parse_metric, parse_target, risk_level
 from costseg.networks.protocols import OPTIONS, Protocol
-from costseg.options import EvalOptions
+from costseg.options import EvalOptions, candidate_flags
 from costseg.rules import (
     TEMPERATURES,
     RuleGroup,
@@ -54,36 +54,36 @@ def check_options(opts: EvalOptions) -> list[RuleGroup]:
         groups.append(alpha_group(opts.alpha_sweep, opts.alpha_cost))
     if opts.temperature_sweep:
         groups += [temperature_group(rules, t) for t in TEMPERATURES]
-    _check_selection(opts)
+    _check_selection(opts, groups)
     _check_calibration(opts)
     return groups
 
 
-def _check_selection(opts: EvalOptions) -> None:
-    sweeps = opts.sweep is not None or opts.defer_sweep is not None
+def _check_selection(opts: EvalOptions, groups: list[RuleGroup]) -> None:
+    """``--target`` and ``--guarantee`` choose among the rules of the one rule group that has
+    candidates (a sweep)."""
     if opts.guarantee is not None:
         if not 0 < opts.guarantee < 1:
             raise ValueError(f"--guarantee is δ and must lie in (0, 1), got {opts.guarantee}")
         if not opts.target:
             raise ValueError("--guarantee needs --target (what to certify) and --maximize")
-        if not sweeps and opts.alpha_sweep is None:
-            raise ValueError(
-                "--guarantee chooses among --sweep, --alpha_sweep or --defer_sweep points"
-            )
-    if opts.target or opts.maximize:
-        if not (opts.target and opts.maximize):
-            raise ValueError("--target and --maximize go together")
-        if not sweeps and opts.guarantee is None:
-            raise ValueError("--target and --maximize choose among --sweep or --defer_sweep points")
-        if opts.defer_sweep is not None and (opts.sweep or opts.alpha_sweep) is not None:
-            raise ValueError(
-                "--target chooses among the points of one sweep: give --defer_sweep without "
-                "--sweep and --alpha_sweep (its value systems are the --cost rules)"
-            )
-        target = parse_target(opts.target)
-        parse_metric(opts.maximize)
-        if opts.guarantee is not None and not 0 < risk_level(target) < 1:
-            raise ValueError(f"--target {opts.target} leaves no risk level α in (0, 1)")
+    if not (opts.target or opts.maximize or opts.guarantee is not None):
+        return
+    if not (opts.target and opts.maximize):
+        raise ValueError("--target and --maximize go together")
+    choosing = "--guarantee" if opts.guarantee is not None else "--target"
+    candidates = [g.family for g in groups if g.candidates]
+    if not candidates:
+        raise ValueError(f"{choosing} chooses among the points of a sweep: {candidate_flags()}")
+    if len(candidates) > 1:
+        raise ValueError(
+            f"{choosing} chooses among the points of one sweep; these options give "
+            f"{len(candidates)} ({', '.join(candidates)}): keep one of {candidate_flags()}"
+        )
+    target = parse_target(opts.target)
+    parse_metric(opts.maximize)
+    if opts.guarantee is not None and not 0 < risk_level(target) < 1:
+        raise ValueError(f"--target {opts.target} leaves no risk level α in (0, 1)")
 
 
 def _check_calibration(opts: EvalOptions) -> None:

@@ -147,6 +147,14 @@ class DeepLabV3Plus(nn.Module):
         spec = _validated_spec(num_classes, backbone, output_stride, decoder_channels)
         if decoder_convs < 1:
             raise ValueError(f"decoder_convs must be a positive integer; got {decoder_convs!r}")
+        self.init_args = {  # what rebuilds this network (a checkpoint's model.net entry)
+            "num_classes": num_classes,
+            "backbone": backbone,
+            "output_stride": output_stride,
+            "backbone_weights": None if backbone_weights is None else str(backbone_weights),
+            "decoder_channels": decoder_channels,
+            "decoder_convs": decoder_convs,
+        }
         self.output_stride = output_stride
         self.backbone = spec.build(output_stride)
         self.aspp = ASPP(spec.high_channels, ATROUS_RATES[output_stride], decoder_channels)

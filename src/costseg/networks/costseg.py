@@ -2,8 +2,11 @@
 
 A Lightning checkpoint of `costseg.training.module.SegmentationModule` holds only tensors and
 plain data (hyper-parameters are a dict of strings and numbers), so
-:func:`costseg.checkpoints.read_checkpoint` reads it with ``weights_only=True``, and the network
-is rebuilt from ``hyper_parameters`` and the ``net.*`` weights.
+:func:`costseg.checkpoints.read_checkpoint` reads it with ``weights_only=True``. The network is
+rebuilt from the config entry the checkpoint records (``hyper_parameters["net"]``: the class
+named by ``class_path`` called with ``init_args``) and the ``net.*`` weights. Initial weights
+named in ``init_args`` (``backbone_weights``) are not read again: the checkpoint's weights
+replace them.
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ from torch import Tensor
 
 from costseg.checkpoints import CHECKPOINT_KEY, read_checkpoint
 from costseg.classes import CLASS_NAMES
-from costseg.models.deeplabv3plus import DeepLabV3Plus
+from costseg.models.entries import network_from_entry
 from costseg.networks.base import ImageNetwork, check_state_keys
 
 __all__ = ["CostsegCheckpoint", "load_costseg_checkpoint"]
@@ -45,14 +48,11 @@ class CostsegCheckpoint:
     extra: dict[str, Any] = field(default_factory=dict)
 
 
-_NET_ARGS = ("num_classes", "backbone", "output_stride", "decoder_channels")
-
-
 def load_costseg_checkpoint(
     path: str | Path, class_names: Sequence[str] = CLASS_NAMES
 ) -> CostsegCheckpoint:
-    """Read a ``train.py`` checkpoint trained on ``class_names`` into a plain `DeepLabV3Plus`,
-    without Lightning.
+    """Read a ``train.py`` checkpoint trained on ``class_names`` into its network, without
+    Lightning.
 
     Raises:
         FileNotFoundError: no such file.
@@ -68,7 +68,12 @@ def load_costseg_checkpoint(
     checkpoint = read_checkpoint(path, class_names)
     extra = checkpoint[CHECKPOINT_KEY]
     hparams = dict(checkpoint.get("hyper_parameters") or {})
-    net = DeepLabV3Plus(**{k: hparams[k] for k in _NET_ARGS if k in hparams})
+    if "net" not in hparams:
+        raise ValueError(f"{path} records no network (model.net): train it again with train.py")
+    try:
+        net = network_from_entry(hparams["net"], initial_weights=False)
+    except (ValueError, TypeError) as err:
+        raise ValueError(f"{path}: {err}") from None
     state = {k[4:]: v for k, v in checkpoint["state_dict"].items() if k.startswith("net.")}
     check_state_keys(net.state_dict(), state, f"{path} does not fit its own settings")
     net.load_state_dict(state)

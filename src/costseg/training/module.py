@@ -1,4 +1,9 @@
-"""The LightningModule: DeepLabv3+ trained with cross-entropy, validated under cost rules.
+"""The LightningModule: a segmentation network trained with cross-entropy, validated under
+cost rules.
+
+The network is any ``nn.Module`` mapping normalised images to logits; a config names it as
+``model.net`` (``class_path`` / ``init_args``, LightningCLI's own mechanism), and the checkpoint
+records that entry (``hparams["net"]``), from which :mod:`costseg.networks.costseg` rebuilds it.
 
 Training is ordinary cross-entropy (ignore index 255). Validation takes the softmax and swaps
 ``argmax`` for the configured decision rules (robotistic by default, i.e. argmax), all rules
@@ -15,6 +20,7 @@ from typing import Any, Literal
 import lightning as L
 import torch
 import torch.nn.functional as F
+from torch import nn
 
 from costseg.checkpoints import CHECKPOINT_KEY
 from costseg.classes import CLASS_NAMES, IGNORE_INDEX, class_index
@@ -22,20 +28,21 @@ from costseg.data.prior_maps import PriorMaps
 from costseg.metrics import CalibrationError
 from costseg.metrics.names import PIXEL_RATES
 from costseg.metrics.scoring import GroupMetrics, score_batch
-from costseg.models.deeplabv3plus import DeepLabV3Plus
+from costseg.models.entries import network_entry
 from costseg.networks.base import IMAGENET_MEAN, IMAGENET_STD, normalised
 from costseg.rules import parse_rules, rules_group
 
 
 class SegmentationModule(L.LightningModule):
-    """DeepLabv3+ for semantic segmentation with cost-based validation.
+    """A segmentation network with cost-based validation.
 
     Args:
+        net: (B, 3, H, W) ImageNet-normalised images → (B, num_classes, H, W) logits, e.g.
+            `costseg.models.deeplabv3plus.DeepLabV3Plus`; in a config, ``model.net`` with
+            ``class_path`` and ``init_args`` (``num_classes`` is linked to this module's).
+            train.py records the config's entry; a network built in Python is recorded from
+            its ``init_args`` attribute (:func:`costseg.models.entries.network_entry`).
         num_classes: output classes (19 Cityscapes train classes).
-        backbone: a backbone name (see ``costseg.models.deeplabv3plus.BACKBONES``).
-        output_stride: 32, 16 or 8.
-        decoder_channels: width of ASPP and decoder (256 in the paper's model).
-        backbone_weights: optional local file with ImageNet weights for the backbone.
         optimizer: ``sgd`` (momentum, Nesterov off) or ``adamw``.
         lr: peak learning rate, decayed by the poly schedule ``(1 - step/total) ** poly_power``.
         momentum: SGD momentum.
@@ -53,11 +60,8 @@ class SegmentationModule(L.LightningModule):
 
     def __init__(
         self,
+        net: nn.Module,
         num_classes: int = 19,
-        backbone: str = "resnet50",
-        output_stride: int = 16,
-        decoder_channels: int = 256,
-        backbone_weights: str | None = None,
         optimizer: Literal["sgd", "adamw"] = "sgd",
         lr: float = 0.01,
         momentum: float = 0.9,
@@ -70,10 +74,9 @@ class SegmentationModule(L.LightningModule):
     ) -> None:
         super().__init__()
         _check_hyperparameters(lr, momentum, weight_decay, poly_power, warmup_steps)
-        self.save_hyperparameters()
-        self.net = DeepLabV3Plus(
-            num_classes, backbone, output_stride, backbone_weights, decoder_channels
-        )
+        self.save_hyperparameters(ignore=["net"])
+        self.hparams["net"] = network_entry(net)  # train.py records the config's own entry
+        self.net = net
         if channels_last:
             self.net = self.net.to(memory_format=torch.channels_last)
         self.rules = rules_group(parse_rules(val_costs, CLASS_NAMES[:num_classes]))

@@ -41,6 +41,7 @@ class TrainCLI(LightningCLI):
             default=None,
             help="resume training from this checkpoint ('last': newest runs/**/last.ckpt)",
         )
+        parser.link_arguments("model.num_classes", "model.net.init_args.num_classes")
 
     def before_instantiate_classes(self) -> None:
         """Fill in the precision when neither the config nor the command line sets it."""
@@ -51,6 +52,15 @@ class TrainCLI(LightningCLI):
         else:
             why = "set by the config or --trainer.precision"
         self.precision_line = f"precision: {precision} ({why})"
+
+    def after_instantiate_classes(self) -> None:
+        """The checkpoint records the config's ``model.net`` entry, which rebuilds the network."""
+        net = self.config["model"]["net"]
+        init_args = net.get("init_args")
+        self.model.hparams["net"] = {
+            "class_path": net["class_path"],
+            "init_args": init_args.as_dict() if init_args else {},
+        }
 
 
 @contextlib.contextmanager
