@@ -1,11 +1,13 @@
 """Empirical check of the Learn-then-Test guarantee on the procedural world (docs/definitions.md
 §7).
 
-    python scripts/check_guarantee.py [--ckpt_path PATH] [--n 50] [--trials 200] [--test 1000]
+    python scripts/check_guarantee.py [--ckpt_path PATH ...] [--n 50] [--trials 200] [--test 1000]
     python scripts/check_guarantee.py --defer_sweep 0 1 0.05 --cost robotistic egoistic \
         --target "person:roi1:handled_recall>=0.95" --maximize all:roi1:coverage
 
-Fresh procedural scenes (split "test", --seed 1000: unrelated to training) form a pool: the first
+evaluate.py's options mean the same here (--sweep is the grid's step, --guarantee is δ; several
+--ckpt_path / --network: their ensemble). Fresh procedural scenes (split "test", --scene_seed 1000:
+unrelated to training) form a pool: the first
 --test images are the test set, the next ones the calibration pool (--trials × --n images by
 default: disjoint, independent calibration sets). The network runs once per image; the per-image
 counts of the target and of --maximize under every candidate λ (the grid points, or with
@@ -38,109 +40,133 @@ from tqdm import tqdm
 from costseg import workers
 from costseg.calibration.guarantee import learn_then_test_paths, tests_sharing_delta
 from costseg.checkpoints import find_checkpoint
+from costseg.classes import CLASS_NAMES
+from costseg.cli import build_parser as build_options_parser
 from costseg.data.prior_maps import PriorMaps
 from costseg.data.toy import StreetScenes
 from costseg.metrics.per_image import per_image_counts, per_image_loss
 from costseg.metrics.selection import best_points, meets, parse_metric, parse_target, risk_level
-from costseg.networks import load_costseg_checkpoint, load_network
+from costseg.networks import load_costseg_checkpoint
+from costseg.networks.ensemble import member_specs, open_sources
+from costseg.networks.protocols import Protocol
+from costseg.networks.sources import resolve_device
 from costseg.options import RULES as DEFAULT_RULES
+from costseg.options import EvalOptions
 from costseg.report.files import save_figure, write_json
 from costseg.rules import RuleGroup, defer_costs, defer_group, grid_group, require_priors
 
 RULES = {"ltt": "Learn-then-Test", "naive": "naive --target"}
 
 
+# evaluate.py's options that mean the same here, with this script's defaults
+SHARED = {
+    "cost": DEFAULT_RULES,
+    "ckpt_path": None,
+    "network": None,
+    "device": "auto",
+    "output_dir": "runs/guarantee_check",
+    "vertices": ["robotistic", "altruistic", "egoistic"],
+    "vertex_scaling": "none",
+    "batch_size": 16,
+    "sweep": 0.1,
+    "defer_sweep": None,
+    "target": "person:roi1:recall>=0.95",
+    "maximize": "person:roi1:precision",
+    "guarantee": 0.1,
+    "guarantee_method": "bonferroni",
+}
+
+
 def build_parser() -> argparse.ArgumentParser:
-    """The command line (see the module docstring)."""
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    """The command line: evaluate.py's declarations of the options in :data:`SHARED` (``--sweep``
+    is the grid's step, ``--guarantee`` is δ; ``--defer_sweep`` replaces the grid), then the
+    check's own."""
+    p = build_options_parser(
+        EvalOptions, "check_guarantee.py", __doc__.splitlines()[0], SHARED, SHARED
+    )
     add = p.add_argument
-    add("--ckpt_path", help="checkpoint (default: newest runs/**/last.ckpt), also RoI and size")
-    add("--network", help="other network spec (costseg:PATH, vainf:PATH, hf:DIR)")
-    add("--target", default="person:roi1:recall>=0.95", help="the guarantee's target (α from it)")
-    add("--maximize", default="person:roi1:precision", help="what to maximise among the certified")
-    add("--delta", type=float, default=0.1, help="δ: allowed probability of a violation")
-    add("--method", default="bonferroni", choices=("bonferroni", "fixed_sequence"))
     add("--bound", default="hoeffding_bentkus", choices=("hoeffding_bentkus", "hoeffding"))
     add("--n", type=int, default=50, help="images per calibration set")
     add("--trials", type=int, default=200, help="calibration sets drawn")
     add("--test", type=int, default=1000, help="images of the fresh test set")
     add("--cal_pool", type=int, help="default --trials × --n; smaller: sets overlap")
-    add("--step", type=float, default=0.1, help="barycentric grid step (0.1: 66 points)")
-    add("--vertices", nargs=3, default=["robotistic", "altruistic", "egoistic"])
-    add("--vertex_scaling", default="none", choices=("none", "mean"))
-    add("--defer_sweep", type=float, nargs=3, metavar=("START", "STOP", "STEP"),
-        help="candidates: every --cost rule at these defer costs instead of the grid")  # fmt: skip
-    add("--cost", nargs="+", default=DEFAULT_RULES, help="the rules of --defer_sweep")
-    add("--seed", type=int, default=1000, help="scene seed (training uses 0)")
+    add("--scene_seed", type=int, default=1000, help="scene seed (training uses 0)")
     add("--draw_seed", type=int, default=0, help="seed of the calibration-set draws")
     add("--size", type=int, nargs=2, metavar=("H", "W"), help="default: the checkpoint's")
-    add("--batch_size", type=int, default=16)
-    add("--device", default="auto", help="auto, cpu, cuda, ...")
-    add("--output_dir", type=Path, default=Path("runs/guarantee_check"))
     return p
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     """Parsed and checked options; ValueError for a bad target or sizes."""
     args = build_parser().parse_args(argv)
+    args.output_dir = Path(args.output_dir)
     args.target_spec, args.max_spec = parse_target(args.target), parse_metric(args.maximize)
     args.alpha = risk_level(args.target_spec)
     args.cal_pool = args.trials * args.n if args.cal_pool is None else args.cal_pool
-    if not 0 < args.alpha < 1 or not 0 < args.delta < 1:
-        raise ValueError(f"need α = {args.alpha:g} and δ = {args.delta:g} in (0, 1)")
-    if min(args.n, args.trials, args.test, args.batch_size) < 1 or args.n > args.cal_pool:
-        raise ValueError(f"need n, trials, test, batch_size >= 1, n <= cal_pool = {args.cal_pool}")
+    if not 0 < args.alpha < 1 or not 0 < args.guarantee < 1:
+        raise ValueError(f"need α = {args.alpha:g} and δ = {args.guarantee:g} in (0, 1)")
+    if min(args.n, args.trials, args.test) < 1 or args.n > args.cal_pool:
+        raise ValueError(f"need n, trials, test >= 1 and n <= cal_pool = {args.cal_pool}")
+    resolve_device(args.device)
     candidates(args)  # a bad --defer_sweep or --cost: ValueError before any image
     return args
 
 
 def candidates(args: argparse.Namespace) -> RuleGroup:
-    """The λ: the grid of --step over --vertices, or with --defer_sweep every --cost rule at
+    """The λ: the grid of --sweep over --vertices, or with --defer_sweep every --cost rule at
     every defer cost (one fixed-sequence path per rule)."""
     if args.defer_sweep is not None:
         return defer_group(args.cost, defer_costs(*args.defer_sweep))
-    return grid_group(args.vertices, args.step, args.vertex_scaling)
+    return grid_group(args.vertices, args.sweep, args.vertex_scaling)
 
 
-def resolve_checkpoint(args: argparse.Namespace) -> Path | None:
-    """The checkpoint in use: --ckpt_path or the newest; with --network only if there is one."""
+def checkpoints(args: argparse.Namespace) -> list[Path]:
+    """The checkpoints in use: --ckpt_path (default the newest), or with --network alone the
+    newest if there is one (for its priors, RoI map and image size)."""
     if args.network is None or args.ckpt_path is not None:
-        return find_checkpoint(args.ckpt_path)
+        return [find_checkpoint(p) for p, _ in member_specs(args.ckpt_path, None)]
     try:
-        return find_checkpoint(None)
+        return [find_checkpoint(None)]
     except FileNotFoundError:
-        return None
+        return []
 
 
-def load_source(args: argparse.Namespace, path: Path | None) -> tuple[Any, Any, tuple[int, int]]:
-    """(network, RoI map or None, image size) of the checkpoint or --network."""
-    ckpt = None if path is None else load_costseg_checkpoint(path)
-    config = (ckpt.data_config or {}).get("init_args", {}) if ckpt else {}
+def load_source(args: argparse.Namespace, paths: list[Path]) -> tuple[Any, Any, tuple[int, int]]:
+    """(source, (priors, RoI map) or Nones, image size) of the checkpoints and --network: one
+    network or their ensemble, as evaluate.py builds it."""
+    device = resolve_device(args.device)
+    ckpts = [str(p) for p in paths] if args.ckpt_path is not None else None
+    source = open_sources(ckpts, args.network, None, device, Protocol(), None, 0)
+    priors = source.priors
+    config = (source.data_config or {}).get("init_args", {})
+    if priors is None and paths:  # --network alone: the newest checkpoint's priors and size
+        ckpt = load_costseg_checkpoint(paths[0])
+        priors, config = ckpt.priors, (ckpt.data_config or {}).get("init_args", {})
     size = tuple(args.size or config.get("size") or (128, 256))
-    device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    device = device if args.device == "auto" else torch.device(args.device)
-    priors, roi = None, None
-    if ckpt is not None and ckpt.priors is not None:
-        priors, roi = PriorMaps(ckpt.priors, ckpt.class_names, device).at(size)
+    roi = None
+    if priors is not None:
+        priors, roi = PriorMaps(priors, CLASS_NAMES, device).at(size)
     if (args.target_spec.roi or args.max_spec.roi) and roi is None:
         raise ValueError("a RoI target or --maximize needs a checkpoint with priors (RoI map)")
     require_priors([candidates(args)], priors)
-    net = load_network(args.network, device) if args.network else ckpt.network.to(device).eval()
-    return net, (priors, roi), (int(size[0]), int(size[1]))
+    return source, (priors, roi), (int(size[0]), int(size[1]))
 
 
 def compute_counts(args: argparse.Namespace, source: tuple, indices: range) -> dict[str, Any]:
     """(len(indices), K, 2) per-image counts of the target ("target") and of --maximize, with
     ``source`` = (network, (priors, RoI map), size) from :func:`load_source`."""
-    net, (priors, roi), size = source
-    scenes = StreetScenes("test", indices.stop, size, args.seed)
+    source, (priors, roi), size = source
+    scenes = StreetScenes("test", indices.stop, size, args.scene_seed)
     loader = DataLoader(Subset(scenes, indices), args.batch_size, **workers.loader_options(1))
-    group, device = candidates(args), next(net.parameters()).device
+    group, device = candidates(args), resolve_device(args.device)
     out: dict[str, list[torch.Tensor]] = {"target": [], "maximize": []}
     with torch.inference_mode(), workers.loader_errors(f"scenes {indices.start}-{indices.stop}"):
-        for images, labels in tqdm(loader, f"images {indices.start}-{indices.stop}", unit="batch"):
+        batches = tqdm(loader, f"images {indices.start}-{indices.stop}", unit="batch")
+        for b, (images, labels) in enumerate(batches):
             images, labels = images.to(device), labels.to(device)
-            preds = group.decide(net(images).float().softmax(1), priors)
+            first = indices.start + b * args.batch_size
+            names = [f"scene{first + i}" for i in range(len(images))]
+            preds = group.decide(source.probabilities_of(source.scores(images, names)), priors)
             for key, spec in (("target", args.target_spec), ("maximize", args.max_spec)):
                 out[key].append(per_image_counts(preds, labels, roi, *spec[:3]).cpu())
     return {k: torch.cat(v).numpy() for k, v in out.items()}
@@ -149,11 +175,12 @@ def compute_counts(args: argparse.Namespace, source: tuple, indices: range) -> d
 def cached_counts(args: argparse.Namespace) -> tuple[dict[str, np.ndarray], str, float]:
     """(counts of the pool's images, network name, seconds spent); ``counts.npz`` in --output_dir
     keeps those of earlier runs with the same settings, so only new images are counted."""
-    path = resolve_checkpoint(args)
-    name = args.network or f"costseg:{path}"
-    names = ("seed", "size", "step", "vertices", "vertex_scaling", "defer_sweep", "cost")
+    paths = checkpoints(args)
+    members = [f"costseg:{p}" for p in paths if args.ckpt_path is not None or not args.network]
+    name = " + ".join([*members, *(args.network or [])])
+    names = ("scene_seed", "size", "sweep", "vertices", "vertex_scaling", "defer_sweep", "cost")
     key = {k: getattr(args, k) for k in names}
-    key |= {"network": name, "checkpoint": str(path), "mtime": path and path.stat().st_mtime}
+    key |= {"network": name, "checkpoints": [[str(p), p.stat().st_mtime] for p in paths]}
     key |= {"target": list(args.target_spec[:3]), "maximize": list(args.max_spec)}
     key_text, cache = json.dumps(key, sort_keys=True), args.output_dir / "counts.npz"
     counts, need, seconds = None, args.test + args.cal_pool, 0.0
@@ -162,7 +189,7 @@ def cached_counts(args: argparse.Namespace) -> tuple[dict[str, np.ndarray], str,
             if str(cached["key"]) == key_text:
                 counts = {k: cached[k] for k in ("target", "maximize")}
     have, start = 0 if counts is None else len(counts["target"]), time.perf_counter()
-    source = load_source(args, path) if have < need else None
+    source = load_source(args, paths) if have < need else None
     for lo in range(have, need, 256):  # saved every 256 images: an interrupted run resumes
         new = compute_counts(args, source, range(lo, min(lo + 256, need)))
         counts = new if counts is None else {k: np.concatenate([counts[k], new[k]]) for k in new}
@@ -194,7 +221,7 @@ def choose(
     """LTT's and the naive rule's choice on one calibration set's (n, K, 2) counts."""
     losses = per_image_loss(target, args.target_spec.metric).numpy()
     ltt = learn_then_test_paths(  # as evaluate.py --guarantee
-        losses, args.alpha, args.delta, args.method, group.paths, args.bound
+        losses, args.alpha, args.guarantee, args.guarantee_method, group.paths, args.bound
     )
     objective = pooled(goal)
     chosen = ltt.best(np.nan_to_num(objective, nan=-np.inf), prefer=group.prefer)
@@ -251,7 +278,7 @@ def rule_summary(
 def minimum_n(args: argparse.Namespace, candidates: int, paths: int = 0) -> int:
     """Fewest calibration images with which a zero empirical risk is certified (fixed-sequence
     testing along ``paths`` paths: δ / paths for each)."""
-    level = args.delta / tests_sharing_delta(args.method, candidates, paths)
+    level = args.guarantee / tests_sharing_delta(args.guarantee_method, candidates, paths)
     if args.bound == "hoeffding":  # p = exp(−2 n α²)
         return math.ceil(-math.log(level) / (2 * args.alpha**2))
     return math.ceil(math.log(level) / math.log1p(-args.alpha))  # p = (1 − α)ⁿ
@@ -260,9 +287,10 @@ def minimum_n(args: argparse.Namespace, candidates: int, paths: int = 0) -> int:
 def report(out: dict[str, Any]) -> None:
     """Print the findings."""
     s, t = out["settings"], out["test"]
-    alpha, delta, trials = s["alpha"], s["delta"], s["trials"]
+    alpha, delta, trials = s["alpha"], s["guarantee"], s["trials"]
     sets = "disjoint (independent)" if out["disjoint_sets"] else "overlapping, from one pool"
-    print(f"target {s['target']} (α = {alpha:.4g}), δ = {delta:g}, {s['method']}, {s['bound']}")
+    print(f"target {s['target']} (α = {alpha:.4g}), δ = {delta:g}, {s['guarantee_method']}, "
+          f"{s['bound']}")  # fmt: skip
     print(f"{trials} calibration sets of {s['n']} images ({sets}); {t['images']} test images")
     lo, hi = t["undefined_images"]
     print(f"undefined loss, left out: {lo}-{hi} test images per λ; on average "
@@ -299,7 +327,7 @@ def plot(out: dict[str, Any], path: Path) -> None:
     for ax in (left, right):
         ax.axvline(s["alpha"], color="k", ls="--", lw=1, label="α")
         ax.legend(fontsize=8)
-    title = f"{s['target']}: α = {s['alpha']:.3g}, δ = {s['delta']:g}, n = {s['n']}"
+    title = f"{s['target']}: α = {s['alpha']:.3g}, δ = {s['guarantee']:g}, n = {s['n']}"
     left.set(xlabel="test risk of the chosen λ", ylabel="calibration sets", title=title)
     right.set(xlabel="test risk", ylabel=f"test {s['maximize']}", title="area: how often chosen")
     fig.tight_layout()

@@ -52,9 +52,9 @@ def test_the_defer_sweep_choices_equal_a_numpy_recomputation(tiny_run, tmp_path)
     ckpt = find_checkpoint(None, runs_dir=tiny_run[2])
     out = tmp_path / "check"
     args = ["--ckpt_path", str(ckpt), "--defer_sweep", "0", "1", "0.5"]
-    args += ["--cost", "robotistic", "egoistic", "--method", "fixed_sequence"]
+    args += ["--cost", "robotistic", "egoistic", "--guarantee_method", "fixed_sequence"]
     args += ["--target", "person:roi0:handled_recall>=0.5", "--maximize", "all:roi0:coverage"]
-    args += ["--delta", str(DELTA), "--n", "6", "--trials", "1", "--test", "4"]
+    args += ["--guarantee", str(DELTA), "--n", "6", "--trials", "1", "--test", "4"]
     args += ["--batch_size", "5", "--output_dir", str(out), "--device", "cpu"]
     assert _script().main(args) == 0
     record = json.loads((out / "guarantee_check.json").read_text())
@@ -64,3 +64,21 @@ def test_the_defer_sweep_choices_equal_a_numpy_recomputation(tiny_run, tmp_path)
     ltt, naive = _expected(target, goal)
     assert record["ltt"]["chosen"] == [ltt] and record["naive"]["chosen"] == [naive]
     assert ltt is not None  # the check certifies something
+
+
+def test_the_shared_options_are_evaluate_py_s(capsys) -> None:
+    from costseg.cli import evaluate_parser
+
+    script = _script()
+    ours = {a.dest: a for a in script.build_parser()._actions}
+    theirs = {a.dest: a for a in evaluate_parser()._actions}
+    for name in script.SHARED:
+        assert ours[name].type == theirs[name].type and ours[name].nargs == theirs[name].nargs
+        assert ours[name].default == script.SHARED[name]
+    for bad, message in ((["--sweep", "0.3"], "--sweep"), (["--device", "tpu"], "device 'tpu'")):
+        try:
+            code = script.main(bad)
+        except SystemExit as stop:  # a parser error
+            code = stop.code
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert code == 2 and len(lines) == 1 and message in lines[0], lines

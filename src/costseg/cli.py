@@ -176,11 +176,19 @@ class OneLineParser(argparse.ArgumentParser):
         fail(f"{self.prog}: {message}")
 
 
-def build_parser(options: type, prog: str, description: str) -> argparse.ArgumentParser:
+def build_parser(
+    options: type,
+    prog: str,
+    description: str,
+    fields: Sequence[str] | None = None,
+    defaults: dict[str, Any] | None = None,
+) -> argparse.ArgumentParser:
     """The parser of an options dataclass (:mod:`costseg.options`): one argument per field.
 
     A field's type says the rest: ``bool`` is a flag (``--no-x`` when it defaults to True),
-    ``list[...]`` takes several values, ``Literal[...]`` lists the choices.
+    ``list[...]`` takes several values, ``Literal[...]`` lists the choices. A script that shares
+    some of a job's options takes only ``fields`` (in their declared order), with its own
+    ``defaults``, and adds its own arguments to the parser.
 
     >>> from costseg.options import EvalOptions, PredictOptions
     >>> p = build_parser(EvalOptions, "evaluate.py", "")
@@ -191,19 +199,25 @@ def build_parser(options: type, prog: str, description: str) -> argparse.Argumen
     groups: dict[str | None, Any] = {None: parser}
     hints = typing.get_type_hints(options)
     for f in dataclasses.fields(options):
+        if fields is not None and f.name not in fields:
+            continue
         meta = dict(f.metadata)
         title = meta.pop("group", None)
         meta.pop("candidates", None)
         if title not in groups:
             groups[title] = parser.add_argument_group(title)
         flag = meta.pop("flag", f"--{f.name}")
-        groups[title].add_argument(flag, dest=f.name, **_argument(f, hints[f.name], meta))
+        default = (defaults or {}).get(f.name, _default(f))
+        groups[title].add_argument(flag, dest=f.name, **_argument(default, hints[f.name], meta))
     return parser
 
 
-def _argument(f: dataclasses.Field, hint: Any, meta: dict[str, Any]) -> dict[str, Any]:
-    """argparse keywords of one dataclass field."""
-    default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+def _default(f: dataclasses.Field) -> Any:
+    return f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+
+
+def _argument(default: Any, hint: Any, meta: dict[str, Any]) -> dict[str, Any]:
+    """argparse keywords of one dataclass field (its type ``hint``, ``meta`` data)."""
     optional = typing.get_origin(hint) in (typing.Union, types.UnionType)
     kind = [a for a in typing.get_args(hint) if a is not type(None)] if optional else [hint]
     if hint is bool:
