@@ -11,14 +11,14 @@ CHAIN = [
     {"costs"},
     {"decision"},
     {"rules", "calibration"},
-    {"data", "metrics", "models", "networks"},
+    {"data", "metrics", "models", "networks", "meta"},
     {"report", "compile_kernels"},
     {"evaluation", "prediction", "training"},
     {"cli"},
 ]
-NO_LIGHTNING = {"costs", "decision", "rules", "calibration", "metrics", "networks",
+NO_LIGHTNING = {"costs", "decision", "rules", "calibration", "metrics", "networks", "meta",
                 "report", "evaluation", "prediction", "workers", "compile_kernels"}  # fmt: skip
-NO_MODEL = {"costs", "decision", "rules", "calibration", "metrics", "report"}
+NO_MODEL = {"costs", "decision", "rules", "calibration", "metrics", "meta", "report"}
 
 
 def _imports() -> dict[str, set[str]]:

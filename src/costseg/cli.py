@@ -224,7 +224,7 @@ def _argument(default: Any, hint: Any, meta: dict[str, Any]) -> dict[str, Any]:
         return {"action": "store_false" if default else "store_true", "help": meta["help"]}
     meta["default"] = default
     if default is not None:
-        shown = " ".join(default) if isinstance(default, list) else default
+        shown = " ".join(map(str, default)) if isinstance(default, list) else default
         meta["help"] = f"{meta['help']} (default: {shown})"
     if typing.get_origin(kind[0]) is list:
         meta.setdefault("nargs", "+")

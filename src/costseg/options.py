@@ -23,6 +23,7 @@ from typing import Any, Literal
 SOURCE = "probability source (default: newest runs/**/last.ckpt; several: their ensemble)"
 CALIBRATION = "calibration and guarantees (fitted on held-out images)"
 PROTOCOL = "inference protocol (docs/definitions.md §13)"
+SEGMENTS = "segments: meta classification and fusion (docs/definitions.md §15)"
 RULES = ["robotistic", "altruistic", "egoistic"]
 
 NETWORK_SPECS = {
@@ -287,12 +288,53 @@ class EvalOptions(SourceOptions):
         group=CALIBRATION,
     )
 
+    save_segments: bool = option(
+        False,
+        "write segments/<rule>.csv: every segment of every --cost rule with its features and "
+        "targets",
+        flag="--save-segments",
+        group=SEGMENTS,
+    )
+    meta: bool = option(
+        False,
+        "fit meta classifiers and regressors of each --cost rule's segments on held-out images "
+        "(--meta_split, --calibration_split, or the first half of --split) and score them on "
+        "the reported ones",
+        group=SEGMENTS,
+    )
+    meta_split: Literal["train", "val", "test"] | None = option(
+        help="fit the meta models on this split (its first --meta_images images)", group=SEGMENTS
+    )
+    meta_images: int = option(
+        100,
+        "images of --meta_split that fit the meta models",
+        type=whole_number(1),
+        group=SEGMENTS,
+    )
+    fuse: list[str] | None = option(
+        help="rules whose extra segments are fused with --fuse_base where the meta classifier "
+        "trusts them (MetaFusion), e.g. ml altruistic",
+        metavar="RULE",
+        group=SEGMENTS,
+    )
+    fuse_base: str = option("robotistic", "the base rule of --fuse", group=SEGMENTS)
+    fuse_tau: list[float] = option(
+        [0.5],
+        "thresholds τ of --fuse: candidates whose probability of being false is >= τ are "
+        "dropped; several: a sweep, chosen by --target",
+        type=float,
+        metavar="TAU",
+        group=SEGMENTS,
+        candidates=True,
+    )
+    fuse_classes: list[str] = option(["person"], "the classes --fuse fuses", group=SEGMENTS)
+
 
 def candidate_flags() -> str:
     """The flags whose rule groups ``--target`` and ``--guarantee`` choose among.
 
     >>> candidate_flags()
-    '--sweep, --defer_sweep, --alpha_sweep'
+    '--sweep, --defer_sweep, --alpha_sweep, --fuse_tau'
     """
     fields = dataclasses.fields(EvalOptions)
     return ", ".join(f"--{f.name}" for f in fields if f.metadata.get("candidates"))

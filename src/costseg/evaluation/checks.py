@@ -15,6 +15,7 @@ import torch
 from costseg.calibration.guarantee import tests_sharing_delta
 from costseg.classes import CLASS_NAMES, INSTANCE_CLASSES, class_indices
 from costseg.evaluation.held_out import minimum_images
+from costseg.meta.fusion import fusion_group
 from costseg.metrics.selection import parse_metric, parse_target, risk_level
 from costseg.networks.protocols import OPTIONS, Protocol
 from costseg.options import EvalOptions, candidate_flags
@@ -54,6 +55,9 @@ def check_options(opts: EvalOptions) -> list[RuleGroup]:
         groups.append(alpha_group(opts.alpha_sweep, opts.alpha_cost))
     if opts.temperature_sweep:
         groups += [temperature_group(rules, t) for t in TEMPERATURES]
+    if opts.fuse:
+        groups.append(_fusion_group(opts))
+    _check_meta(opts)
     _check_selection(opts, groups)
     _check_calibration(opts)
     return groups
@@ -86,12 +90,39 @@ def _check_selection(opts: EvalOptions, groups: list[RuleGroup]) -> None:
         raise ValueError(f"--target {opts.target} leaves no risk level α in (0, 1)")
 
 
+def _fusion_group(opts: EvalOptions) -> RuleGroup:
+    base = parse_rules([opts.fuse_base])[0]
+    fused = parse_rules(opts.fuse)
+    if any(r.defers for r in (base, *fused)):
+        raise ValueError("--fuse and --fuse_base take rules that never defer")
+    return fusion_group(base, fused, opts.fuse_tau, class_indices(opts.fuse_classes))
+
+
+def _check_meta(opts: EvalOptions) -> None:
+    if opts.meta_split is not None and not (opts.meta or opts.fuse):
+        raise ValueError("--meta_split goes with --meta or --fuse")
+    if opts.meta_split is not None and opts.meta_split == opts.split:
+        raise ValueError(
+            f"--meta_split {opts.meta_split} overlaps the reported split {opts.split}: the meta "
+            "models must be fitted on other images"
+        )
+    if (opts.meta or opts.fuse) and opts.probs is not None and opts.meta_split is not None:
+        raise ValueError("--meta_split needs a network: saved probabilities cover one split")
+    if opts.fuse and opts.guarantee is not None and opts.meta_split is None:
+        raise ValueError(
+            "--guarantee over --fuse certifies on held-out images, which must not be the ones "
+            "that fit the meta classifier: give --meta_split"
+        )
+
+
 def _check_calibration(opts: EvalOptions) -> None:
     if opts.calibrate not in (None, "temperature", "vector"):
         raise ValueError(f"--calibrate must be temperature or vector, got {opts.calibrate!r}")
     if opts.calibration_split is not None:
-        if not (opts.calibrate or opts.guarantee is not None):
-            raise ValueError("--calibration_split goes with --calibrate or --guarantee")
+        if not (opts.calibrate or opts.guarantee is not None or opts.meta or opts.fuse):
+            raise ValueError(
+                "--calibration_split goes with --calibrate, --guarantee, --meta or --fuse"
+            )
         if opts.calibration_split == opts.split:
             raise ValueError(
                 f"--calibration_split {opts.calibration_split} overlaps the reported split "

@@ -43,6 +43,7 @@ class EvalPlan:
     indices: list[int]  # this process's share of the reported images
     num_reported: int  # reported images over all processes
     calibration: tuple[Dataset, list[int]] | None  # images that fit / certify, never reported
+    meta_images: tuple[Dataset, list[int]] | None  # images that fit the meta models, never reported
     batch_size: int
     num_workers: int
     groups: list[RuleGroup]
@@ -74,6 +75,12 @@ def plan(opts: EvalOptions) -> EvalPlan:
     if count == 0:
         raise ValueError(f"the {opts.split} split holds no images: nothing to evaluate")
     reported, calibration = _split_calibration(opts, config, dataset, count)
+    meta_images = None
+    if opts.meta or opts.fuse:
+        meta_images = calibration
+        if opts.meta_split is not None:
+            held = build_dataset(config, opts.meta_split, opts.data_root)
+            meta_images = (held, list(range(min(opts.meta_images, len(held)))))
     if calibration is not None:
         candidates = next((g for g in groups if g.candidates), named_group(groups))
         check_calibration_size(opts, len(calibration[1]), candidates)
@@ -90,6 +97,7 @@ def plan(opts: EvalOptions) -> EvalPlan:
         indices=reported[rank() :: world_size()],
         num_reported=len(reported),
         calibration=calibration,
+        meta_images=meta_images,
         batch_size=batch_size,
         num_workers=min(settings.num_workers, -(-count // batch_size)),  # no idle workers
         groups=groups,
@@ -103,7 +111,8 @@ def plan(opts: EvalOptions) -> EvalPlan:
 
 def _split_calibration(opts: EvalOptions, config: dict, dataset: Dataset, count: int):
     """(reported indices, calibration (dataset, indices) or None), disjoint by construction."""
-    if not (opts.calibrate or opts.guarantee is not None):
+    meta_held_out = (opts.meta or opts.fuse) and opts.meta_split is None
+    if not (opts.calibrate or opts.guarantee is not None or meta_held_out):
         return list(range(count)), None
     if opts.calibration_split is not None:
         held = build_dataset(config, opts.calibration_split, opts.data_root)

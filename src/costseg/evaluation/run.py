@@ -21,6 +21,10 @@ from costseg.calibration.scaling import Scaling
 from costseg.classes import CLASS_NAMES, NUM_ROIS
 from costseg.evaluation.held_out import certify, fit_scaling
 from costseg.evaluation.plan import EvalPlan, plan, rank
+from costseg.meta.collect import SegmentCollector, SegmentResults
+from costseg.meta.fusion import FusedRules
+from costseg.meta.models import MetaModels, fit_models
+from costseg.meta.models import scores as meta_scores
 from costseg.metrics import CalibrationError
 from costseg.metrics.scoring import GroupMetrics, score_batch
 from costseg.networks.sources import (
@@ -31,7 +35,7 @@ from costseg.networks.uncertainty import output_maps
 from costseg.options import EvalOptions
 from costseg.report.outputs import INCOMPLETE, BatchWriter, mark_complete
 from costseg.report.results import EvalResults, Example, GroupResult
-from costseg.rules import named_group, temperature_group
+from costseg.rules import Rule, RuleGroup, apply_rules, named_group, temperature_group
 
 
 def run(plan: EvalPlan, after_batch: Callable[[list[Example]], None] | None = None) -> EvalResults:
@@ -48,6 +52,8 @@ def run(plan: EvalPlan, after_batch: Callable[[list[Example]], None] | None = No
         if opts.temperature_sweep and scaling.kind == "temperature":
             named = named_group(plan.groups)
             plan.groups.append(temperature_group(named.rules, scaling.temperature))
+    if plan.meta_images is not None:
+        extra["meta_models"] = _fit_meta(plan, scaling)
     if opts.guarantee is not None:
         group = next(g for g in plan.groups if g.candidates)
         extra["certificate"] = certify(
@@ -62,6 +68,56 @@ def run(plan: EvalPlan, after_batch: Callable[[list[Example]], None] | None = No
             plan.class_ids,
         )
     return _report_pass(plan, scaling, extra, after_batch)
+
+
+def _meta_rules(plan: EvalPlan) -> list[Rule]:
+    """The rules whose segments the meta models judge: the named ones (``--meta``) and the
+    fused ones (``--fuse``)."""
+    rules = list(named_group(plan.groups).rules) if plan.options.meta else []
+    fusion = _fusion(plan)
+    if fusion is not None:
+        rules += [r for r in fusion.decide.fused if r.name not in {q.name for q in rules}]
+    return rules
+
+
+def _fusion(plan: EvalPlan) -> RuleGroup | None:
+    return next((g for g in plan.groups if isinstance(g.decide, FusedRules)), None)
+
+
+def _fit_meta(plan: EvalPlan, scaling: Scaling) -> dict[str, MetaModels]:
+    """Fit the meta models of every rule of :func:`_meta_rules` on the segments of the held-out
+    images; hand the fused rules theirs (without MI: a rule decides from the probabilities)."""
+    rules = _meta_rules(plan)
+    collector = SegmentCollector(rules)
+    dataset, indices = plan.meta_images
+    desc = f"meta features ({len(indices)} held-out images)" if plan.options.progress else None
+    with torch.inference_mode():
+        for batch in batches(
+            plan.source, dataset, indices, plan.batch_size, plan.device, plan.num_workers, desc
+        ):
+            probs = _probabilities(plan, batch, scaling)
+            priors, _ = plan.priors.at(tuple(batch.labels.shape[-2:]))
+            preds = apply_rules(probs, rules, priors)
+            collector.add(probs, preds, batch.labels, priors, batch.expected_entropy, batch.stems)
+    models = {
+        r.name: fit_models(collector.table(r.name), collector.features(r.name), len(indices))
+        for r in rules
+    }
+    fusion = _fusion(plan)
+    if fusion is not None:
+        own = {}
+        for r in fusion.decide.fused:
+            features = [f for f in collector.features(r.name) if not f.startswith("MI")]
+            same = features == models[r.name].features
+            own[r.name] = (
+                models[r.name]
+                if same
+                else fit_models(collector.table(r.name), features, len(indices))
+            )
+        fusion.decide.use(own)
+    fitted = {r: m.num_segments for r, m in models.items()}
+    print(f"meta models fitted on {len(indices)} held-out images: segments {fitted}")
+    return models
 
 
 def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> EvalResults:
@@ -86,8 +142,11 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> 
     writer = BatchWriter(plan.output_dir, plan.groups[named].names, opts.save_predictions)
     examples: list[Example] = []
     desc = "evaluate" if opts.progress and rank() == 0 else None
+    described = opts.meta or opts.save_segments
+    collector = SegmentCollector(plan.groups[named].rules, opts.num_examples) if described else None
     with torch.inference_mode():
-        mapped = None if opts.save_probs else opts.num_examples  # images with uncertainty maps
+        # images with uncertainty maps (the segments' MI needs them on every image)
+        mapped = None if opts.save_probs or described else opts.num_examples
         source, workers = plan.source, plan.num_workers
         for batch in batches(
             source, plan.dataset, plan.indices, plan.batch_size, device, workers, desc, mapped
@@ -108,11 +167,26 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> 
                 for g, m in zip(plan.groups, metrics, strict=True)
             ]
             writer.save_predictions(batch.stems, preds[named])
+            if collector is not None:
+                entropy = batch.expected_entropy
+                collector.add(probs, preds[named], batch.labels, priors, entropy, batch.stems)
             kept = opts.explorer and probs
             _keep_examples(examples, opts.num_examples, batch, preds[named], kept, uncertainty)
             if after_batch:
                 after_batch(examples)
     extra["ece"] = {k: m.compute() for k, m in ece.items()}
+    segments = None
+    if collector is not None:
+        models = extra.pop("meta_models", None) if opts.meta else None
+        tables = {r.name: collector.table(r.name) for r in collector.rules}
+        segments = SegmentResults(tables, collector.images, collector.maps, models)
+        if models is not None:
+            segments.scores = {r: meta_scores(models[r], tables[r]) for r in tables if tables[r]}
+            segments.fitted_on = {
+                "images": len(plan.meta_images[1]),
+                "segments": {r: m.num_segments for r, m in models.items()},
+            }
+    extra.pop("meta_models", None)
     return EvalResults(
         output_dir=plan.output_dir,
         options=asdict(opts),
@@ -124,6 +198,7 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> 
         roi=plan.priors.roi_map(),
         num_images=plan.num_reported,
         extra=extra,
+        segments=segments,
     )
 
 

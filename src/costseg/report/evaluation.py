@@ -17,6 +17,7 @@ from costseg.report.figures import heatmap_grid_figures
 from costseg.report.files import write_csv, write_json, write_text
 from costseg.report.results import EvalResults, GroupResult
 from costseg.report.risk_coverage import risk_coverage_json, risk_coverage_table
+from costseg.report.segments import meta_json, meta_table, write_segments
 from costseg.report.tables import (
     PAPER_COLUMNS,
     PAPER_ROIS,
@@ -60,6 +61,8 @@ def write_evaluation(results: EvalResults, early: EarlyFigures) -> None:
     print(console_table(headline, (*SUMMARY_COLUMNS, *deferral, *instances)))
     print("mIoU: " + ", ".join(f"{n} {100 * v:.2f}" for n, v in _miou(named).items()))
     tables = _tables(headline, named, _probability_note(results)) + _risk_coverage_table(results)
+    if meta := meta_table(results.segments):
+        tables += "\n\n" + meta + "\n"
     write_text(out / "table.md", tables)
     write_csv(out / "results.csv", rows)
     write_json(out / "results.json", _json(results, rows))
@@ -84,6 +87,7 @@ def write_evaluation(results: EvalResults, early: EarlyFigures) -> None:
         if not early.examples_started:
             jobs.append(("evaluation", example_figures(named.group.names, results.examples)))
         jobs += write_sweeps(results) + _figures(results) + write_calibration(results)
+        jobs += write_segments(results, writer)
         _draw_and_log(writer, jobs, early.drawing)
     if results.options.get("explorer"):
         from costseg.report.explorer_points import write_evaluation_explorer
@@ -168,6 +172,7 @@ def _json(results: EvalResults, rows: list[dict]) -> dict:
         **risk_coverage_json(results),
         "instances": results.extra.get("instances"),
         "scaling": results.extra.get("scaling"),
+        "meta": meta_json(results.segments),
         **_calibration(results),
     }
 

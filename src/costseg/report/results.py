@@ -13,6 +13,7 @@ from pathlib import Path
 import torch
 
 from costseg.classes import CLASS_NAMES, ROI_NAMES
+from costseg.meta.collect import SegmentResults
 from costseg.metrics.names import (
     DEFER_RATES,
     DEFER_RULE_RATES,
@@ -115,6 +116,8 @@ class EvalResults:
         roi: (H, W) RoI map at label resolution, if priors exist.
         num_images: images evaluated.
         extra: results of optional analyses (calibration, temperature sweep, guarantee).
+        segments: the segments of the named rules and their meta models' scores
+            (``--save-segments``, ``--meta``), or None.
     """
 
     output_dir: Path
@@ -127,6 +130,7 @@ class EvalResults:
     roi: torch.Tensor | None = None
     num_images: int = 0
     extra: dict = field(default_factory=dict)
+    segments: SegmentResults | None = None
 
     def __post_init__(self) -> None:  # the metrics' sums may be on a GPU (examples, roi: CPU)
         for result in self.groups:

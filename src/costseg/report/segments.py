@@ -1,0 +1,164 @@
+"""The outputs of segment meta classification and fusion (docs/definitions.md §15):
+``segments/<rule>.csv``, the meta models (``meta/models.joblib``), their scores in results.json,
+table.md and TensorBoard, and their figures (:mod:`costseg.report.segment_figures`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from torch.utils.tensorboard import SummaryWriter
+
+from costseg.classes import CLASS_NAMES
+from costseg.meta.collect import SegmentResults
+from costseg.meta.fusion import FusedRules
+from costseg.meta.models import MODELS, save_models
+from costseg.report.drawing import Job, job
+from costseg.report.files import write_csv
+from costseg.report.results import EvalResults
+from costseg.report.segment_figures import (
+    importance_figures,
+    iou_scatter_figures,
+    segment_iou_figures,
+    tradeoff_figures,
+)
+from costseg.report.tables import markdown_table
+
+SCORES = ("auroc", "accuracy", "r2", "sigma", "segments")
+MODELS_FILE = "meta/models.joblib"
+FIGURE_MODEL = "gradient_boosting"  # the model of the per-image figures and the importances
+
+
+def meta_rows(segments: SegmentResults | None) -> list[dict]:
+    """One row per rule × model: its scores on the reported images' segments."""
+    if segments is None or not segments.scores:
+        return []
+    return [
+        {"matrix": rule, "model": model, **{s: values[s] for s in SCORES}}
+        for rule, by_model in segments.scores.items()
+        for model, values in by_model.items()
+    ]
+
+
+def meta_json(segments: SegmentResults | None) -> dict | None:
+    """The record of results.json: what the models were fitted on, and their scores."""
+    if segments is None or not segments.scores:
+        return None
+    return {"fitted_on": segments.fitted_on, "scores": segments.scores, "models": MODELS_FILE}
+
+
+def meta_table(segments: SegmentResults | None) -> str:
+    """The section of table.md (empty without ``--meta``)."""
+    rows = meta_rows(segments)
+    if not rows:
+        return ""
+    fitted = segments.fitted_on or {}
+    return (
+        "## Meta classification of segments (docs/definitions.md §15)\n\n"
+        f"Fitted on the segments of {fitted.get('images')} held-out images, scored on the "
+        "reported ones: AUROC and accuracy of iou0 (false segment), R² and σ of the IoU.\n\n"
+        + markdown_table(rows)
+    )
+
+
+def write_segments(results: EvalResults, writer: SummaryWriter) -> list[tuple[str, Job]]:
+    """Write the CSV files and the models, log the scores; returns the figure jobs."""
+    segments, out = results.segments, results.output_dir
+    jobs = _fusion_jobs(results)
+    if segments is None:
+        return jobs
+    if results.options.get("save_segments"):
+        for rule, table in segments.tables.items():
+            write_csv(out / "segments" / f"{rule}.csv", _csv_rows(segments, rule, table))
+    if not segments.models:
+        return jobs
+    save_models(out / MODELS_FILE, segments.models)
+    for row in meta_rows(segments):
+        for score in SCORES[:-1]:
+            writer.add_scalar(f"meta/{row['matrix']}/{row['model']}/{score}", row[score])
+    return jobs + _meta_jobs(results)
+
+
+def _csv_rows(segments: SegmentResults, rule: str, table: dict[str, np.ndarray]) -> list[dict]:
+    """One row per segment: its image's name, its id, its features and targets, and each
+    model's predicted IoU and probability of being false."""
+    columns = {k: v for k, v in table.items() if k not in ("image", "segment")}
+    for model in MODELS:
+        for key, values in segments.predicted(rule, model).items():
+            columns[f"{model}_{key}"] = values
+    integers = {"class", "S", "S_in", "S_bd", "iou0"}
+    return [
+        {"image": segments.images[image], "segment": int(table["segment"][i])}
+        | {k: int(v[i]) if k in integers else float(v[i]) for k, v in columns.items()}
+        for i, image in enumerate(table.get("image", []))
+    ]
+
+
+def _meta_jobs(results: EvalResults) -> list[tuple[str, Job]]:
+    """Per-image IoU maps, the IoU scatter and the importances."""
+    segments = results.segments
+    rules = [r for r in segments.tables if segments.predicted(r, FIGURE_MODEL)]
+    if not rules:
+        return []
+    jobs = []
+    examples = []
+    for i, (example, maps) in enumerate(zip(results.examples, segments.maps, strict=False)):
+        image = example.image.permute(1, 2, 0).numpy()
+        for rule in rules:
+            table = segments.tables[rule]
+            mine = table["image"] == i
+            predicted = segments.predicted(rule, FIGURE_MODEL)["iou"][mine]
+            tag = f"meta/segments_{i}_{rule}"
+            examples.append((tag, image, maps[rule], table["iou"][mine], predicted))
+    if examples:
+        jobs.append(("evaluation", job(segment_iou_figures, examples)))
+    true = [segments.tables[r]["iou"] for r in rules]
+    predicted = {
+        m: [segments.predicted(r, m)["iou"] for r in rules]
+        for m in ("logistic", "gradient_boosting")
+        if all(segments.predicted(r, m) for r in rules)
+    }
+    jobs.append(("evaluation", job(iou_scatter_figures, rules, true, predicted)))
+    importances = [segments.models[r].importances(FIGURE_MODEL) for r in rules]
+    jobs.append(("evaluation", job(importance_figures, rules, importances, FIGURE_MODEL)))
+    return jobs
+
+
+def _fusion_jobs(results: EvalResults) -> list[tuple[str, Job]]:
+    """The trade-off of each fused rule over τ per fused class × RoI (RoI 1, the street, and
+    the whole image): FP segments against missed instances (where measured) and FN segments,
+    with the base and the unfused rule marked where they are named rules."""
+    fused = next((g for g in results.groups if isinstance(g.group.decide, FusedRules)), None)
+    if fused is None or len(fused.group.decide.taus) < 2 or not fused.segments:
+        return []
+    decider = fused.group.decide
+    rows = fused.rows(results.class_ids)
+    jobs = []
+    for y in ("missed_instances", "fn_segments"):
+        panels = []
+        for rule in decider.fused:
+            for cls in decider.classes:
+                for roi in (1, 0):
+                    mine = [
+                        r for r in rows
+                        if r["fused"] == rule.name and r["class"] == CLASS_NAMES[cls]
+                        and r["roi"] == roi and y in r
+                    ]  # fmt: skip
+                    if len(mine) != len(decider.taus):
+                        continue
+                    marks = _marks(results, (decider.base.name, rule.name), cls, roi, y)
+                    title = f"{rule.name}+meta, {CLASS_NAMES[cls]}, RoI {roi}"
+                    fp = np.array([r["fp_segments"] for r in mine])
+                    panels.append((title, fp, np.array([r[y] for r in mine]), marks))
+        if panels:
+            args = (panels, list(decider.taus), y.replace("_", " "))
+            jobs.append(("evaluation", job(tradeoff_figures, *args)))
+    return jobs
+
+
+def _marks(results: EvalResults, rules: tuple[str, ...], cls: int, roi: int, y: str) -> dict:
+    """(FP segments, y) of the named rules among ``rules`` for class ``cls`` and RoI ``roi``."""
+    rows = [
+        r for r in results.named.rows(results.class_ids, [roi])
+        if r["matrix"] in rules and r["class"] == CLASS_NAMES[cls] and y in r
+    ]  # fmt: skip
+    return {r["matrix"]: (r["fp_segments"], r[y]) for r in rows}
