@@ -271,7 +271,7 @@ def test_random_maps_equal_the_reference(seed: int):
 def test_input_types_give_the_same_table():
     rng = np.random.default_rng(11)
     labels = rng.integers(0, 3, (6, 9)).astype(np.uint8)
-    probs = softmax(rng.normal(size=(9, 6, 3))).transpose(2, 0, 1)  # not contiguous
+    probs = softmax(rng.normal(size=(3, 9, 6))).transpose(0, 2, 1)  # not contiguous
     heat = {"E": rng.random((6, 9)).astype(np.float32)}
     a = segment_features(labels, probs, heat, labels)
     b = segment_features(labels.astype(np.int64), probs.copy(), heat, labels.astype(np.int64))

@@ -1,0 +1,105 @@
+"""`evaluate.py --meta --save-segments --fuse` end to end on the tiny checkpoint: the segments
+tile every labelled pixel, results.json's scores equal sklearn's on the CSV's columns, the saved
+models give the same predictions, the fused rules are reported, and the refusals."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+from sklearn.metrics import r2_score, roc_auc_score
+from test_cli_errors import _one_line
+
+from costseg.checkpoints import find_checkpoint
+from costseg.classes import IGNORE_INDEX
+from costseg.cli import evaluate_main
+from costseg.data.toy import StreetScenes
+from costseg.meta.models import load_models
+
+RULES = ["robotistic", "ml"]
+META = ["--meta", "--meta_split", "train", "--meta_images", "6", "--save-segments"]
+FUSE = ["--fuse", "ml", "--fuse_tau", "0", "0.5", "1"]
+
+
+@pytest.fixture(scope="module")
+def ckpt(tiny_run) -> str:
+    return str(find_checkpoint(None, runs_dir=tiny_run[2]))
+
+
+@pytest.fixture(scope="module")
+def evaluated(ckpt, tmp_path_factory):
+    out = tmp_path_factory.mktemp("meta") / "eval"
+    args = ["--ckpt_path", ckpt, "--cost", *RULES, *META, *FUSE, "--output_dir", str(out)]
+    results = evaluate_main([*args, "--num_examples", "1", "--no-progress"])
+    return out, results
+
+
+def _csv(path) -> list[dict]:
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+def test_the_segments_tile_every_labelled_pixel(evaluated, tiny_run) -> None:
+    out, results = evaluated
+    scenes = StreetScenes("val", 3, (64, 128), seed=0)
+    for rule in RULES:
+        rows = _csv(out / "segments" / f"{rule}.csv")
+        for stem in sorted({r["image"] for r in rows}):
+            mine = [r for r in rows if r["image"] == stem]
+            labels = scenes[int(stem.split("_")[-1])][1].numpy()
+            assert sum(int(r["S"]) for r in mine) == (labels != IGNORE_INDEX).sum()
+            assert [int(r["segment"]) for r in mine] == list(range(1, len(mine) + 1))
+            for r in mine:
+                assert int(r["S_in"]) + int(r["S_bd"]) == int(r["S"])
+                assert (float(r["iou"]) == 0) == (r["iou0"] == "1")
+
+
+def test_the_scores_equal_sklearn_s_on_the_csv_and_the_saved_models(evaluated) -> None:
+    out, _ = evaluated
+    record = json.loads((out / "results.json").read_text())["meta"]
+    models = load_models(out / "meta" / "models.joblib")
+    for rule in RULES:
+        rows = _csv(out / "segments" / f"{rule}.csv")
+        columns = {k: np.array([float(r[k]) for r in rows]) for k in rows[0] if k != "image"}
+        false, iou = columns["iou0"].astype(int), columns["iou"]
+        for model, scores in record["scores"][rule].items():
+            if scores["auroc"] is not None:
+                assert scores["auroc"] == pytest.approx(
+                    roc_auc_score(false, columns[f"{model}_false"])
+                )
+            if scores["r2"] is not None:
+                assert scores["r2"] == pytest.approx(r2_score(iou, columns[f"{model}_iou"]))
+            predicted = models[rule].predicted_iou(model, columns)
+            np.testing.assert_allclose(predicted, columns[f"{model}_iou"], rtol=1e-12)
+        assert record["fitted_on"]["images"] == 6
+
+
+def test_the_fused_rules_are_reported_like_any_rule(evaluated) -> None:
+    out, results = evaluated
+    rows = _csv(out / "fusion.csv")
+    assert {r["matrix"] for r in rows} == {"ml+meta@0", "ml+meta@0.5", "ml+meta@1"}
+    assert {"fp_segments", "missed_instances", "precision", "recall"} <= rows[0].keys()
+    for name in ("meta_iou_scatter", "meta_feature_importance", "meta_segments_0_ml"):
+        assert (out / "figures" / f"{name}.png").is_file(), name
+    assert "## Meta classification of segments" in (out / "table.md").read_text()
+
+
+@pytest.mark.parametrize(
+    "extra, words",
+    [
+        (["--meta", "--meta_split", "val"], ["--meta_split val overlaps"]),
+        (["--meta_split", "train"], ["--meta_split goes with --meta or --fuse"]),
+        (["--fuse", "ml", "--fuse_tau", "1.5"], ["--fuse_tau", "[0, 1]"]),
+        (["--fuse", "ml", "--fuse_base", "unicorn"], ["unknown cost 'unicorn'"]),
+        (
+            [*FUSE, "--target", "person:roi1:recall>=0.5", "--maximize", "person:roi1:precision",
+             "--guarantee", "0.2"],
+            ["give --meta_split"],
+        ),  # fmt: skip
+    ],
+)
+def test_meta_options_are_refused_in_one_line(ckpt, tmp_path, capsys, extra, words) -> None:
+    args = ["--ckpt_path", ckpt, "--output_dir", str(tmp_path / "x"), *extra]
+    _one_line(evaluate_main, args, capsys, *words)
