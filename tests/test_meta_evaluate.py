@@ -28,6 +28,12 @@ def ckpt(tiny_run) -> str:
     return str(find_checkpoint(None, runs_dir=tiny_run[2]))
 
 
+GUARANTEED_TARGET = [
+    *("--target", "person:roi1:recall>=0.5", "--maximize", "person:roi1:precision"),
+    *("--guarantee", "0.2"),
+]
+
+
 @pytest.fixture(scope="module")
 def evaluated(ckpt, tmp_path_factory):
     out = tmp_path_factory.mktemp("meta") / "eval"
@@ -42,7 +48,7 @@ def _csv(path) -> list[dict]:
 
 
 def test_the_segments_tile_every_labelled_pixel(evaluated, tiny_run) -> None:
-    out, results = evaluated
+    out, _ = evaluated
     scenes = StreetScenes("val", 3, (64, 128), seed=0)
     for rule in RULES:
         rows = _csv(out / "segments" / f"{rule}.csv")
@@ -77,7 +83,7 @@ def test_the_scores_equal_sklearn_s_on_the_csv_and_the_saved_models(evaluated) -
 
 
 def test_the_fused_rules_are_reported_like_any_rule(evaluated) -> None:
-    out, results = evaluated
+    out, _ = evaluated
     rows = _csv(out / "fusion.csv")
     assert {r["matrix"] for r in rows} == {"ml+meta@0", "ml+meta@0.5", "ml+meta@1"}
     assert {"fp_segments", "missed_instances", "precision", "recall"} <= rows[0].keys()
@@ -93,11 +99,7 @@ def test_the_fused_rules_are_reported_like_any_rule(evaluated) -> None:
         (["--meta_split", "train"], ["--meta_split goes with --meta or --fuse"]),
         (["--fuse", "ml", "--fuse_tau", "1.5"], ["--fuse_tau", "[0, 1]"]),
         (["--fuse", "ml", "--fuse_base", "unicorn"], ["unknown cost 'unicorn'"]),
-        (
-            [*FUSE, "--target", "person:roi1:recall>=0.5", "--maximize", "person:roi1:precision",
-             "--guarantee", "0.2"],
-            ["give --meta_split"],
-        ),  # fmt: skip
+        ([*FUSE, *GUARANTEED_TARGET], ["give --meta_split"]),
     ],
 )
 def test_meta_options_are_refused_in_one_line(ckpt, tmp_path, capsys, extra, words) -> None:

@@ -72,13 +72,14 @@ def reference(labels, probs, heat, gt=None) -> tuple[np.ndarray, dict[str, list[
         inner = [p for p in pixels if p not in set(bd)]
         s, s_in, s_bd = len(pixels), len(inner), len(bd)
         s_rel, s_rel_in = s / (s_bd or 1), s_in / (s_bd or 1)
-        for name, value in zip(FEATURES_OF_SIZE, (s, s_in, s_bd, s_rel, s_rel_in)):
+        for name, value in zip(FEATURES_OF_SIZE, (s, s_in, s_bd, s_rel, s_rel_in), strict=True):
             put(name, value)
         for name, m in heat.items():
             e = mean([float(m[p]) for p in pixels])
             e_in = mean([float(m[p]) for p in inner])
             e_bd = mean([float(m[p]) for p in bd])
-            for suffix, value in zip(HEAT_SUFFIXES, (e, e_in, e_bd, e * s_rel, e_in * s_rel_in)):
+            values = (e, e_in, e_bd, e * s_rel, e_in * s_rel_in)
+            for suffix, value in zip(HEAT_SUFFIXES, values, strict=True):
                 put(name + suffix, value)
         for k in range(len(probs)):
             put(f"cprob{k}", mean([float(probs[k][p]) for p in pixels]))
