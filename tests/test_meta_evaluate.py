@@ -9,14 +9,19 @@ import json
 
 import numpy as np
 import pytest
+from matplotlib import colormaps
+from PIL import Image
+from scipy import ndimage
 from sklearn.metrics import r2_score, roc_auc_score
 from test_cli_errors import _one_line
 
 from costseg.checkpoints import find_checkpoint
-from costseg.classes import IGNORE_INDEX
-from costseg.cli import evaluate_main
+from costseg.classes import IGNORE_INDEX, LABEL_ID_TO_TRAIN_ID
+from costseg.cli import evaluate_main, predict_main
 from costseg.data.toy import StreetScenes
-from costseg.meta.models import load_models
+from costseg.meta.models import SHOWN_MODEL, load_models
+from costseg.prediction.panels import TITLE
+from costseg.report.uncertainty import IOU_COLOURS, NO_SEGMENT
 
 RULES = ["robotistic", "ml"]
 META = ["--meta", "--meta_split", "train", "--meta_images", "6", "--save-segments"]
@@ -105,3 +110,75 @@ def test_the_fused_rules_are_reported_like_any_rule(evaluated) -> None:
 def test_meta_options_are_refused_in_one_line(ckpt, tmp_path, capsys, extra, words) -> None:
     args = ["--ckpt_path", ckpt, "--output_dir", str(tmp_path / "x"), *extra]
     _one_line(evaluate_main, args, capsys, *words)
+
+
+def test_predict_draws_the_saved_models_predicted_iou(evaluated, ckpt, tmp_path) -> None:
+    """predict.py --meta_models on an evaluated image: below each rule's difference view, every
+    pixel of the panel's IoU tile has the colour of its segment's predicted IoU in the rule's
+    segments CSV (the segments found again by scipy's 8-connected labelling, numbered by first
+    pixel). The image is one without ignored pixels, whose segments evaluate.py and predict.py
+    cut alike."""
+    out, _ = evaluated
+    rows = {rule: _csv(out / "segments" / f"{rule}.csv") for rule in RULES}
+    scenes = StreetScenes("val", 3, (64, 128), seed=0)
+    index = next(i for i in range(len(scenes)) if (scenes[i][1] != IGNORE_INDEX).all())
+    image = scenes[index][0]
+    stem = next(r["image"] for r in rows["ml"] if int(r["image"].split("_")[-1]) == index)
+    folder = tmp_path / "images"
+    folder.mkdir()
+    Image.fromarray(image.permute(1, 2, 0).numpy()).save(folder / f"{stem}.png")
+    predicted = tmp_path / "predicted"
+    models = str(out / "meta" / "models.joblib")
+    predict_main(["--input", str(folder), "--ckpt_path", ckpt, "--cost", *RULES, "--no-progress",
+                  "--meta_models", models, "--output_dir", str(predicted)])  # fmt: skip
+    panel = np.asarray(Image.open(predicted / "panels" / f"{stem}.png"))
+    palette = colormaps[IOU_COLOURS](np.linspace(0, 1, 256))[:, :3]
+    h, w = 96, 192  # the tiles of a 64 x 128 image (1.5 x)
+    for k, rule in enumerate(RULES):
+        ids = LABEL_ID_TO_TRAIN_ID[
+            np.asarray(Image.open(predicted / "labels" / rule / f"{stem}.png"))
+        ]
+        segments = _segments(ids)
+        iou = {int(r["segment"]): float(r[f"{SHOWN_MODEL}_iou"]) for r in rows[rule]
+               if r["image"] == stem}  # fmt: skip
+        assert len(iou) == segments.max()
+        lookup = np.array([np.nan] + [iou[i] for i in range(1, len(iou) + 1)])
+        values = lookup[segments[np.arange(h)[:, None] * 64 // h, np.arange(w) * 128 // w]]
+        expected = np.where(
+            np.isnan(values)[..., None],
+            NO_SEGMENT,
+            np.round(255 * palette[np.round(255 * np.nan_to_num(values)).astype(int)]),
+        )
+        top = 2 * (h + TITLE) + TITLE
+        tile = panel[top : top + h, (k + 1) * w : (k + 2) * w]
+        assert np.abs(tile.astype(int) - expected).max() <= 3, rule
+
+
+def _segments(labels: np.ndarray) -> np.ndarray:
+    """Segment ids by scipy: 8-connected components of each label (255: none), numbered in
+    row-major order of their first pixel."""
+    ids, first = np.zeros(labels.shape, np.int64), []
+    for c in np.unique(labels[labels != IGNORE_INDEX]):
+        components, n = ndimage.label(labels == c, structure=np.ones((3, 3)))
+        for j in range(1, n + 1):
+            mask = components == j
+            first.append((int(np.flatnonzero(mask.ravel())[0]), mask))
+    for i, (_, mask) in enumerate(sorted(first, key=lambda f: f[0]), start=1):
+        ids[mask] = i
+    return ids
+
+
+def test_predict_refuses_models_of_other_rules(evaluated, ckpt, tmp_path, capsys) -> None:
+    out, _ = evaluated
+    folder = tmp_path / "images"
+    folder.mkdir()
+    Image.fromarray(np.zeros((64, 128, 3), np.uint8)).save(folder / "black.png")
+    args = ["--input", str(folder), "--ckpt_path", ckpt, "--cost", "egoistic", "--output_dir",
+            str(tmp_path / "p"), "--meta_models", str(out / "meta" / "models.joblib")]  # fmt: skip
+    _one_line(predict_main, args, capsys, "holds no gradient_boosting models of egoistic")
+    (out / "meta" / "copy.joblib").write_bytes(
+        b"not the file" + (out / "meta" / "models.joblib").read_bytes()
+    )
+    (out / "meta" / "copy.json").write_text((out / "meta" / "models.json").read_text())
+    args[-1] = str(out / "meta" / "copy.joblib")
+    _one_line(predict_main, args, capsys, "is not the file costseg wrote")

@@ -1,6 +1,7 @@
 """Compile the numba kernels once and cache them on disk (``make setup`` runs it).
 
-The compiled CPU passes (the decision kernels, the many-rules confusion counts, the segment runs)
+The compiled CPU passes (the decision kernels, the many-rules confusion counts, the segment runs,
+the segment features of meta classification)
 are compiled on first use and cached beside their modules (``cache=True``); without this step the
 first evaluation after an install waits for the compiler. Each kernel is compiled for the types
 an evaluation gives it, by running the passes on a small synthetic input.
@@ -16,6 +17,7 @@ import torch
 
 from costseg.costs import barycentric_grid, load_cost, mix_costs
 from costseg.decision import decide, decide_mixtures
+from costseg.meta.features import segment_features
 from costseg.metrics import RoIPrecisionRecall, SegmentErrors
 
 SIZE = (64, 128)  # a width of a multiple of 64: the segment passes' packed rows
@@ -40,6 +42,10 @@ def compile_kernels() -> None:
             for classes in ((11,), (11, 2)):
                 segments = SegmentErrors(classes, num_rules=len(weights), heatmap_size=(0, 0))
                 segments.update(preds, target, region)
+    p = probs[0].numpy()
+    heat = {"E": p[0]}
+    for gt in (None, target[0].numpy()):  # features alone, and with the targets
+        segment_features(rules[0, 0].numpy(), p, heat, gt)
 
 
 if __name__ == "__main__":

@@ -345,3 +345,8 @@ class PredictOptions(NetworkOptions):
     """Everything ``predict.py`` can be told (see ``python predict.py --help``)."""
 
     input: str = option(help="an image, a folder of images, or a video (needs PyAV)", required=True)
+    meta_models: str | None = option(
+        help="meta/models.joblib of an evaluate.py --meta run: each rule's segments coloured by "
+        "their predicted IoU, one more row of the panels",
+        metavar="PATH",
+    )

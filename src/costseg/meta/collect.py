@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from costseg.meta.features import feature_names, segment_features
+from costseg.meta.features import SegmentTable, feature_names, segment_features
 from costseg.meta.heat_maps import heat_maps
 from costseg.meta.models import MetaModels
 from costseg.rules.base import Rule
@@ -19,15 +19,19 @@ from costseg.rules.base import Rule
 HEAT_MAPS = ("E", "D", "R")  # and MI where the source has several runs
 
 
-def rule_heat_maps(
+def rule_segments(
     probs: torch.Tensor,
+    labels: np.ndarray,
     rule: Rule,
     priors: torch.Tensor | None,
     expected_entropy: torch.Tensor | None,
-) -> dict[str, np.ndarray]:
-    """The (H, W) float32 heat maps of the one image in ``probs`` (1, N, H, W) under ``rule``."""
+    gt: np.ndarray | None = None,
+) -> SegmentTable:
+    """The segments of ``labels`` (H, W), ``rule``'s decisions on the one image in ``probs``
+    (1, N, H, W), with the features of the rule's heat maps (and the targets of ``gt``)."""
     maps = heat_maps(probs, rule, priors, expected_entropy)
-    return {name: m[0].cpu().numpy() for name, m in maps.items()}
+    heat = {name: m[0].cpu().numpy() for name, m in maps.items()}
+    return segment_features(labels, probs[0].float().cpu().numpy(), heat, gt)
 
 
 class SegmentCollector:
@@ -57,13 +61,12 @@ class SegmentCollector:
         """One batch: (B, N, H, W) probabilities, (B, K, H, W) label maps of the K rules,
         (B, H, W) ground truth or None, the priors and the runs' expected entropy (or None)."""
         for b, stem in enumerate(stems):
-            p = probs[b].float().cpu().numpy()
             gt = None if labels is None else labels[b].cpu().numpy()
             runs = None if expected_entropy is None else expected_entropy[b : b + 1]
             kept = {}
             for k, rule in enumerate(self.rules):
-                heat = rule_heat_maps(probs[b : b + 1], rule, priors, runs)
-                table = segment_features(preds[b, k].cpu().numpy(), p, heat, gt)
+                labels_k = preds[b, k].cpu().numpy()
+                table = rule_segments(probs[b : b + 1], labels_k, rule, priors, runs, gt)
                 columns = dict(table.columns)
                 columns["image"] = np.full(table.count, len(self.images))
                 columns["segment"] = np.arange(1, table.count + 1)
@@ -109,7 +112,7 @@ class SegmentResults:
     scores: dict[str, dict[str, dict[str, float]]] | None = None
     fitted_on: dict | None = None
 
-    def predicted(self, rule: str, model: str = "logistic") -> dict[str, np.ndarray]:
+    def predicted(self, rule: str, model: str) -> dict[str, np.ndarray]:
         """The models' predicted IoU and probability of being false of ``rule``'s segments."""
         if not self.models or model not in self.models[rule].fitted:
             return {}

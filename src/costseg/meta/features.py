@@ -65,6 +65,17 @@ class SegmentTable:
         return len(self.columns["S"])
 
 
+def painted(ids: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """(H, W) float64: each pixel's segment's value (segment i = ``values[i - 1]``), NaN off any
+    segment.
+
+    >>> painted(np.array([[1, 1, 0], [2, 2, 2]]), np.array([0.25, 1.0])).tolist()
+    [[0.25, 0.25, nan], [1.0, 1.0, 1.0]]
+    """
+    lookup = np.concatenate([[np.nan], np.asarray(values, np.float64)])
+    return lookup[ids]
+
+
 def segment_features(
     labels: np.ndarray,
     probs: np.ndarray,

@@ -4,8 +4,8 @@ kept where the meta classifier trusts them.
 For a base rule B and a rule R, R's segments of a fused class k that share no pixel with B's
 class-k pixels are the candidates; a candidate whose meta-classifier probability of being false
 (iou0) is ≥ τ is dropped. The fused label map is B's, except where R predicts a fused class
-inside a segment that was not dropped: there it is R's. τ > 1 keeps every candidate (R on the
-fused classes), τ = 0 drops them all.
+inside a segment that was not dropped: there it is R's. τ = 0 drops every candidate; τ = 1 keeps
+all but those the classifier is certain of.
 
 The meta classifier of R is fitted on held-out images before the reported ones are decided
 (:func:`costseg.evaluation.run.run`), then handed to the group's decider (:meth:`FusedRules.use`).
@@ -19,8 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from costseg.meta.collect import rule_heat_maps
-from costseg.meta.features import segment_features
+from costseg.meta.collect import rule_segments
 from costseg.meta.models import MetaModels
 from costseg.rules.base import Rule, RuleGroup
 from costseg.rules.named import apply_rules
@@ -87,10 +86,8 @@ class FusedRules:
         decided = apply_rules(probs, (self.base, *self.fused), priors).cpu().numpy()
         out = np.empty((len(probs), len(self.fused) * len(self.taus), *probs.shape[-2:]), np.uint8)
         for b in range(len(probs)):
-            p = probs[b].float().cpu().numpy()
             for r, rule in enumerate(self.fused):
-                heat = rule_heat_maps(probs[b : b + 1], rule, priors, None)
-                table = segment_features(decided[b, r + 1], p, heat)
+                table = rule_segments(probs[b : b + 1], decided[b, r + 1], rule, priors, None)
                 false = self.models[rule.name].false_probability(FUSION_MODEL, table.columns)
                 block = slice(r * len(self.taus), (r + 1) * len(self.taus))
                 out[b, block] = fused_labels(

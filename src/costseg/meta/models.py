@@ -31,6 +31,9 @@ from costseg.atomic import AtomicFile, write_bytes
 MODELS = ("logistic", "gradient_boosting", "entropy")
 TARGETS = ("iou", "iou0")
 BASELINE_FEATURE = "E"
+SHOWN_MODEL = "gradient_boosting"
+"""The model whose predicted IoU the per-image figures, the importances and predict.py's panels
+draw."""
 SEED = 0  # of the gradient boosting's subsampling: the same models for the same segments
 
 

@@ -12,6 +12,9 @@ import torch
 
 from costseg.classes import CLASS_NAMES
 from costseg.data.prior_maps import PriorMaps
+from costseg.meta.collect import rule_segments
+from costseg.meta.features import painted
+from costseg.meta.models import SHOWN_MODEL, MetaModels, load_models
 from costseg.networks.ensemble import open_sources
 from costseg.networks.protocols import Protocol
 from costseg.networks.sources import Source, resolve_device
@@ -43,6 +46,7 @@ class PredictPlan:
     rules: list[Rule]  # the --cost rules (with --defer: defer rows), then argmax if none is it
     output_dir: Path
     priors: PriorMaps
+    meta_models: dict[str, MetaModels] | None = None  # rule → models (--meta_models)
     examples: list[ExplorerExample] = field(default_factory=list)
 
     @property
@@ -57,6 +61,7 @@ def plan(opts: PredictOptions) -> PredictPlan:
     if opts.explorer:
         vertex_matrices(opts.vertices, opts.vertex_scaling)
     inputs = find_inputs(opts.input)
+    meta_models = _meta_models(opts.meta_models, rules) if opts.meta_models else None
     protocol = Protocol.from_options(opts)
     device = resolve_device(opts.device)
     claimed = claim_output_dir(opts.output_dir, False, Path()) if opts.output_dir else None
@@ -64,6 +69,8 @@ def plan(opts: PredictOptions) -> PredictPlan:
         opts.ckpt_path, opts.network, None, device, protocol, opts.mc_dropout, opts.seed
     )
     require_priors([rules_group(rules)], source.priors)
+    if meta_models:
+        _require_runs(meta_models, source)
     base = source.default_output("prediction", "predict")
     argmax = next((k for k, r in enumerate(rules) if _is_argmax(r)), None)
     if argmax is None:
@@ -76,7 +83,34 @@ def plan(opts: PredictOptions) -> PredictPlan:
         rules=rules,
         output_dir=claimed or claim_output_dir(None, False, base),
         priors=PriorMaps(source.priors, CLASS_NAMES, device),
+        meta_models=meta_models,
     )
+
+
+def _meta_models(path: str, rules: list[Rule]) -> dict[str, MetaModels]:
+    """The saved meta models of every --cost rule (their fitted :data:`SHOWN_MODEL`)."""
+    models = load_models(path)
+    missing = [
+        r.name for r in rules if r.name not in models or SHOWN_MODEL not in models[r.name].fitted
+    ]
+    if missing:
+        raise ValueError(
+            f"--meta_models {path} holds no {SHOWN_MODEL} models of {', '.join(missing)} (it has "
+            f"{', '.join(sorted(models)) or 'none'}); evaluate.py --meta with these --cost rules "
+            "fits them"
+        )
+    return {r.name: models[r.name] for r in rules}
+
+
+def _require_runs(models: dict[str, MetaModels], source: Source) -> None:
+    """Models fitted with the mutual information MI need a source of several runs."""
+    several = getattr(source.network, "average", None) is not None
+    needing = [r for r, m in models.items() if any(f.startswith("MI") for f in m.features)]
+    if needing and not several:
+        raise ValueError(
+            f"the meta models of {', '.join(needing)} read the mutual information MI: give a "
+            "source of several runs (--mc_dropout or several --ckpt_path), as evaluate.py had"
+        )
 
 
 def _is_argmax(rule: Rule) -> bool:
@@ -93,7 +127,7 @@ def _is_argmax(rule: Rule) -> bool:
 
 def decide_image(
     plan: PredictPlan, image: np.ndarray, stem: str
-) -> tuple[torch.Tensor, np.ndarray, object, dict[str, torch.Tensor]]:
+) -> tuple[torch.Tensor, np.ndarray, object, dict[str, torch.Tensor], list[np.ndarray] | None]:
     """The network once (or as often as the protocol and the ensemble say), then every rule.
 
     Args:
@@ -104,7 +138,9 @@ def decide_image(
         probs (N, H, W) float32 (rounded to float16 with ``--save-probs``, so that the saved
         file reproduces the labels), maps (K + 1, H, W) uint8 train ids (the rules, then
         argmax; 255 where a rule defers), roi (H, W) int64 numpy or None, and the uncertainty
-        maps (name → (H, W) float32 on the CPU, of the probabilities before the rounding).
+        maps (name → (H, W) float32 on the CPU, of the probabilities before the rounding),
+        and with meta models per --cost rule the (H, W) predicted IoU of its segments (NaN off
+        them), else None.
     """
     x = torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1)[None].to(plan.device)
     with torch.inference_mode():
@@ -116,7 +152,19 @@ def decide_image(
         priors, roi = plan.priors.at(image.shape[:2])
         maps = apply_rules(probs, plan.rules, priors)[0]
     labels = maps.to(torch.uint8).cpu().numpy()
-    return probs[0], labels, None if roi is None else roi.cpu().numpy(), uncertainty
+    segment_iou = None
+    if plan.meta_models:
+        segment_iou = [
+            _predicted_iou(plan.meta_models[r.name], probs, labels[k], r, priors, expected_entropy)
+            for k, r in enumerate(plan.rules[: len(plan.rule_names)])
+        ]
+    return probs[0], labels, None if roi is None else roi.cpu().numpy(), uncertainty, segment_iou
+
+
+def _predicted_iou(models: MetaModels, probs, labels, rule, priors, expected_entropy):
+    """(H, W) float64 predicted IoU of each segment of ``labels``, NaN off the segments."""
+    table = rule_segments(probs, labels, rule, priors, expected_entropy)
+    return painted(table.ids, models.predicted_iou(SHOWN_MODEL, table.columns))
 
 
 def predict(opts: PredictOptions) -> Path:
@@ -134,8 +182,8 @@ def run(job: PredictPlan) -> Path:
     if video is None:
         for path in progress(job.inputs.images, desc):
             image = read_image(path)
-            probs, maps, roi, uncertainty = decide_image(job, image, path.stem)
-            writer.image(path.stem, image, maps[:k], maps[argmax], roi, probs, uncertainty)
+            probs, maps, roi, uncertainty, iou = decide_image(job, image, path.stem)
+            writer.image(path.stem, image, maps[:k], maps[argmax], roi, probs, uncertainty, iou)
             _keep_example(job, path.stem, image, probs, uncertainty)
     else:
         writer.open_video(video.path.stem, video.rate)
@@ -143,8 +191,8 @@ def run(job: PredictPlan) -> Path:
             frames = enumerate(video_frames(video.path))
             for i, image in progress(frames, desc, total=video.frames):
                 stem = f"{video.path.stem}_{i:06d}"
-                probs, maps, roi, uncertainty = decide_image(job, image, stem)
-                writer.frame(stem, image, maps[:k], maps[argmax], roi, probs, uncertainty)
+                probs, maps, roi, uncertainty, iou = decide_image(job, image, stem)
+                writer.frame(stem, image, maps[:k], maps[argmax], roi, probs, uncertainty, iou)
                 _keep_example(job, stem, image, probs, uncertainty)
         except BaseException:
             writer.close_videos(abandon=True)

@@ -64,23 +64,25 @@ class PredictionWriter:
         roi,
         probs,
         uncertainty: dict | None = None,
+        segment_iou: list[np.ndarray] | None = None,
     ) -> None:
         """Files of one image: ``maps`` (K, H, W) train ids (255: deferred), ``argmax`` (H, W),
-        ``roi`` (H, W) or None, ``probs`` (N, H, W) tensor and ``uncertainty`` (name → (H, W)
-        tensor; saved with ``save_probs``)."""
+        ``roi`` (H, W) or None, ``probs`` (N, H, W) tensor, ``uncertainty`` (name → (H, W)
+        tensor; saved with ``save_probs``) and per rule its segments' predicted IoU (or None)."""
         out = self.output_dir
         for name, labels in zip(self.rule_names, maps, strict=True):
             write_png(out / "labels" / name / f"{stem}.png", label_ids(labels))
             write_png(out / "color" / name / f"{stem}.png", colorize(labels, deferred=True))
-        write_png(out / "panels" / f"{stem}.png", self.panel(image, maps, argmax, uncertainty))
+        shown = self.panel(image, maps, argmax, uncertainty, segment_iou)
+        write_png(out / "panels" / f"{stem}.png", shown)
         self.count(stem, maps, roi, probs, uncertainty)
 
     def panel(
-        self, image: np.ndarray, maps: np.ndarray, argmax: np.ndarray, uncertainty=None
+        self, image: np.ndarray, maps: np.ndarray, argmax: np.ndarray, uncertainty, segment_iou
     ) -> np.ndarray:
         """The panel of one image or frame (:func:`costseg.prediction.panels.panel`)."""
         shown = None if uncertainty is None else {k: v.numpy() for k, v in uncertainty.items()}
-        return panel(image, self.rule_names, maps, argmax, self.defer_texts, shown)
+        return panel(image, self.rule_names, maps, argmax, self.defer_texts, shown, segment_iou)
 
     def count(
         self, stem: str, maps: np.ndarray, roi, probs: torch.Tensor, uncertainty=None
@@ -100,10 +102,10 @@ class PredictionWriter:
         self.videos = [VideoWriter(self.output_dir / f"{n}.mp4", rate) for n in names]
 
     def frame(
-        self, stem: str, image: np.ndarray, maps, argmax, roi, probs, uncertainty=None
+        self, stem: str, image: np.ndarray, maps, argmax, roi, probs, uncertainty, segment_iou
     ) -> None:
         """One video frame: a panel frame, one overlay frame per rule, and its counts."""
-        self.videos[0].write(self.panel(image, maps, argmax, uncertainty))
+        self.videos[0].write(self.panel(image, maps, argmax, uncertainty, segment_iou))
         for video, labels in zip(self.videos[1:], maps, strict=True):
             video.write(overlay(image, labels))
         self.count(stem, maps, roi, probs, uncertainty)

@@ -12,7 +12,7 @@ from PIL import Image, ImageDraw, ImageFont
 
 from costseg.classes import CLASS_NAMES, DEFERRED_COLOUR, colorize
 from costseg.decision.label_maps import DEFERRED
-from costseg.report.uncertainty import Tile, draw_title, uncertainty_tiles
+from costseg.report.uncertainty import Tile, draw_title, iou_tile, uncertainty_tiles
 
 MAX_TILE_WIDTH = 512
 MIN_TILE_WIDTH = 192  # room for the titles
@@ -39,6 +39,13 @@ def differences(image: np.ndarray, labels: np.ndarray, argmax: np.ndarray) -> np
     return out
 
 
+def _resized_values(values: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """(H, W) float values at ``size`` by nearest neighbour (segment values stay exact)."""
+    rows = np.arange(size[0]) * values.shape[0] // size[0]
+    cols = np.arange(size[1]) * values.shape[1] // size[1]
+    return values[rows[:, None], cols]
+
+
 def _tile_size(height: int, width: int) -> tuple[int, int]:
     scale = min(MAX_TILE_WIDTH / width, max(1.0, MIN_TILE_WIDTH / width))
     return max(1, round(height * scale)), max(1, round(width * scale))
@@ -58,6 +65,7 @@ def panel(
     argmax: np.ndarray,
     defer_costs: Sequence[str | None] | None = None,
     uncertainty: Mapping[str, np.ndarray] | None = None,
+    segment_iou: Sequence[np.ndarray] | None = None,
 ) -> np.ndarray:
     """The panel of one image.
 
@@ -70,13 +78,16 @@ def panel(
             a rule that never defers; None: no rule defers.
         uncertainty: (H, W) maps in nats (``entropy``, and ``mutual_information`` with several
             runs; docs/definitions.md §13), or None: not drawn.
+        segment_iou: per rule, (H, W) the predicted IoU of each pixel's segment (NaN: none) of
+            meta models (docs/definitions.md §15), or None: not drawn.
 
     Returns:
         (h, w, 3) uint8 RGB, h and w even (video encoders need that): a top row with the image
         and the K overlays (a rule that defers: its defer cost and deferred share under its
         name), a bottom row with the entropy (its scale above it) and the K difference views,
-        the mutual information below the entropy, and a legend of the classes present (and of
-        deferred pixels when a rule defers).
+        the mutual information below the entropy and each rule's segments by predicted IoU
+        below its difference view, and a legend of the classes present (and of deferred pixels
+        when a rule defers).
     """
     defer_costs = list(defer_costs or [None] * len(rule_names))
     h, w = _tile_size(*image.shape[:2])
@@ -93,7 +104,7 @@ def panel(
     width = (k + 1) * w + (k + 1) * w % 2
     legend_rows = -(-len(entries) // max(1, (width - 4) // 120))
     scales = uncertainty_tiles(uncertainty, len(CLASS_NAMES)) if uncertainty else []
-    rows = 2 + (len(scales) > 1)
+    rows = 2 + (len(scales) > 1 or segment_iou is not None)
     height = rows * (h + title) + legend_rows * (SWATCH + 4) + 4
     canvas = Image.new("RGB", (width, height + height % 2), (255, 255, 255))
     draw, font = ImageDraw.Draw(canvas), ImageFont.load_default()
@@ -108,7 +119,11 @@ def panel(
         (f"{name}: {d:.1f} % not argmax", differences(small, m, small_argmax))
         for name, m, d in zip(rule_names, small_maps, differ, strict=True)
     ]
-    tiles += coloured[1:]
+    tiles += coloured[1:] or [(None, None)]
+    if segment_iou is not None:
+        for name, values in zip(rule_names, segment_iou, strict=True):
+            tile = iou_tile(f"{name}: IoU (meta)", _resized_values(values, (h, w)))
+            tiles.append((tile, tile.rgb))
     for i, (text, tile) in enumerate(tiles):
         if tile is None:
             continue

@@ -2,10 +2,6 @@
 figure workers from NumPy arrays: per example image the segments coloured by their true and
 predicted IoU (MetaSeg's figure), the scatter of predicted against true IoU per rule, the
 feature importances, and the fused rules' trade-off along τ.
-
->>> ids = np.array([[1, 1, 0], [2, 2, 2]])
->>> iou_map(ids, np.array([0.25, 1.0]))[1, 0], np.isnan(iou_map(ids, np.array([0.25, 1.0]))[0, 2])
-(np.float64(1.0), np.True_)
 """
 
 from __future__ import annotations
@@ -15,15 +11,10 @@ from collections.abc import Iterator, Mapping, Sequence
 import numpy as np
 from matplotlib.figure import Figure
 
+from costseg.meta.features import painted
+
 IOU_COLOURS = "RdYlGn"  # red: IoU 0 (a false segment), green: 1
 TOP_FEATURES = 15
-
-
-def iou_map(ids: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """(H, W) float: each pixel's segment's value (segment i = ``values[i - 1]``), NaN off any
-    segment."""
-    lookup = np.concatenate([[np.nan], np.asarray(values, np.float64)])
-    return lookup[ids]
 
 
 def segment_iou_figures(
@@ -38,7 +29,7 @@ def segment_iou_figures(
         axes[0].imshow(image)
         axes[0].set_title("image")
         for ax, values, title in ((axes[1], true, "true IoU"), (axes[2], predicted, "predicted")):
-            shown = ax.imshow(iou_map(ids, values), cmap=IOU_COLOURS, vmin=0, vmax=1)
+            shown = ax.imshow(painted(ids, values), cmap=IOU_COLOURS, vmin=0, vmax=1)
             ax.set_facecolor("0.5")  # no segment (ignored or deferred pixels): grey
             ax.set_title(f"segments: {title}")
         for ax in axes:

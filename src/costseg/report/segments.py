@@ -11,7 +11,7 @@ from torch.utils.tensorboard import SummaryWriter
 from costseg.classes import CLASS_NAMES
 from costseg.meta.collect import SegmentResults
 from costseg.meta.fusion import FusedRules
-from costseg.meta.models import MODELS, save_models
+from costseg.meta.models import MODELS, SHOWN_MODEL, save_models
 from costseg.report.drawing import Job, job
 from costseg.report.files import write_csv
 from costseg.report.results import EvalResults
@@ -25,7 +25,6 @@ from costseg.report.tables import markdown_table
 
 SCORES = ("auroc", "accuracy", "r2", "sigma", "segments")
 MODELS_FILE = "meta/models.joblib"
-FIGURE_MODEL = "gradient_boosting"  # the model of the per-image figures and the importances
 
 
 def meta_rows(segments: SegmentResults | None) -> list[dict]:
@@ -96,7 +95,7 @@ def _csv_rows(segments: SegmentResults, rule: str, table: dict[str, np.ndarray])
 def _meta_jobs(results: EvalResults) -> list[tuple[str, Job]]:
     """Per-image IoU maps, the IoU scatter and the importances."""
     segments = results.segments
-    rules = [r for r in segments.tables if segments.predicted(r, FIGURE_MODEL)]
+    rules = [r for r in segments.tables if segments.predicted(r, SHOWN_MODEL)]
     if not rules:
         return []
     jobs = []
@@ -106,7 +105,7 @@ def _meta_jobs(results: EvalResults) -> list[tuple[str, Job]]:
         for rule in rules:
             table = segments.tables[rule]
             mine = table["image"] == i
-            predicted = segments.predicted(rule, FIGURE_MODEL)["iou"][mine]
+            predicted = segments.predicted(rule, SHOWN_MODEL)["iou"][mine]
             tag = f"meta/segments_{i}_{rule}"
             examples.append((tag, image, maps[rule], table["iou"][mine], predicted))
     if examples:
@@ -118,8 +117,8 @@ def _meta_jobs(results: EvalResults) -> list[tuple[str, Job]]:
         if all(segments.predicted(r, m) for r in rules)
     }
     jobs.append(("evaluation", job(iou_scatter_figures, rules, true, predicted)))
-    importances = [segments.models[r].importances(FIGURE_MODEL) for r in rules]
-    jobs.append(("evaluation", job(importance_figures, rules, importances, FIGURE_MODEL)))
+    importances = [segments.models[r].importances(SHOWN_MODEL) for r in rules]
+    jobs.append(("evaluation", job(importance_figures, rules, importances, SHOWN_MODEL)))
     return jobs
 
 
