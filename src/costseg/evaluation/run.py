@@ -33,6 +33,7 @@ from costseg.networks.sources import (
 )
 from costseg.networks.uncertainty import output_maps
 from costseg.options import EvalOptions
+from costseg.progress import progress
 from costseg.report.outputs import INCOMPLETE, BatchWriter, mark_complete
 from costseg.report.results import EvalResults, Example, GroupResult
 from costseg.rules import Rule, RuleGroup, apply_rules, named_group, temperature_group
@@ -99,9 +100,10 @@ def _fit_meta(plan: EvalPlan, scaling: Scaling) -> dict[str, MetaModels]:
             priors, _ = plan.priors.at(tuple(batch.labels.shape[-2:]))
             preds = apply_rules(probs, rules, priors)
             collector.add(probs, preds, batch.labels, priors, batch.expected_entropy, batch.stems)
+    fitting = f"meta models ({len(rules)} rules)" if plan.options.progress else None
     models = {
         r.name: fit_models(collector.table(r.name), collector.features(r.name), len(indices))
-        for r in rules
+        for r in progress(rules, fitting)
     }
     fusion = _fusion(plan)
     if fusion is not None:
