@@ -102,6 +102,11 @@ def test_the_fused_rules_are_reported_like_any_rule(evaluated) -> None:
     [
         (["--meta", "--meta_split", "val"], ["--meta_split val overlaps"]),
         (["--meta_split", "train"], ["--meta_split goes with --meta or --fuse"]),
+        (
+            ["--meta_images", "5", "--meta_split", "train"],
+            ["--meta_split, --meta_images go with --meta or --fuse"],
+        ),
+        (["--fuse_tau", "0.3"], ["--fuse_tau goes with --fuse"]),
         (["--fuse", "ml", "--fuse_tau", "1.5"], ["--fuse_tau", "[0, 1]"]),
         (["--fuse", "ml", "--fuse_base", "unicorn"], ["unknown cost 'unicorn'"]),
         ([*FUSE, *GUARANTEED_TARGET], ["give --meta_split"]),

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from costseg import CONFIGS, workers
-from costseg.options import EvalOptions, PredictOptions
+from costseg.options import EvalOptions, PredictOptions, field_default
 from costseg.workers import Stalled
 
 
@@ -207,13 +207,9 @@ def build_parser(
         if title not in groups:
             groups[title] = parser.add_argument_group(title)
         flag = meta.pop("flag", f"--{f.name}")
-        default = (defaults or {}).get(f.name, _default(f))
+        default = (defaults or {}).get(f.name, field_default(f))
         groups[title].add_argument(flag, dest=f.name, **_argument(default, hints[f.name], meta))
     return parser
-
-
-def _default(f: dataclasses.Field) -> Any:
-    return f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
 
 
 def _argument(default: Any, hint: Any, meta: dict[str, Any]) -> dict[str, Any]:

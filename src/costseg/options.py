@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -133,6 +133,25 @@ def option(default: Any = None, help: str | None = None, **metadata: Any) -> Any
     if isinstance(default, list):
         return dataclasses.field(default_factory=lambda: list(default), metadata=metadata)
     return dataclasses.field(default=default, metadata=metadata)
+
+
+def field_default(f: dataclasses.Field) -> Any:
+    """The default of an options field."""
+    return f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+
+
+def changed(opts: Any, names: Sequence[str]) -> list[str]:
+    """The flags among the fields ``names`` of ``opts`` whose values differ from their defaults.
+
+    >>> changed(EvalOptions(fuse_tau=[0.3]), ["fuse_tau", "fuse_base"])
+    ['--fuse_tau']
+    """
+    fields = {f.name: f for f in dataclasses.fields(opts)}
+    return [
+        fields[n].metadata.get("flag", f"--{n}")
+        for n in names
+        if getattr(opts, n) != field_default(fields[n])
+    ]
 
 
 @dataclass

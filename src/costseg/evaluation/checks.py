@@ -18,7 +18,7 @@ from costseg.evaluation.held_out import minimum_images
 from costseg.meta.fusion import fusion_group
 from costseg.metrics.selection import parse_metric, parse_target, risk_level
 from costseg.networks.protocols import OPTIONS, Protocol
-from costseg.options import EvalOptions, candidate_flags
+from costseg.options import EvalOptions, candidate_flags, changed
 from costseg.rules import (
     TEMPERATURES,
     RuleGroup,
@@ -99,8 +99,14 @@ def _fusion_group(opts: EvalOptions) -> RuleGroup:
 
 
 def _check_meta(opts: EvalOptions) -> None:
-    if opts.meta_split is not None and not (opts.meta or opts.fuse):
-        raise ValueError("--meta_split goes with --meta or --fuse")
+    for lone, needed in (
+        ([] if opts.fuse else changed(opts, ["fuse_base", "fuse_tau", "fuse_classes"]), "--fuse"),
+        ([] if opts.meta or opts.fuse else changed(opts, ["meta_split", "meta_images"]),
+         "--meta or --fuse"),
+    ):  # fmt: skip
+        if lone:
+            verb = "goes" if len(lone) == 1 else "go"
+            raise ValueError(f"{', '.join(lone)} {verb} with {needed}")
     if opts.meta_split is not None and opts.meta_split == opts.split:
         raise ValueError(
             f"--meta_split {opts.meta_split} overlaps the reported split {opts.split}: the meta "

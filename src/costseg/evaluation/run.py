@@ -100,7 +100,7 @@ def _fit_meta(plan: EvalPlan, scaling: Scaling) -> dict[str, MetaModels]:
             priors, _ = plan.priors.at(tuple(batch.labels.shape[-2:]))
             preds = apply_rules(probs, rules, priors)
             collector.add(probs, preds, batch.labels, priors, batch.expected_entropy, batch.stems)
-    fitting = f"meta models ({len(rules)} rules)" if plan.options.progress else None
+    fitting = "meta models, rule by rule" if plan.options.progress else None
     models = {
         r.name: fit_models(collector.table(r.name), collector.features(r.name), len(indices))
         for r in progress(rules, fitting)
