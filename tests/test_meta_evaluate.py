@@ -187,3 +187,7 @@ def test_predict_refuses_models_of_other_rules(evaluated, ckpt, tmp_path, capsys
     (out / "meta" / "copy.json").write_text((out / "meta" / "models.json").read_text())
     args[-1] = str(out / "meta" / "copy.joblib")
     _one_line(predict_main, args, capsys, "is not the file costseg wrote")
+    (out / "meta" / "copy.json").unlink()
+    _one_line(predict_main, args, capsys, "copy.json not found: evaluate.py writes it beside")
+    args[-1] = str(out / "meta")
+    _one_line(predict_main, args, capsys, "is a folder; give meta/models.joblib")

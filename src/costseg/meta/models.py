@@ -180,9 +180,13 @@ def load_models(path: str | Path) -> dict[str, MetaModels]:
 
     path = Path(path)
     sidecar = path.with_suffix(".json")
-    for p in (path, sidecar):
-        if not p.is_file():
-            raise FileNotFoundError(f"meta models: file not found: {p}")
+    if not path.is_file():
+        what = "a folder" if path.is_dir() else "missing"
+        raise FileNotFoundError(f"meta models: {path} is {what}; give meta/models.joblib")
+    if not sidecar.is_file():
+        raise FileNotFoundError(
+            f"meta models: {sidecar} not found: evaluate.py writes it beside {path.name}"
+        )
     expected = json.loads(sidecar.read_text()).get("sha256")
     if hashlib.sha256(path.read_bytes()).hexdigest() != expected:
         raise ValueError(
