@@ -16,7 +16,7 @@ from sklearn.metrics import r2_score, roc_auc_score
 from test_cli_errors import _one_line
 
 from costseg.checkpoints import find_checkpoint
-from costseg.classes import IGNORE_INDEX, LABEL_ID_TO_TRAIN_ID
+from costseg.classes import CLASS_NAMES, IGNORE_INDEX, LABEL_ID_TO_TRAIN_ID
 from costseg.cli import evaluate_main, predict_main
 from costseg.data.toy import StreetScenes
 from costseg.meta.models import SHOWN_MODEL, load_models
@@ -88,9 +88,17 @@ def test_the_scores_equal_sklearn_s_on_the_csv_and_the_saved_models(evaluated) -
 
 
 def test_the_fused_rules_are_reported_like_any_rule(evaluated) -> None:
-    out, _ = evaluated
+    out, results = evaluated
     rows = _csv(out / "fusion.csv")
     assert {r["matrix"] for r in rows} == {"ml+meta@0", "ml+meta@0.5", "ml+meta@1"}
+    # the example masks: robotistic, ml, then the fused maps, which differ from the base
+    # (robotistic) only where they take ml's person pixels
+    base, ml, *fused = results.examples[0].preds.numpy()
+    assert len(fused) == 3
+    person = CLASS_NAMES.index("person")
+    for labels in fused:
+        changed = labels != base
+        assert (labels[changed] == ml[changed]).all() and (ml[changed] == person).all()
     assert {"fp_segments", "missed_instances", "precision", "recall"} <= rows[0].keys()
     for name in ("meta_iou_scatter", "meta_feature_importance", "meta_segments_0_ml"):
         assert (out / "figures" / f"{name}.png").is_file(), name

@@ -36,7 +36,14 @@ from costseg.options import EvalOptions
 from costseg.progress import progress
 from costseg.report.outputs import INCOMPLETE, BatchWriter, mark_complete
 from costseg.report.results import EvalResults, Example, GroupResult
-from costseg.rules import Rule, RuleGroup, apply_rules, named_group, temperature_group
+from costseg.rules import (
+    Rule,
+    RuleGroup,
+    apply_rules,
+    masked_groups,
+    named_group,
+    temperature_group,
+)
 
 
 def run(plan: EvalPlan, after_batch: Callable[[list[Example]], None] | None = None) -> EvalResults:
@@ -141,6 +148,7 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> 
     if scaling.kind != "none":
         ece["scaled"] = CalibrationError(len(CLASS_NAMES)).to(device)
     named = plan.groups.index(named_group(plan.groups))
+    masked = [plan.groups.index(g) for g in masked_groups(plan.groups)]
     writer = BatchWriter(plan.output_dir, plan.groups[named].names, opts.save_predictions)
     examples: list[Example] = []
     desc = "evaluate" if opts.progress and rank() == 0 else None
@@ -173,7 +181,8 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> 
                 entropy = batch.expected_entropy
                 collector.add(probs, preds[named], batch.labels, priors, entropy, batch.stems)
             kept = opts.explorer and probs
-            _keep_examples(examples, opts.num_examples, batch, preds[named], kept, uncertainty)
+            shown = torch.cat([preds[g] for g in masked], 1)
+            _keep_examples(examples, opts.num_examples, batch, shown, kept, uncertainty)
             if after_batch:
                 after_batch(examples)
     extra["ece"] = {k: m.compute() for k, m in ece.items()}
@@ -219,7 +228,7 @@ def evaluate(opts: EvalOptions) -> EvalResults:
             from costseg.report.early_figures import EarlyFigures
 
             roi = planned.priors.roi_map()
-            early = EarlyFigures(out, named_group(planned.groups), roi, opts.num_examples)
+            early = EarlyFigures(out, planned.groups, roi, opts.num_examples)
         results = run(planned, early.after_batch if early else None)
         if early:
             from costseg.report.evaluation import write_evaluation

@@ -25,6 +25,8 @@ from costseg.rules.base import Rule, RuleGroup
 from costseg.rules.named import apply_rules
 
 FUSION_MODEL = "gradient_boosting"  # MetaFusion's
+MASKED = 4
+"""At most this many fused rules join the named ones in the example mask figures."""
 
 
 def fused_labels(
@@ -124,6 +126,7 @@ def fusion_group(
         names,
         FusedRules(base, tuple(fused), taus, tuple(classes)),
         columns,
+        masks=len(names) <= MASKED,
         heatmaps=True,
         needs_priors=any(r.priors_alpha for r in (base, *fused)),
         candidates=len(names) > 1,

@@ -17,7 +17,7 @@ import torch
 from costseg.classes import CLASS_NAMES
 from costseg.report.drawing import Drawing, Job, job
 from costseg.report.results import Example
-from costseg.rules import RuleGroup
+from costseg.rules import RuleGroup, masked_groups, named_group
 
 
 class EarlyFigures:
@@ -27,16 +27,22 @@ class EarlyFigures:
 
     Args:
         output_dir: the evaluation's folder (figures go to its ``figures/``).
-        group: the named rules.
+        groups: the evaluation's rule groups (the named rules' cost matrices are drawn, the
+            rules of :func:`~costseg.rules.masked_groups` fill the mask figures).
         roi: (H, W) RoI map, or None.
         num_examples: images of the mask figures.
     """
 
     def __init__(
-        self, output_dir: Path, group: RuleGroup, roi: torch.Tensor | None, num_examples: int
+        self,
+        output_dir: Path,
+        groups: Sequence[RuleGroup],
+        roi: torch.Tensor | None,
+        num_examples: int,
     ) -> None:
         self.drawing = Drawing(output_dir / "figures", len(os.sched_getaffinity(0)))
-        self.group, self.roi, self.num_examples = group, roi, num_examples
+        self.group, self.roi, self.num_examples = named_group(groups), roi, num_examples
+        self.mask_names = mask_names(groups)
         self.plan_started = self.examples_started = False
 
     def after_batch(self, examples: list[Example]) -> None:
@@ -46,7 +52,7 @@ class EarlyFigures:
                 self.drawing.submit(prefix, plan_job)
             self.plan_started = True
         if not self.examples_started and len(examples) >= self.num_examples > 0:
-            self.drawing.submit("evaluation", example_figures(self.group.names, examples))
+            self.drawing.submit("evaluation", example_figures(self.mask_names, examples))
             self.examples_started = True
 
     def cancel(self) -> None:
@@ -66,8 +72,13 @@ def plan_figures(group: RuleGroup, roi: torch.Tensor | None) -> list[tuple[str, 
     )
 
 
+def mask_names(groups: Sequence[RuleGroup]) -> list[str]:
+    """The rules of the mask figures, in the order of the examples' label maps."""
+    return [name for g in masked_groups(groups) for name in g.names]
+
+
 def example_figures(names: Sequence[str], examples: list[Example]) -> Job:
-    """The mask figure of each example: image, ground truth, each named rule's labels and the
+    """The mask figure of each example: image, ground truth, each shown rule's labels and the
     uncertainty maps, each titled with its scale (docs/definitions.md §13)."""
     from costseg.report.figures import example_mask_figures
 

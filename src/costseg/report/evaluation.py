@@ -12,7 +12,7 @@ from torch.utils.tensorboard import SummaryWriter
 from costseg.classes import CLASS_NAMES, ROI_NAMES
 from costseg.metrics.names import DEFER_RULE_RATES, ERROR_COLUMNS, INSTANCE_COLUMNS
 from costseg.report.drawing import Drawing, Job, figure_path, job
-from costseg.report.early_figures import EarlyFigures, example_figures, plan_figures
+from costseg.report.early_figures import EarlyFigures, example_figures, mask_names, plan_figures
 from costseg.report.figures import heatmap_grid_figures
 from costseg.report.files import write_csv, write_json, write_text
 from costseg.report.results import EvalResults, GroupResult
@@ -71,13 +71,14 @@ def write_evaluation(results: EvalResults, early: EarlyFigures) -> None:
         log_evaluation(writer, results, rows)
         if calibration := calibration_rows(results.extra.get("ece", {})):
             log_table(writer, "evaluation/calibration", markdown_table(calibration))
+        shown = mask_names([g.group for g in results.groups])
         for i, ex in enumerate(results.examples):
             log_masks(
                 writer,
                 f"evaluation/masks/{i}",
                 ex.image.permute(1, 2, 0).numpy(),
                 ex.label.numpy(),
-                {n: ex.preds[k].numpy() for k, n in enumerate(named.group.names)},
+                {n: ex.preds[k].numpy() for k, n in enumerate(shown)},
             )
             if ex.uncertainty:
                 maps = {k: v.float().numpy() for k, v in ex.uncertainty.items()}
@@ -85,7 +86,7 @@ def write_evaluation(results: EvalResults, early: EarlyFigures) -> None:
                 writer.add_image(f"evaluation/uncertainty/{i}", strip, dataformats="HWC")
         jobs = [] if early.plan_started else plan_figures(named.group, results.roi)
         if not early.examples_started:
-            jobs.append(("evaluation", example_figures(named.group.names, results.examples)))
+            jobs.append(("evaluation", example_figures(shown, results.examples)))
         jobs += write_sweeps(results) + _figures(results) + write_calibration(results)
         jobs += write_segments(results, writer)
         _draw_and_log(writer, jobs, early.drawing)

@@ -15,6 +15,7 @@ from costseg.rules.base import (
     Rule,
     RuleGroup,
     adapted_priors,
+    masked_groups,
     named_group,
     require_priors,
 )
@@ -37,6 +38,7 @@ __all__ = [
     "defer_costs",
     "defer_group",
     "grid_group",
+    "masked_groups",
     "named_group",
     "parse_rules",
     "point_name",

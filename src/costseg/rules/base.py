@@ -78,6 +78,7 @@ class RuleGroup:
         decide: the decision function.
         columns: per rule, the columns that identify it in result rows.
         is_named: the rules named by ``--cost``: the headline tables, masks and saved label maps.
+        masks: whether its rules join the named ones in the example mask figures.
         heatmaps: whether FP/FN location maps are kept (off for sweeps of many rules).
         needs_priors: whether some rule divides by the pixel-wise priors.
         candidates: whether ``--target`` and ``--guarantee`` choose among its rules.
@@ -107,6 +108,7 @@ class RuleGroup:
     decide: Decider
     columns: list[dict[str, object]]
     is_named: bool = False
+    masks: bool = False
     heatmaps: bool = False
     needs_priors: bool = False
     candidates: bool = False
@@ -147,3 +149,9 @@ def require_priors(groups: Sequence[RuleGroup], priors: torch.Tensor | None) -> 
 def named_group(groups: Sequence[RuleGroup]) -> RuleGroup:
     """The group of the named rules (``--cost``) among ``groups``."""
     return next(g for g in groups if g.is_named)
+
+
+def masked_groups(groups: Sequence[RuleGroup]) -> list[RuleGroup]:
+    """The groups whose rules the example mask figures show: the named rules, then every group
+    with :attr:`RuleGroup.masks`."""
+    return [named_group(groups)] + [g for g in groups if g.masks and not g.is_named]
