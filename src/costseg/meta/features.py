@@ -33,6 +33,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from costseg.metrics.segment_runs import find_root
+
 FEATURES_OF_SIZE = ("S", "S_in", "S_bd", "S_rel", "S_rel_in")
 HEAT_SUFFIXES = ("", "_in", "_bd", "_rel", "_rel_in")
 TARGETS = ("iou", "iou0")
@@ -140,17 +142,9 @@ def segment_features(
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
-def _find(parent, i):
-    while parent[i] != i:
-        parent[i] = parent[parent[i]]
-        i = parent[i]
-    return i
-
-
-@numba.njit(nogil=True, cache=True, boundscheck=False)
 def _join(parent, i, j):
     """Joins the trees of i and j; the smaller index is the root (a component's first pixel)."""
-    a, b = _find(parent, i), _find(parent, j)
+    a, b = find_root(parent, i), find_root(parent, j)
     if a < b:
         parent[b] = a
     elif b < a:
@@ -186,7 +180,7 @@ def _label(lab):
     for i in range(h * w):  # a root is its component's first pixel: seen before the others
         if lab[i // w, i % w] == NONE:
             continue
-        r = _find(parent, i)
+        r = find_root(parent, i)
         if r == i:
             n += 1
             flat[i] = n

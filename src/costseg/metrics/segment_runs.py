@@ -69,7 +69,8 @@ def run_counts(bits: np.ndarray, shape: tuple[int, int], prepared: Prepared) -> 
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
-def _find(parent, i):
+def find_root(parent, i):
+    """The root of i's tree in the union-find array ``parent``, halving the path on the way."""
     while parent[i] != i:
         parent[i] = parent[parent[i]]
         i = parent[i]
@@ -113,7 +114,7 @@ def _count(words, roi_prefix, gt_prefix, gt_row_start, gt_start, gt_stop, gt_lab
                 j += 1
             k = j
             while k < first and start[k] <= stop[i]:
-                a, b = _find(parent, i), _find(parent, k)
+                a, b = find_root(parent, i), find_root(parent, k)
                 parent[max(a, b)] = min(a, b)
                 k += 1
         previous = first
@@ -121,7 +122,7 @@ def _count(words, roi_prefix, gt_prefix, gt_row_start, gt_start, gt_stop, gt_lab
     hit = np.zeros(n, np.bool_)
     gt_hit = np.zeros(gt_count + 1, np.bool_)
     for i in range(n):
-        root, y, x0, x1 = _find(parent, i), row[i], start[i], stop[i]
+        root, y, x0, x1 = find_root(parent, i), row[i], start[i], stop[i]
         for r in range(r1):
             votes[root, r] += roi_prefix[r, y, x1] - roi_prefix[r, y, x0]
         if gt_prefix[y, x1] > gt_prefix[y, x0]:
