@@ -169,6 +169,22 @@ TRAIN_CASES = {
     "missing accelerator": (["--trainer.accelerator=tpu"], ["torch_xla"]),
     "missing gpu": (["--trainer.accelerator=gpu"], ["gpu"]),
     "missing checkpoint": (["--ckpt_path=no/such.ckpt"], ["checkpoint not found"]),
+    "negative focal gamma": (
+        ["--model.loss=FocalLoss", "--model.loss.gamma=-1"],
+        ["FocalLoss gamma must be >= 0"],
+    ),
+    "class weights of the wrong length": (
+        ["--model.loss=WeightedCrossEntropy", "--model.loss.weights=[1, 2]"],
+        ["19 positive numbers"],
+    ),
+    "unknown cost of a loss": (
+        ["--model.loss=ExpectedCostCrossEntropy", "--model.loss.cost=selfish"],
+        ["unknown cost 'selfish'"],
+    ),
+    "pixel priors on random crops": (
+        ["--config=cityscapes", "--config=losses/logit_adjusted", "--trainer.accelerator=cpu"],
+        ["random crops", "priors: global"],
+    ),
 }
 
 
@@ -180,6 +196,6 @@ def test_train_bad_option(case, tmp_path, capsys):
         pytest.skip("this machine has a GPU")
     # A later option overrides an earlier one; --config must come first to be read first.
     order = [*args, *TINY_TRAIN, logs] if case == "missing config" else [*TINY_TRAIN, logs, *args]
-    if case == "gpu config without gpu":  # the toy data's options are not Cityscapes'
+    if case in ("gpu config without gpu", "pixel priors on random crops"):  # Cityscapes' options
         order = [*args, logs]
     _one_line(train_main, order, capsys, *needles)

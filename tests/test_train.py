@@ -49,6 +49,7 @@ def test_run_folder_config_and_priors_match_the_trained_module(tiny_run):
     hparams = {k: v for k, v in module.hparams.items() if not k.startswith("_")}
     # the network's num_classes is linked to the model's, and recorded in the checkpoint
     config["model"]["net"]["init_args"]["num_classes"] = config["model"]["num_classes"]
+    config["model"]["loss"].setdefault("init_args", {})
     assert config["model"] == hparams
     saved = torch.load(run / "priors.pt", map_location="cpu", weights_only=True)
     assert saved["class_names"] == list(CLASS_NAMES)
@@ -137,3 +138,36 @@ def test_missing_resume_checkpoint(tmp_path, capsys):
         train_main([*TINY_TRAIN, f"--ckpt_path={tmp_path / 'nope.ckpt'}"])
     assert exit_info.value.code == 2
     assert "checkpoint not found" in capsys.readouterr().err
+
+
+def test_a_loss_recipe_trains_logs_its_terms_and_is_recorded(tmp_path):
+    """configs/losses/ composes with a recipe; TensorBoard holds the loss's terms, which add up
+    to the loss, and evaluation reads the loss back from the checkpoint."""
+    module, trainer = train_main(
+        [
+            "--config",
+            "toy",
+            "--config",
+            "losses/expected_cost_altruistic",
+            *TINY_TRAIN,
+            "--model.loss.init_args.lam=0.5",
+            "--trainer.log_every_n_steps=1",
+            f"--trainer.logger.init_args.save_dir={tmp_path}",
+        ]
+    )
+    assert Path(trainer.log_dir).parent.name == "toy_expected_cost_altruistic"
+    acc = EventAccumulator(trainer.log_dir).Reload()
+    logged = {t: acc.Scalars(t)[-1].value for t in ("train/loss", "train/cross_entropy")}
+    expected_cost = acc.Scalars("train/expected_cost")[-1].value
+    assert expected_cost > 0
+    assert logged["train/loss"] == pytest.approx(
+        logged["train/cross_entropy"] + 0.5 * expected_cost
+    )
+    entry = {
+        "class_path": "costseg.training.losses.ExpectedCostCrossEntropy",
+        "init_args": {"cost": "altruistic", "lam": 0.5},
+    }
+    assert module.hparams["loss"] == entry
+    from costseg.networks import load_costseg_checkpoint
+
+    assert load_costseg_checkpoint(_last(tmp_path)).hparams["loss"] == entry

@@ -16,6 +16,7 @@ import dataclasses
 import os
 import sys
 import threading
+import traceback
 import types
 import typing
 from collections.abc import Iterator, Sequence
@@ -75,9 +76,23 @@ def user_errors(*extra: type[BaseException]) -> Iterator[None]:
     except (ValueError, OSError, Stalled, *extra) as err:
         if os.environ.get("COSTSEG_DEBUG"):
             raise
+        err = own_cause(err)
         fail(str(err) or err.__class__.__name__, isinstance(err, argparse.ArgumentError))
     finally:
         threading.excepthook = default_hook
+
+
+def own_cause(err: BaseException) -> BaseException:
+    """The ValueError that costseg's own code raised behind ``err`` (LightningCLI's parser
+    wraps an error of a class it instantiates, e.g. a loss's bad setting, in a list of the
+    types it tried), else ``err``."""
+    cause = err.__cause__
+    while isinstance(cause, ValueError):
+        frames = traceback.extract_tb(cause.__traceback__)
+        if frames and Path(frames[-1].filename).is_relative_to(Path(__file__).parent):
+            return cause
+        cause = cause.__cause__
+    return err
 
 
 def train_main(args: Sequence[str] | None = None) -> tuple[Any, Any]:
@@ -119,15 +134,22 @@ def train_main(args: Sequence[str] | None = None) -> tuple[Any, Any]:
 
 def config_path(value: str) -> str:
     """A ``--config`` value as a file: an existing file as given, else a packaged config by name
-    (``toy``, ``cityscapes.yaml``, ``configs/toy.yaml``); anything else is left as it is.
+    (``toy``, ``cityscapes.yaml``, ``configs/toy.yaml``, ``losses/focal``); anything else is
+    left as it is.
 
-    >>> Path(config_path("toy")).name, config_path("configs/none.yaml")
-    ('toy.yaml', 'configs/none.yaml')
+    >>> Path(config_path("toy")).name, Path(config_path("losses/focal")).parent.name
+    ('toy.yaml', 'losses')
+    >>> config_path("configs/none.yaml")
+    'configs/none.yaml'
     """
     path = Path(value)
-    if path.is_file() or path.parent.as_posix() not in (".", "configs"):
+    if path.is_file() or path.is_absolute() or ".." in path.parts:
         return value
-    packaged = CONFIGS / (path.name if path.suffix in (".yaml", ".yml") else f"{path.name}.yaml")
+    parts = path.parts[1:] if path.parts[:1] == ("configs",) else path.parts
+    if not parts:
+        return value
+    name = parts[-1] if path.suffix in (".yaml", ".yml") else f"{parts[-1]}.yaml"
+    packaged = CONFIGS.joinpath(*parts[:-1], name)
     return str(packaged) if packaged.is_file() else value
 
 
@@ -149,6 +171,7 @@ def print_train_help(args: Sequence[str]) -> None:
         "Train DeepLabv3+ with LightningCLI. Every key of the config can be overridden, e.g.\n"
         "  python train.py --trainer.max_steps 3000 --model.net.init_args.backbone resnet34\n"
         "  python train.py --config cityscapes --data.init_args.root DIR\n"
+        "  python train.py --config toy --config losses/focal   # a loss of configs/losses/\n"
         "  python train.py --ckpt_path last        # resume the newest runs/**/last.ckpt\n"
         "--help_all lists every option of the trainer, model and data classes.\n\n"
         f"Keys of {path} and their values:"

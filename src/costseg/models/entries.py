@@ -1,10 +1,10 @@
 """A network and its config entry (``class_path`` / ``init_args``, as ``model.net`` in
-``configs/*.yaml``): one builds the other.
+``configs/*.yaml``): one builds the other. A loss (``model.loss``) is recorded the same way.
 
 >>> entry = {"class_path": "costseg.models.deeplabv3plus.DeepLabV3Plus",
 ...          "init_args": {"backbone": "resnet18", "decoder_channels": 8}}
 >>> net = network_from_entry(entry, num_classes=3)
->>> network_entry(net)["init_args"]["num_classes"], type(net).__name__
+>>> module_entry(net)["init_args"]["num_classes"], type(net).__name__
 (3, 'DeepLabV3Plus')
 """
 
@@ -15,7 +15,7 @@ from typing import Any
 
 from torch import nn
 
-__all__ = ["network_entry", "network_from_entry"]
+__all__ = ["module_entry", "network_from_entry"]
 
 
 def network_from_entry(
@@ -50,11 +50,11 @@ def network_from_entry(
     return kind(**init_args)
 
 
-def network_entry(net: nn.Module) -> dict[str, Any] | None:
-    """The entry that rebuilds ``net``, from the ``init_args`` it records (costseg's networks
-    do), or None."""
-    init_args = getattr(net, "init_args", None)
+def module_entry(module: nn.Module) -> dict[str, Any] | None:
+    """The entry that rebuilds ``module`` (a network, a loss), from the ``init_args`` it records
+    (costseg's networks and losses do), or None."""
+    init_args = getattr(module, "init_args", None)
     if not isinstance(init_args, dict):
         return None
-    kind = type(net)
+    kind = type(module)
     return {"class_path": f"{kind.__module__}.{kind.__qualname__}", "init_args": dict(init_args)}

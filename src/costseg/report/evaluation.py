@@ -7,6 +7,8 @@ theirs (:mod:`costseg.report.sweep`).
 
 from __future__ import annotations
 
+from typing import Any
+
 from torch.utils.tensorboard import SummaryWriter
 
 from costseg.classes import CLASS_NAMES, ROI_NAMES
@@ -56,6 +58,8 @@ def write_evaluation(results: EvalResults, early: EarlyFigures) -> None:
     rows = named.rows(results.class_ids)
     headline = [r for r in rows if r["roi"] in PAPER_ROIS]
     print(f"probabilities: {results.probabilities}")
+    if loss := training_loss(results.source):
+        print(f"training loss: {loss}")
     instances = INSTANCE_COLUMNS[:2] if named.instances else ()
     deferral = DEFER_SUMMARY if named.group.defers else ()
     print(console_table(headline, (*SUMMARY_COLUMNS, *deferral, *instances)))
@@ -112,7 +116,24 @@ def _probability_note(results: EvalResults) -> str:
 
     rows = calibration_rows(results.extra.get("ece", {}))
     note = results.probabilities + (f"; {calibration_line(rows)}" if rows else "")
+    if loss := training_loss(results.source):
+        note += f"; the network was trained with {loss}"
     return note + (f". {results.extra['instances']}" if "instances" in results.extra else "")
+
+
+def training_loss(source: dict[str, Any]) -> str | None:
+    """The loss a costseg checkpoint records (docs/definitions.md §16) as ``Name(arg=value)``,
+    or None.
+
+    >>> training_loss({"hparams": {"loss": {"class_path": "m.FocalLoss",
+    ...                                     "init_args": {"gamma": 2.0}}}})
+    'FocalLoss(gamma=2.0)'
+    """
+    entry = (source.get("hparams") or {}).get("loss")
+    if not entry:
+        return None
+    args = ", ".join(f"{k}={v}" for k, v in entry.get("init_args", {}).items() if v is not None)
+    return f"{entry['class_path'].rpartition('.')[2]}({args})"
 
 
 def _miou(result: GroupResult) -> dict[str, float]:

@@ -1,11 +1,13 @@
-"""The LightningModule: a segmentation network trained with cross-entropy, validated under
-cost rules.
+"""The LightningModule: a segmentation network trained with a loss of the config, validated
+under cost rules.
 
 The network is any ``nn.Module`` mapping normalised images to logits; a config names it as
 ``model.net`` (``class_path`` / ``init_args``, LightningCLI's own mechanism), and the checkpoint
 records that entry (``hparams["net"]``), from which :mod:`costseg.networks.costseg` rebuilds it.
 
-Training is ordinary cross-entropy (ignore index 255). Validation takes the softmax and swaps
+Training minimises ``model.loss`` (:mod:`costseg.training.losses`: cross-entropy by default,
+ignore index 255; the checkpoint records its entry as ``hparams["loss"]``), logged as
+``train/loss`` with its terms (``train/cross_entropy``, ...). Validation takes the softmax and swaps
 ``argmax`` for the configured decision rules (robotistic by default, i.e. argmax), all rules
 in one pass (the step of :mod:`costseg.metrics.scoring`, shared with evaluation), and logs mIoU,
 per-class IoU and person/building recall in the street RoI per rule (and the share of pixels a
@@ -19,18 +21,18 @@ from typing import Any, Literal
 
 import lightning as L
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 from costseg.checkpoints import CHECKPOINT_KEY
-from costseg.classes import CLASS_NAMES, IGNORE_INDEX, class_index
+from costseg.classes import CLASS_NAMES, class_index
 from costseg.data.prior_maps import PriorMaps
 from costseg.metrics import CalibrationError
 from costseg.metrics.names import PIXEL_RATES
 from costseg.metrics.scoring import GroupMetrics, score_batch
-from costseg.models.entries import network_entry
+from costseg.models.entries import module_entry
 from costseg.networks.base import IMAGENET_MEAN, IMAGENET_STD, normalised
 from costseg.rules import parse_rules, rules_group
+from costseg.training.losses import CrossEntropy, SegmentationLoss, batch_mean
 
 
 class SegmentationModule(L.LightningModule):
@@ -41,8 +43,11 @@ class SegmentationModule(L.LightningModule):
             `costseg.models.deeplabv3plus.DeepLabV3Plus`; in a config, ``model.net`` with
             ``class_path`` and ``init_args`` (``num_classes`` is linked to this module's).
             train.py records the config's entry; a network built in Python is recorded from
-            its ``init_args`` attribute (:func:`costseg.models.entries.network_entry`).
+            its ``init_args`` attribute (:func:`costseg.models.entries.module_entry`).
         num_classes: output classes (19 Cityscapes train classes).
+        loss: the training loss, e.g. `costseg.training.losses.FocalLoss`; in a config,
+            ``model.loss`` with ``class_path`` and ``init_args`` (docs/definitions.md §16).
+            None = cross-entropy.
         optimizer: ``sgd`` (momentum, Nesterov off) or ``adamw``.
         lr: peak learning rate, decayed by the poly schedule ``(1 - step/total) ** poly_power``.
         momentum: SGD momentum.
@@ -62,6 +67,7 @@ class SegmentationModule(L.LightningModule):
         self,
         net: nn.Module,
         num_classes: int = 19,
+        loss: SegmentationLoss | None = None,
         optimizer: Literal["sgd", "adamw"] = "sgd",
         lr: float = 0.01,
         momentum: float = 0.9,
@@ -74,9 +80,12 @@ class SegmentationModule(L.LightningModule):
     ) -> None:
         super().__init__()
         _check_hyperparameters(lr, momentum, weight_decay, poly_power, warmup_steps)
-        self.save_hyperparameters(ignore=["net"])
-        self.hparams["net"] = network_entry(net)  # train.py records the config's own entry
+        self.save_hyperparameters(ignore=["net", "loss"])
+        self.hparams["net"] = module_entry(net)  # train.py records the config's own entry
         self.net = net
+        self.loss = loss if loss is not None else CrossEntropy()
+        self.loss.for_classes(CLASS_NAMES[:num_classes])
+        self.hparams["loss"] = module_entry(self.loss)
         if channels_last:
             self.net = self.net.to(memory_format=torch.channels_last)
         self.rules = rules_group(parse_rules(val_costs, CLASS_NAMES[:num_classes]))
@@ -84,7 +93,7 @@ class SegmentationModule(L.LightningModule):
         self.val_ece = CalibrationError(num_classes)
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), False)
         self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), False)
-        self._priors = PriorMaps(None)  # (N, H, W) at label resolution, set before fit
+        self.priors = None  # (N, H, W) at label resolution, set before fit
         self.data_config: dict[str, Any] | None = None  # how to rebuild the data, for evaluation
         self.priors_info: dict[str, Any] | None = None  # how the priors were estimated
 
@@ -100,17 +109,48 @@ class SegmentationModule(L.LightningModule):
     @priors.setter
     def priors(self, value: torch.Tensor | None) -> None:
         self._priors = PriorMaps(value, CLASS_NAMES[: self.hparams.num_classes])
+        self._loss_priors: torch.Tensor | None = None
+
+    def loss_priors(self, size: tuple[int, int]) -> torch.Tensor | None:
+        """The priors the loss uses (``loss.uses_priors``) for labels of ``size``, on the
+        module's device: global (N,) or pixel-wise (N, H, W) mirror-averaged, since training
+        flips half the images; None for a loss without priors."""
+        kind = self.loss.uses_priors
+        if kind is None:
+            return None
+        if self.priors is None:
+            raise ValueError(f"model.loss {type(self.loss).__name__} needs the training priors")
+        if kind == "pixel" and tuple(self.priors.shape[1:]) != tuple(size):
+            raise ValueError(
+                f"pixel-wise priors are {tuple(self.priors.shape[1:])} but the training labels "
+                f"are {tuple(size)} (random crops have no fixed location): use priors: global"
+            )
+        if self._loss_priors is None or self._loss_priors.device != self.device:
+            pi = self.priors.double()
+            pi = pi.mean((1, 2)) if kind == "global" else (pi + pi.flip(-1)) / 2
+            self._loss_priors = (pi / pi.sum(0, keepdim=True)).float().to(self.device)
+        return self._loss_priors
+
+    def batch_loss(
+        self, logits: torch.Tensor, labels: torch.Tensor
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """The configured loss of a batch and its terms, means over every process's valid
+        pixels (:func:`costseg.training.losses.batch_mean`)."""
+        priors = self.loss_priors(tuple(labels.shape[-2:]))
+        return batch_mean(self.loss(logits, labels, priors))
 
     def training_step(self, batch: tuple[torch.Tensor, torch.Tensor], batch_idx: int):
         images, labels = batch
-        loss = F.cross_entropy(self(images), labels, ignore_index=IGNORE_INDEX)
-        self.log("train/loss", loss, prog_bar=True)
+        loss, terms = self.batch_loss(self(images), labels)
+        self.log("train/loss", loss, prog_bar=True, sync_dist=True)
+        for name, value in terms.items():
+            self.log(f"train/{name}", value, sync_dist=True)
         return loss
 
     def validation_step(self, batch: tuple[torch.Tensor, torch.Tensor], batch_idx: int) -> dict:
         images, labels = batch
         logits = self(images)
-        loss = F.cross_entropy(logits, labels, ignore_index=IGNORE_INDEX)
+        loss, _ = self.batch_loss(logits, labels)
         self.log("val/loss", loss, sync_dist=True)
         priors, roi = self._priors.at(tuple(labels.shape[-2:]))
         if priors is not None:

@@ -150,6 +150,11 @@ def _check(model: SegmentationModule, data: LightningDataModule, trainer: Traine
             f"model.num_classes is {model.hparams.num_classes} but the dataset has "
             f"{data.num_classes} classes"
         )
+    if model.loss.uses_priors == "pixel" and hasattr(getattr(data, "settings", None), "crop_size"):
+        raise ValueError(
+            f"model.loss {type(model.loss).__name__} with pixel-wise priors needs training labels "
+            "at the priors' size, and this data trains on random crops: use priors: global"
+        )
     if trainer.max_steps < 1 and not trainer.fast_dev_run:
         raise ValueError(
             f"--trainer.max_steps must be >= 1 (the optimiser steps to train), "
