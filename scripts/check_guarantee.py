@@ -6,7 +6,9 @@
         --target "person:roi1:handled_recall>=0.95" --maximize all:roi1:coverage
 
 evaluate.py's options mean the same here (--sweep is the grid's step, --guarantee is δ; several
---ckpt_path / --network: their ensemble). Fresh procedural scenes (split "test", --scene_seed 1000:
+--ckpt_path / --network: their ensemble; --shift sees the test images, never the calibration
+pool, through each corruption: the guarantee certified on clean images, tested under shift).
+Fresh procedural scenes (split "test", --scene_seed 1000:
 unrelated to training) form a pool: the first
 --test images are the test set, the next ones the calibration pool (--trials × --n images by
 default: disjoint, independent calibration sets). The network runs once per image; the per-image
@@ -43,6 +45,7 @@ from costseg.checkpoints import find_checkpoint
 from costseg.classes import CLASS_NAMES
 from costseg.cli import build_parser as build_options_parser
 from costseg.data.prior_maps import PriorMaps
+from costseg.data.shift import Shift, ShiftedDataset, parse_shift
 from costseg.data.toy import StreetScenes
 from costseg.metrics.per_image import per_image_counts, per_image_loss
 from costseg.metrics.selection import best_points, meets, parse_metric, parse_target, risk_level
@@ -74,6 +77,8 @@ SHARED = {
     "maximize": "person:roi1:precision",
     "guarantee": 0.1,
     "guarantee_method": "bonferroni",
+    "shift": [],
+    "seed": 0,
 }
 
 
@@ -109,6 +114,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         raise ValueError(f"need n, trials, test >= 1 and n <= cal_pool = {args.cal_pool}")
     resolve_device(args.device)
     candidates(args)  # a bad --defer_sweep or --cost: ValueError before any image
+    args.shifts = [parse_shift(text) for text in args.shift]
     return args
 
 
@@ -152,11 +158,16 @@ def load_source(args: argparse.Namespace, paths: list[Path]) -> tuple[Any, Any, 
     return source, (priors, roi), (int(size[0]), int(size[1]))
 
 
-def compute_counts(args: argparse.Namespace, source: tuple, indices: range) -> dict[str, Any]:
+def compute_counts(
+    args: argparse.Namespace, source: tuple, indices: range, shift: Shift | None = None
+) -> dict[str, Any]:
     """(len(indices), K, 2) per-image counts of the target ("target") and of --maximize, with
-    ``source`` = (network, (priors, RoI map), size) from :func:`load_source`."""
+    ``source`` = (network, (priors, RoI map), size) from :func:`load_source`, the images seen
+    through ``shift`` if given."""
     source, (priors, roi), size = source
     scenes = StreetScenes("test", indices.stop, size, args.scene_seed)
+    if shift is not None:
+        scenes = ShiftedDataset(scenes, shift, args.seed)
     loader = DataLoader(Subset(scenes, indices), args.batch_size, **workers.loader_options(1))
     group, device = candidates(args), resolve_device(args.device)
     out: dict[str, list[torch.Tensor]] = {"target": [], "maximize": []}
@@ -172,9 +183,12 @@ def compute_counts(args: argparse.Namespace, source: tuple, indices: range) -> d
     return {k: torch.cat(v).numpy() for k, v in out.items()}
 
 
-def cached_counts(args: argparse.Namespace) -> tuple[dict[str, np.ndarray], str, float]:
+def cached_counts(
+    args: argparse.Namespace, shift: Shift | None = None
+) -> tuple[dict[str, np.ndarray], str, float]:
     """(counts of the pool's images, network name, seconds spent); ``counts.npz`` in --output_dir
-    keeps those of earlier runs with the same settings, so only new images are counted."""
+    keeps those of earlier runs with the same settings, so only new images are counted. With
+    ``shift``: the test images alone, seen through it (``counts_<name>_<severity>.npz``)."""
     paths = checkpoints(args)
     members = [f"costseg:{p}" for p in paths if args.ckpt_path is not None or not args.network]
     name = " + ".join([*members, *(args.network or [])])
@@ -182,8 +196,10 @@ def cached_counts(args: argparse.Namespace) -> tuple[dict[str, np.ndarray], str,
     key = {k: getattr(args, k) for k in names}
     key |= {"network": name, "checkpoints": [[str(p), p.stat().st_mtime] for p in paths]}
     key |= {"target": list(args.target_spec[:3]), "maximize": list(args.max_spec)}
-    key_text, cache = json.dumps(key, sort_keys=True), args.output_dir / "counts.npz"
-    counts, need, seconds = None, args.test + args.cal_pool, 0.0
+    key |= {} if shift is None else {"shift": str(shift), "seed": args.seed}
+    file = "counts.npz" if shift is None else f"counts_{shift.name}_{shift.severity}.npz"
+    key_text, cache = json.dumps(key, sort_keys=True), args.output_dir / file
+    counts, need, seconds = None, args.test + (0 if shift else args.cal_pool), 0.0
     if cache.is_file():
         with np.load(cache) as cached:
             if str(cached["key"]) == key_text:
@@ -191,7 +207,7 @@ def cached_counts(args: argparse.Namespace) -> tuple[dict[str, np.ndarray], str,
     have, start = 0 if counts is None else len(counts["target"]), time.perf_counter()
     source = load_source(args, paths) if have < need else None
     for lo in range(have, need, 256):  # saved every 256 images: an interrupted run resumes
-        new = compute_counts(args, source, range(lo, min(lo + 256, need)))
+        new = compute_counts(args, source, range(lo, min(lo + 256, need)), shift)
         counts = new if counts is None else {k: np.concatenate([counts[k], new[k]]) for k in new}
         args.output_dir.mkdir(parents=True, exist_ok=True)
         np.savez_compressed(cache, key=np.array(key_text), **counts)
@@ -231,14 +247,20 @@ def choose(
             "certified": len(ltt.valid), "left_out": float(ltt.n_undefined.mean())}  # fmt: skip
 
 
-def summarise(args: argparse.Namespace, counts: dict[str, np.ndarray]) -> dict[str, Any]:
-    """Every number of the check: per candidate on the test set, per trial and aggregated."""
-    test_losses = per_image_loss(counts["target"][: args.test], args.target_spec.metric).numpy()
+def summarise(
+    args: argparse.Namespace,
+    counts: dict[str, np.ndarray],
+    test_counts: dict[str, np.ndarray] | None = None,
+) -> dict[str, Any]:
+    """Every number of the check: per candidate on the test set, per trial and aggregated. The
+    test set's counts are ``test_counts`` (the shifted test images) or the pool's first images."""
+    test_counts = test_counts or {k: v[: args.test] for k, v in counts.items()}
+    test_losses = per_image_loss(test_counts["target"], args.target_spec.metric).numpy()
     defined = (~np.isnan(test_losses)).sum(0)
     with np.errstate(invalid="ignore"):
         risk = np.nansum(test_losses, 0) / defined  # NaN where no image has a defined loss
         risk_se = np.nanstd(test_losses, 0) / np.sqrt(defined)
-    goal, target = pooled(counts["maximize"][: args.test]), pooled(counts["target"][: args.test])
+    goal, target = pooled(test_counts["maximize"]), pooled(test_counts["target"])
     sets, disjoint, group = *draw_sets(args), candidates(args)
     trials = [choose(args, group, counts["target"][s], counts["maximize"][s])
               for s in tqdm(sets, "calibration sets", unit="set")]  # fmt: skip
@@ -247,7 +269,7 @@ def summarise(args: argparse.Namespace, counts: dict[str, np.ndarray]) -> dict[s
             "target_pooled": target, "meeting_alpha": len(ok),
             "undefined_images": [int(args.test - defined.max()), int(args.test - defined.min())],
             "best_meeting_alpha": int(ok[np.argmax(goal[ok])]) if len(ok) else None}  # fmt: skip
-    settings = {k: v for k, v in vars(args).items() if not k.endswith("_spec")}
+    settings = {k: v for k, v in vars(args).items() if not k.endswith("_spec") and k != "shifts"}
     out: dict[str, Any] = {"settings": settings, "disjoint_sets": disjoint, "test": test}
     pooled_ok = meets(torch.from_numpy(target), args.target_spec).numpy()
     for rule in RULES:
@@ -298,6 +320,13 @@ def report(out: dict[str, Any]) -> None:
     print(f"candidates with test risk <= α: {t['meeting_alpha']} of {len(t['risk'])}")
     if s["n"] < out["minimum_n"]:
         print(f"note: LTT cannot certify anything with n < {out['minimum_n']} (even at zero risk)")
+    report_rules(out)
+
+
+def report_rules(out: dict[str, Any]) -> None:
+    """Print each rule's violations on the test set and whether the guarantee holds."""
+    s = out["settings"]
+    delta, trials = s["guarantee"], s["trials"]
     for rule, name in RULES.items():
         r = out[rule]
         mean = "n/a" if r["mean_test_maximize"] is None else f"{r['mean_test_maximize']:.4f}"
@@ -338,13 +367,18 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args = parse_args(argv)
         counts, name, seconds = cached_counts(args)
+        shifted = {str(shift): cached_counts(args, shift)[0] for shift in args.shifts}
     except (FileNotFoundError, ValueError) as err:
         print(f"check_guarantee.py: error: {err}", file=sys.stderr)
         return 2
     out = summarise(args, counts) | {"network": name, "count_seconds": seconds}
+    out["shifts"] = {shift: summarise(args, counts, test) for shift, test in shifted.items()}
     write_json(args.output_dir / "guarantee_check.json", out)
     plot(out, args.output_dir / "guarantee_check.png")
     report(out)
+    for shift, under in out["shifts"].items():
+        print(f"test images seen through {shift}:")
+        report_rules(under)
     print(f"wrote {args.output_dir}/guarantee_check.json and guarantee_check.png")
     return 0
 

@@ -66,6 +66,34 @@ def test_the_defer_sweep_choices_equal_a_numpy_recomputation(tiny_run, tmp_path)
     assert ltt is not None  # the check certifies something
 
 
+def test_under_shift_the_clean_choices_are_tested_on_shifted_images(tiny_run, tmp_path) -> None:
+    """The calibration sets stay clean (the same choices); the violation rate on the test images
+    seen through the shift equals a NumPy recomputation from the saved shifted counts."""
+    ckpt = find_checkpoint(None, runs_dir=tiny_run[2])
+    out = tmp_path / "check"
+    args = ["--ckpt_path", str(ckpt), "--defer_sweep", "0", "1", "0.5"]
+    args += ["--cost", "robotistic", "egoistic", "--target", "person:roi0:handled_recall>=0.5"]
+    args += ["--maximize", "all:roi0:coverage", "--guarantee", str(DELTA), "--n", "4"]
+    args += ["--trials", "3", "--test", "4", "--batch_size", "4", "--output_dir", str(out)]
+    args += ["--device", "cpu", "--shift", "night:5"]
+    assert _script().main(args) == 0
+    record = json.loads((out / "guarantee_check.json").read_text())
+    under = record["shifts"]["night:5"]
+    with np.load(out / "counts.npz") as clean, np.load(out / "counts_night_5.npz") as shifted:
+        assert shifted["target"].shape == clean["target"][:4].shape
+        assert not np.array_equal(shifted["maximize"], clean["maximize"][:4])
+        target = shifted["target"]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        losses = 1 - target[..., 0] / target[..., 1]
+    risk = np.nanmean(losses, 0)
+    for rule in ("ltt", "naive"):
+        chosen = record[rule]["chosen"]
+        assert under[rule]["chosen"] == chosen  # chosen on the same clean calibration sets
+        violations = sum(c is not None and risk[c] > ALPHA for c in chosen)
+        assert under[rule]["violations"] == violations
+        assert under[rule]["violation_rate"] == violations / 3
+
+
 def test_the_shared_options_are_evaluate_py_s(capsys) -> None:
     from costseg.cli import evaluate_parser
 

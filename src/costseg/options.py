@@ -182,7 +182,7 @@ class NetworkOptions:
         metavar="N",
         group=SOURCE,
     )
-    seed: int = option(0, "seed of --mc_dropout", type=whole_number(0), group=SOURCE)
+    seed: int = option(0, "seed of --mc_dropout and --shift", type=whole_number(0), group=SOURCE)
     inference: Literal["whole", "slide"] = option(
         "whole", "one forward per image, or sliding windows (--crop, --stride)", group=PROTOCOL
     )
@@ -250,6 +250,13 @@ class EvalOptions(SourceOptions):
     """Everything ``evaluate.py`` can be told (see ``python evaluate.py --help``)."""
 
     classes: list[str] = option(["person", "building"], "classes of the table and segment maps")
+    shift: list[str] = option(
+        [],
+        "see the reported images through corruptions, e.g. fog:3 night:2 (severity 0-5, "
+        "docs/definitions.md §17): one evaluation per shift; calibration images stay clean",
+        nargs="+",
+        metavar="NAME:SEVERITY",
+    )
     save_predictions: bool = option(
         False, "write Cityscapes label-id PNGs per image and rule", flag="--save-predictions"
     )

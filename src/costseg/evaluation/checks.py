@@ -43,6 +43,10 @@ def check_options(opts: EvalOptions) -> list[RuleGroup]:
         raise ValueError("--mc_dropout needs a network: saved probabilities cannot be resampled")
     if Protocol.from_options(opts) != Protocol() and opts.probs is not None:
         raise ValueError(f"{OPTIONS} need a network: saved probabilities cannot be rerun")
+    if opts.shift and opts.probs is not None:
+        raise ValueError("--shift needs a network: saved probabilities cannot see other images")
+    if len(set(opts.shift)) < len(opts.shift):
+        raise ValueError(f"--shift names a shift twice: {' '.join(opts.shift)}")
     if opts.save_probs and opts.probs is not None:
         raise ValueError("--save-probs writes a network's probabilities; with --probs they exist")
     rules = parse_rules(opts.cost, defer=opts.defer)  # the sweeps' rules never defer

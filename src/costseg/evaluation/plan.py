@@ -9,6 +9,7 @@ import datetime
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import torch
 import torch.distributed as dist
@@ -31,6 +32,9 @@ from costseg.options import EvalOptions
 from costseg.report.outputs import claim_output_dir
 from costseg.rules import RuleGroup, named_group, require_priors
 
+if TYPE_CHECKING:
+    from costseg.data.shift import Shift
+
 
 @dataclass
 class EvalPlan:
@@ -39,7 +43,7 @@ class EvalPlan:
     options: EvalOptions
     device: torch.device
     source: Source
-    dataset: Dataset
+    dataset: Dataset  # the reported images (seen through the shift when there is one)
     indices: list[int]  # this process's share of the reported images
     num_reported: int  # reported images over all processes
     calibration: tuple[Dataset, list[int]] | None  # images that fit / certify, never reported
@@ -52,11 +56,13 @@ class EvalPlan:
     priors: PriorMaps
     canvas: tuple[int, int]
     instance_classes: tuple[list[int], str]  # classes of the instance metrics; what the outputs say
+    shifts: list[Shift]  # --shift: with several, evaluation/shifts.py runs one evaluation each
 
 
 def plan(opts: EvalOptions) -> EvalPlan:
     """Check the options, open source and data, and claim the output folder."""
     groups = check_options(opts)
+    shifts = _shifts(opts)
     device = resolve_device(opts.device)
     if world_size() > 1 and not dist.is_initialized():
         # a peer that stops answering ends each collective after STALL_SECONDS (evaluate())
@@ -89,11 +95,16 @@ def plan(opts: EvalOptions) -> EvalPlan:
     cache = (Path(opts.output_dir).resolve().parent if opts.output_dir else base.parent) / "priors"
     priors = PriorMaps(source_priors(source, opts, config, cache), CLASS_NAMES, device)
     require_priors(groups, priors.priors)
+    reported_images = dataset
+    if len(shifts) == 1:
+        from costseg.data.shift import ShiftedDataset
+
+        reported_images = ShiftedDataset(dataset, shifts[0], opts.seed)
     return EvalPlan(
         options=opts,
         device=device,
         source=source,
-        dataset=dataset,
+        dataset=reported_images,
         indices=reported[rank() :: world_size()],
         num_reported=len(reported),
         calibration=calibration,
@@ -106,7 +117,17 @@ def plan(opts: EvalOptions) -> EvalPlan:
         canvas=heatmap_canvas(dataset),
         instance_classes=instance_classes(dataset, opts),
         output_dir=on_rank0(lambda: claim_output_dir(opts.output_dir, opts.overwrite, base)),
+        shifts=shifts,
     )
+
+
+def _shifts(opts: EvalOptions) -> list[Shift]:
+    """The parsed ``--shift`` values (albumentations is imported only when there are some)."""
+    if not opts.shift:
+        return []
+    from costseg.data.shift import parse_shift
+
+    return [parse_shift(text) for text in opts.shift]
 
 
 def _split_calibration(opts: EvalOptions, config: dict, dataset: Dataset, count: int):

@@ -213,15 +213,26 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> 
     )
 
 
-def evaluate(opts: EvalOptions) -> EvalResults:
-    """Plan, run, and (on rank 0) write every output; returns the results.
+def evaluate(opts: EvalOptions) -> EvalResults | list[EvalResults]:
+    """Plan, run, and (on rank 0) write every output; returns the results (a list of them, one
+    per shift, with several ``--shift``: :mod:`costseg.evaluation.shifts`).
 
     Figures known before the loop ends are drawn meanwhile, by workers of the forkserver
     (:mod:`costseg.workers`), which starts first, while the network loads. The output
     folder is marked ``INCOMPLETE`` until every file is written; an interrupt or a failed write
     says where the partial outputs are."""
     workers.start()
-    planned, early = plan(opts), None
+    planned = plan(opts)
+    if len(planned.shifts) > 1:
+        from costseg.evaluation.shifts import evaluate_shifts
+
+        return evaluate_shifts(planned, evaluate_plan)
+    return evaluate_plan(planned)
+
+
+def evaluate_plan(planned: EvalPlan) -> EvalResults:
+    """Run ``planned`` and write its outputs into its output folder (see :func:`evaluate`)."""
+    opts, early = planned.options, None
     out = planned.output_dir
     try:
         if rank() == 0:
@@ -292,7 +303,10 @@ def _describe_probabilities(plan: EvalPlan, scaling: Scaling) -> str:
         text = f"{base}, no scaling"
     else:
         text = (f"{base}; " if base else "") + scaling.describe()
-    return text + ("; rounded to float16 as saved" if plan.options.save_probs else "")
+    text += "; rounded to float16 as saved" if plan.options.save_probs else ""
+    if len(plan.shifts) == 1:
+        text += f"; the images seen through {plan.shifts[0]} (definitions §17)"
+    return text
 
 
 def _uncertainty(
