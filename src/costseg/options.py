@@ -182,7 +182,9 @@ class NetworkOptions:
         metavar="N",
         group=SOURCE,
     )
-    seed: int = option(0, "seed of --mc_dropout and --shift", type=whole_number(0), group=SOURCE)
+    seed: int = option(
+        0, "seed of --mc_dropout (and of evaluate.py's --shift)", type=whole_number(0), group=SOURCE
+    )
     inference: Literal["whole", "slide"] = option(
         "whole", "one forward per image, or sliding windows (--crop, --stride)", group=PROTOCOL
     )

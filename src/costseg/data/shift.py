@@ -18,6 +18,7 @@ True
 
 from __future__ import annotations
 
+import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
@@ -27,7 +28,16 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-__all__ = ["CORRUPTIONS", "SEVERITIES", "Shift", "ShiftedDataset", "parse_shift", "shift_image"]
+__all__ = [
+    "BY_ALBUMENTATIONS",
+    "CORRUPTIONS",
+    "SEVERITIES",
+    "WRITTEN_HERE",
+    "Shift",
+    "ShiftedDataset",
+    "parse_shift",
+    "shift_image",
+]
 
 SEVERITIES = range(0, 6)
 
@@ -116,27 +126,30 @@ def _jpeg(s: int) -> A.BasicTransform:
     return A.ImageCompression(quality_range=(quality, quality), p=1)
 
 
-# name → an albumentations transform of a severity, or (image, severity, rng) → image
-CORRUPTIONS: dict[str, Callable] = {
+# name → the albumentations transform of a severity
+BY_ALBUMENTATIONS: dict[str, Callable[[int], A.BasicTransform]] = {
     "fog": _fog,
     "rain": _rain,
     "snow": _snow,
-    "night": _night,
     "spatter": _spatter,
     "motion_blur": _motion_blur,
     "defocus_blur": _defocus_blur,
     "gaussian_noise": _gaussian_noise,
-    "shot_noise": _shot_noise,
     "jpeg": _jpeg,
+}
+# name → (image, severity, rng) → image, written here
+WRITTEN_HERE: dict[str, Callable[[np.ndarray, int, np.random.Generator], np.ndarray]] = {
+    "night": _night,
+    "shot_noise": _shot_noise,
     "brightness": _brightness,
     "contrast": _contrast,
 }
-_WRITTEN_HERE = {_night, _shot_noise, _brightness, _contrast}
+CORRUPTIONS = (*BY_ALBUMENTATIONS, *WRITTEN_HERE)
 
 
 @dataclass(frozen=True)
 class Shift:
-    """A corruption (a key of :data:`CORRUPTIONS`) at a severity 0–5."""
+    """A corruption (a name of :data:`CORRUPTIONS`) at a severity 0–5."""
 
     name: str
     severity: int
@@ -161,12 +174,12 @@ def parse_shift(text: str) -> Shift:
 
 @cache
 def _transform(name: str, severity: int) -> A.Compose:
-    return A.Compose([CORRUPTIONS[name](severity)])
+    return A.Compose([BY_ALBUMENTATIONS[name](severity)])
 
 
 def image_seed(seed: int, shift: Shift, index: int) -> int:
     """The seed of one image's corruption: the same for a (seed, shift, image) in any order."""
-    key = [seed, list(CORRUPTIONS).index(shift.name), shift.severity, index]
+    key = [seed, zlib.crc32(shift.name.encode()), shift.severity, index]
     return int(np.random.SeedSequence(key).generate_state(1)[0])
 
 
@@ -175,9 +188,8 @@ def shift_image(image: np.ndarray, shift: Shift, seed: int) -> np.ndarray:
     ``image`` itself."""
     if shift.severity == 0:
         return image
-    corruption = CORRUPTIONS[shift.name]
-    if corruption in _WRITTEN_HERE:
-        out = corruption(image, shift.severity, np.random.default_rng(seed))
+    if shift.name in WRITTEN_HERE:
+        out = WRITTEN_HERE[shift.name](image, shift.severity, np.random.default_rng(seed))
     else:
         transform = _transform(shift.name, shift.severity)
         transform.set_random_seed(seed)
