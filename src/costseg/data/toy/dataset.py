@@ -18,7 +18,8 @@ import torch
 from PIL import Image, ImageDraw
 from torch.utils.data import Dataset
 
-from costseg.classes import TRAIN_ID_TO_LABEL_ID
+from costseg.classes import IGNORE_INDEX, TRAIN_ID_TO_LABEL_ID
+from costseg.data.toy.anomalies import draw_anomalies
 from costseg.data.toy.draw import SKY, Canvas
 from costseg.data.toy.instances import InstanceLayer
 from costseg.data.toy.photo import photograph
@@ -53,13 +54,19 @@ def render_scene(
     >>> image.shape, label.shape, label.dtype.name
     ((64, 128, 3), (64, 128), 'uint8')
     """
-    image, label, _ = _render(rng, size, instances=False)
+    image, label, _, _ = _render(rng, size, instances=False)
     return image, label
 
 
 def _render(
-    rng: np.random.Generator, size: tuple[int, int], instances: bool
-) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    rng: np.random.Generator,
+    size: tuple[int, int],
+    instances: bool,
+    anomalies: np.random.Generator | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Image, label, instance ids (or None) and, with an ``anomalies`` generator, the anomaly
+    mask (or None); the unknown objects come from a generator of their own, so the scene
+    around them is the one rendered without them."""
     h, w = _check_size(size)
     st = Street.sample(rng, h, w)
     image, label = st.sky_gradient(h, w), Image.new("L", (w, h), SKY)
@@ -67,8 +74,16 @@ def _render(
     shadow = Image.new("L", (w, h), 0)
     canvas = Canvas(image, label, st.cam, st.sky[1], st.haze_range, layer)
     draw_street(canvas, rng, st, ImageDraw.Draw(shadow))
+    mask = None
+    if anomalies is not None:
+        marks = Image.new("L", (w, h), 0)
+        draw_anomalies(canvas, anomalies, st, ImageDraw.Draw(marks))
+        mask = np.array(marks)
     labels = np.array(label)
-    return photograph(image, labels, shadow, rng), labels, None if layer is None else layer.array()
+    if mask is not None:
+        mask = np.where(mask == 1, 1, np.where(labels == IGNORE_INDEX, IGNORE_INDEX, 0))
+    ids = None if layer is None else layer.array()
+    return photograph(image, labels, shadow, rng), labels, ids, mask
 
 
 class StreetScenes(Dataset):
@@ -79,6 +94,8 @@ class StreetScenes(Dataset):
         length: number of scenes.
         size: (H, W) of every image, each >= 64.
         seed: non-negative integer choosing the whole family of scenes.
+        anomalies: add one to three unknown objects to every scene (the same scenes around
+            them; docs/definitions.md §17), labelled 255; :meth:`with_anomalies` gives the mask.
 
     Items are ``(image, label)``: (3, H, W) uint8 RGB and (H, W) int64 train ids (255 = ignore).
 
@@ -93,6 +110,7 @@ class StreetScenes(Dataset):
         length: int = 1000,
         size: tuple[int, int] = (256, 512),
         seed: int = 0,
+        anomalies: bool = False,
     ) -> None:
         if split not in SPLITS:
             raise ValueError(f"split must be one of {sorted(SPLITS)}; got {split!r}")
@@ -105,6 +123,7 @@ class StreetScenes(Dataset):
             _check_size(size),
             int(seed),
         )
+        self.anomalies = bool(anomalies)
 
     def __len__(self) -> int:
         return self.length
@@ -113,8 +132,28 @@ class StreetScenes(Dataset):
     """Every scene has instance ids (:meth:`with_instances`)."""
 
     def __getitem__(self, index: int) -> tuple[torch.Tensor, torch.Tensor]:
-        image, label, _ = self._item(index, instances=False)
+        image, label, _, _ = self._item(index, instances=False)
         return image, label
+
+    @property
+    def has_anomalies(self) -> bool:
+        """Every scene holds unknown objects (:meth:`with_anomalies`)."""
+        return self.anomalies
+
+    def with_anomalies(self, index: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Item ``index`` with its (H, W) int64 anomaly mask: 1 = unknown object, 0 = a known
+        class, 255 = ignored (SegmentMeIfYouCan's encoding; ``docs/definitions.md §17``).
+
+        >>> scenes = StreetScenes("val", 1, (64, 128), anomalies=True)
+        >>> _, label, mask = scenes.with_anomalies(0)
+        >>> bool((mask == 1).any()), bool((label[mask == 1] == 255).all())
+        (True, True)
+        """
+        if not self.anomalies:
+            raise ValueError("these scenes hold no unknown objects: StreetScenes(anomalies=True)")
+        image, label, _, mask = self._item(index, instances=False)
+        assert mask is not None
+        return image, label, mask
 
     def with_instances(self, index: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Item ``index`` with its (H, W) int64 instance ids (``docs/definitions.md §9``).
@@ -123,15 +162,19 @@ class StreetScenes(Dataset):
         >>> ids.shape, ids.dtype, bool((ids >= 1000).any())
         (torch.Size([64, 128]), torch.int64, True)
         """
-        image, label, ids = self._item(index, instances=True)
+        image, label, ids, _ = self._item(index, instances=True)
         assert ids is not None
         return image, label, ids
 
     def _item(self, index: int, instances: bool) -> tuple[torch.Tensor, ...]:
         if not -self.length <= index < self.length:
             raise IndexError(f"index {index} is out of range for {self.length} scenes")
-        rng = np.random.default_rng([self.seed, SPLITS[self.split], int(index) % self.length])
-        image, label, ids = _render(rng, self.size, instances)
+        key = [self.seed, SPLITS[self.split], int(index) % self.length]
+        unknown = np.random.default_rng([*key, 1]) if self.anomalies else None
+        image, label, ids, mask = _render(np.random.default_rng(key), self.size, instances, unknown)
         image_t = torch.from_numpy(image).permute(2, 0, 1).contiguous()
-        label_t = torch.from_numpy(label.astype(np.int64))
-        return image_t, label_t, None if ids is None else torch.from_numpy(ids.astype(np.int64))
+        return image_t, _int64(label), _int64(ids), _int64(mask)
+
+
+def _int64(array: np.ndarray | None) -> torch.Tensor | None:
+    return None if array is None else torch.from_numpy(array.astype(np.int64))
