@@ -2,14 +2,21 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import torch
 from sklearn.metrics import average_precision_score, roc_auc_score, roc_curve
 
+from costseg.checkpoints import find_checkpoint
+from costseg.cli import evaluate_main
+from costseg.data.from_config import data_settings
 from costseg.data.toy import StreetScenes
 from costseg.metrics.anomaly import AnomalyMetrics
 from costseg.metrics.functional.anomaly import BINS, TAUS, component_counts, component_metrics
+from costseg.networks import load_costseg_checkpoint
+from costseg.networks.probs_files import find_probs_file, load_probs
 
 SIZE = (64, 128)
 
@@ -18,7 +25,7 @@ def test_unknown_objects_leave_the_scene_around_them_unchanged():
     plain, unknown = StreetScenes("val", 6, SIZE), StreetScenes("val", 6, SIZE, anomalies=True)
     assert unknown.has_anomalies and not plain.has_anomalies
     for i in range(6):
-        image, label, mask = unknown.with_anomalies(i)
+        image, label, ids, mask = unknown.with_anomalies(i)
         clean_image, clean_label = plain[i]
         assert set(mask.unique().tolist()) <= {0, 1, 255} and (mask == 1).any()
         objects = mask == 1
@@ -27,7 +34,7 @@ def test_unknown_objects_leave_the_scene_around_them_unchanged():
         assert torch.equal(mask == 255, (label == 255) & ~objects)
         assert not torch.equal(image, clean_image)
         assert torch.equal(unknown[i][0], image) and torch.equal(unknown[i][1], label)
-        _, _, ids = unknown.with_instances(i)
+        assert torch.equal(ids, unknown.with_instances(i)[2])
         assert (ids[objects] == 0).all()  # unlabelled in Cityscapes' instance encoding
 
 
@@ -146,3 +153,45 @@ def test_the_metric_adds_up_across_batches_and_counts_the_rules_decisions():
         on = preds[r][mask == 1]
         want = [int((on == c).sum()) for c in range(3)] + [int((on == 255).sum())]
         assert a["decided"][r].tolist() == want
+
+
+def test_evaluate_with_anomalies_end_to_end(tiny_run, tmp_path):
+    """results.json's anomaly section: the rules' decisions count every unknown object's pixel,
+    and max-softmax's pixel AUROC is sklearn's on the saved probabilities (up to the bins)."""
+    ckpt = find_checkpoint(None, runs_dir=tiny_run[2])
+    out = tmp_path / "eval"
+    evaluate_main(
+        ["--ckpt_path", str(ckpt), "--cost", "robotistic", "altruistic", "--anomalies",
+         "--limit", "3", "--num_examples", "0", "--no-progress", "--save-probs",
+         "--output_dir", str(out)]
+    )  # fmt: skip
+    found = json.loads((out / "results.json").read_text())["anomalies"]
+    settings = data_settings(load_costseg_checkpoint(ckpt).data_config)
+    scenes = settings.dataset("val", anomalies=True)
+    masks = [scenes.with_anomalies(i)[3] for i in range(3)]
+    anomaly_pixels = sum(int((m == 1).sum()) for m in masks)
+    for rule in ("robotistic", "altruistic"):
+        assert sum(found["decided_pixels"][rule]) == anomaly_pixels
+    assert set(found["scores"]) == {
+        "max_softmax",
+        "entropy",
+        *(f"cost_margin/{r}" for r in ("robotistic", "altruistic")),
+    }
+    scores, labels = [], []
+    for i, mask in enumerate(masks):
+        probs = load_probs(find_probs_file(out / "probs", f"val_{i:06d}"))
+        valid = mask != 255
+        scores.append((1 - probs.float().amax(0))[valid].numpy())
+        labels.append((mask[valid] == 1).numpy())
+    want = roc_auc_score(np.concatenate(labels), np.concatenate(scores))
+    assert found["scores"]["max_softmax"]["auroc"] == pytest.approx(want, abs=2e-3)
+    assert "## Unknown objects" in (out / "table.md").read_text()
+
+
+def test_anomalies_need_the_procedural_scenes(tiny_run, tmp_path, cityscapes_root, capsys):
+    ckpt = str(find_checkpoint(None, runs_dir=tiny_run[2]))
+    with pytest.raises(SystemExit):
+        evaluate_main(["--ckpt_path", ckpt, "--anomalies", "--data_root", str(cityscapes_root),
+                       "--no-progress", "--output_dir", str(tmp_path / "out")])  # fmt: skip
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--anomalies needs the procedural scenes" in err[0]

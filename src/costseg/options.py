@@ -252,6 +252,12 @@ class EvalOptions(SourceOptions):
     """Everything ``evaluate.py`` can be told (see ``python evaluate.py --help``)."""
 
     classes: list[str] = option(["person", "building"], "classes of the table and segment maps")
+    anomalies: bool = option(
+        False,
+        "evaluate on the procedural scenes with unknown objects added: anomaly scores, their "
+        "pixel and component metrics, what each rule decides on them (docs/definitions.md §17)",
+        flag="--anomalies",
+    )
     shift: list[str] = option(
         [],
         "see the reported images through corruptions, e.g. fog:3 night:2 (severity 0-5, "

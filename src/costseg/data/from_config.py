@@ -41,12 +41,13 @@ class StreetScenesSettings:
         """Images per validation / test batch: the training batch size."""
         return self.batch_size
 
-    def dataset(self, split: str) -> Dataset:
-        """The un-augmented scenes of ``split``."""
+    def dataset(self, split: str, anomalies: bool = False) -> Dataset:
+        """The un-augmented scenes of ``split`` (with unknown objects: docs/definitions.md §17)."""
         from costseg.data.toy import StreetScenes
 
         length = {"train": self.train_length, "val": self.val_length, "test": self.test_length}
-        return StreetScenes(split, length[split], (int(self.size[0]), int(self.size[1])), self.seed)
+        size = (int(self.size[0]), int(self.size[1]))
+        return StreetScenes(split, length[split], size, self.seed, anomalies)
 
 
 @dataclass(frozen=True)

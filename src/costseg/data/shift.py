@@ -199,8 +199,8 @@ def shift_image(image: np.ndarray, shift: Shift, seed: int) -> np.ndarray:
 
 class ShiftedDataset(Dataset):
     """``dataset`` (items ``(image (3, H, W) uint8, label, ...)``) with every image seen through
-    ``shift``; labels, instance ids (``with_instances``) and every other attribute those of
-    ``dataset``."""
+    ``shift``; labels, instance ids (``with_instances``), anomaly masks (``with_anomalies``) and
+    every other attribute those of ``dataset``."""
 
     def __init__(self, dataset: Dataset, shift: Shift, seed: int = 0) -> None:
         self.dataset, self.shift, self.seed = dataset, shift, seed
@@ -218,6 +218,9 @@ class ShiftedDataset(Dataset):
 
     def with_instances(self, index: int):
         return self._shifted(index, self.dataset.with_instances(index))
+
+    def with_anomalies(self, index: int):
+        return self._shifted(index, self.dataset.with_anomalies(index))
 
     def _shifted(self, index: int, item: tuple) -> tuple:
         image, *rest = item

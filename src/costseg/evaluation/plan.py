@@ -17,7 +17,7 @@ from torch.utils.data import Dataset
 
 from costseg import workers
 from costseg.classes import CLASS_NAMES, class_indices
-from costseg.data.from_config import build_dataset, data_settings
+from costseg.data.from_config import StreetScenesSettings, build_dataset, data_settings
 from costseg.data.prior_maps import PriorMaps, heatmap_canvas
 from costseg.evaluation.checks import (
     check_calibration_size,
@@ -76,7 +76,7 @@ def plan(opts: EvalOptions) -> EvalPlan:
         raise ValueError(f"{source.description} names no dataset: pass --data_root")
     config = source.data_config or {}
     settings = data_settings(config, opts.data_root)
-    dataset = build_dataset(config, opts.split, opts.data_root)
+    dataset = _reported_dataset(opts, config, settings)
     count = len(dataset) if opts.limit is None else min(opts.limit, len(dataset))
     if count == 0:
         raise ValueError(f"the {opts.split} split holds no images: nothing to evaluate")
@@ -119,6 +119,15 @@ def plan(opts: EvalOptions) -> EvalPlan:
         output_dir=on_rank0(lambda: claim_output_dir(opts.output_dir, opts.overwrite, base)),
         shifts=shifts,
     )
+
+
+def _reported_dataset(opts: EvalOptions, config: dict, settings) -> Dataset:
+    """The ``--split`` of the source's data (its scenes with unknown objects for --anomalies)."""
+    if not opts.anomalies:
+        return build_dataset(config, opts.split, opts.data_root)
+    if not isinstance(settings, StreetScenesSettings) or opts.data_root is not None:
+        raise ValueError("--anomalies needs the procedural scenes: a network trained on them")
+    return settings.dataset(opts.split, anomalies=True)
 
 
 def _shifts(opts: EvalOptions) -> list[Shift]:

@@ -19,6 +19,7 @@ import torch.distributed as dist
 from costseg import workers
 from costseg.calibration.scaling import Scaling
 from costseg.classes import CLASS_NAMES, NUM_ROIS
+from costseg.evaluation.anomalies import AnomalyPass
 from costseg.evaluation.held_out import certify, fit_scaling
 from costseg.evaluation.plan import EvalPlan, plan, rank
 from costseg.meta.collect import SegmentCollector, SegmentResults
@@ -154,9 +155,11 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> 
     desc = "evaluate" if opts.progress and rank() == 0 else None
     described = opts.meta or opts.save_segments
     collector = SegmentCollector(plan.groups[named].rules, opts.num_examples) if described else None
+    unknown = AnomalyPass(plan.groups[named].rules, len(CLASS_NAMES)) if opts.anomalies else None
     with torch.inference_mode():
-        # images with uncertainty maps (the segments' MI needs them on every image)
-        mapped = None if opts.save_probs or described else opts.num_examples
+        # images with uncertainty maps (the segments' and the anomaly scores' MI: every image)
+        every = opts.save_probs or described or opts.anomalies
+        mapped = None if every else opts.num_examples
         source, workers = plan.source, plan.num_workers
         for batch in batches(
             source, plan.dataset, plan.indices, plan.batch_size, device, workers, desc, mapped
@@ -180,12 +183,17 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> 
             if collector is not None:
                 entropy = batch.expected_entropy
                 collector.add(probs, preds[named], batch.labels, priors, entropy, batch.stems)
+            if unknown is not None:
+                entropy = batch.expected_entropy
+                unknown.update(probs, batch.anomalies, preds[named], priors, entropy)
             kept = opts.explorer and probs
             shown = torch.cat([preds[g] for g in masked], 1)
             _keep_examples(examples, opts.num_examples, batch, shown, kept, uncertainty)
             if after_batch:
                 after_batch(examples)
     extra["ece"] = {k: m.compute() for k, m in ece.items()}
+    if unknown is not None:
+        extra["anomalies"] = unknown.result()
     segments = None
     if collector is not None:
         models = extra.pop("meta_models", None) if opts.meta else None

@@ -178,6 +178,7 @@ class Batch:
     scores: Tensor  # (B, N, H, W) logits or probabilities (see Source.kind)
     instances: Tensor | None = None  # (B, H, W) int64 instance ids, where the dataset has them
     expected_entropy: Tensor | None = None  # (B, H, W) E_t H(p_t) over several runs, else None
+    anomalies: Tensor | None = None  # (B, H, W) anomaly masks (1, 0, 255), where the data has them
 
 
 def batches(
@@ -195,7 +196,8 @@ def batches(
     first ``entropy_images`` images (None: every batch; the entropy costs a pass per run).
 
     Images of different sizes (Mapillary, a user's own data) come in separate batches. Datasets
-    with ``has_instances`` give each batch its instance ids (``docs/definitions.md §9``).
+    with ``has_instances`` give each batch its instance ids (``docs/definitions.md §9``), those
+    with ``has_anomalies`` also its anomaly masks (§17).
     """
     loader = DataLoader(
         _Indexed(dataset, list(indices)),
@@ -206,39 +208,46 @@ def batches(
     seen = 0
     with workers.loader_errors(f"{len(indices)} images"):
         for group in progress(loader, desc):
-            for images, labels, chosen, ids in group:
+            for images, labels, chosen, ids, masks in group:
                 images, labels = images.to(device), labels.to(device)
                 stems = image_stems(dataset, chosen)
                 ids = None if ids is None else ids.to(device)
+                masks = None if masks is None else masks.to(device)
                 if entropy_images is None or seen < entropy_images:
                     scores, expected_entropy = source.scores_and_entropy(images, stems)
                 else:
                     scores, expected_entropy = source.scores(images, stems), None
                 seen += len(images)
-                yield Batch(images, labels, stems, scores, ids, expected_entropy)
+                yield Batch(images, labels, stems, scores, ids, expected_entropy, masks)
 
 
 class _Indexed(Dataset):
-    """(image, label, index, instance ids or None) of the chosen items of a dataset."""
+    """(image, label, index, instance ids or None, anomaly mask or None) of the chosen items of a
+    dataset."""
 
     def __init__(self, dataset: Dataset, indices: list[int]) -> None:
         self.dataset, self.indices = dataset, indices
         self.instances = bool(getattr(dataset, "has_instances", False))
+        self.anomalies = bool(getattr(dataset, "has_anomalies", False))
 
     def __len__(self) -> int:
         return len(self.indices)
 
     def __getitem__(self, i: int):
+        index = self.indices[i]
+        if self.anomalies:
+            image, label, ids, mask = self.dataset.with_anomalies(index)
+            return image, label, index, ids, mask
         if self.instances:
-            image, label, ids = self.dataset.with_instances(self.indices[i])
-            return image, label, self.indices[i], ids
-        image, label = self.dataset[self.indices[i]]
-        return image, label, self.indices[i], None
+            image, label, ids = self.dataset.with_instances(index)
+            return image, label, index, ids, None
+        image, label = self.dataset[index]
+        return image, label, index, None, None
 
 
 def _collate_by_size(items) -> list[tuple]:
     """A batch as sub-batches of equal image size (datasets may mix resolutions):
-    (images, labels, indices, instance ids or None)."""
+    (images, labels, indices, instance ids or None, anomaly masks or None)."""
     by_size: dict[tuple[int, ...], list] = {}
     for item in items:
         by_size.setdefault(tuple(item[1].shape), []).append(item)
@@ -248,6 +257,7 @@ def _collate_by_size(items) -> list[tuple]:
             torch.stack([i[1] for i in same]),
             [i[2] for i in same],
             None if same[0][3] is None else torch.stack([i[3] for i in same]),
+            None if same[0][4] is None else torch.stack([i[4] for i in same]),
         )
         for same in by_size.values()
     ]

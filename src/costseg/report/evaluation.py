@@ -13,6 +13,7 @@ from torch.utils.tensorboard import SummaryWriter
 
 from costseg.classes import CLASS_NAMES, ROI_NAMES
 from costseg.metrics.names import DEFER_RULE_RATES, ERROR_COLUMNS, INSTANCE_COLUMNS
+from costseg.report.anomalies import anomaly_json, anomaly_table
 from costseg.report.drawing import Drawing, Job, figure_path, job
 from costseg.report.early_figures import EarlyFigures, example_figures, mask_names, plan_figures
 from costseg.report.figures import heatmap_grid_figures
@@ -67,6 +68,8 @@ def write_evaluation(results: EvalResults, early: EarlyFigures) -> None:
     tables = _tables(headline, named, _probability_note(results)) + _risk_coverage_table(results)
     if meta := meta_table(results.segments):
         tables += "\n\n" + meta + "\n"
+    if unknown := anomaly_table(results.extra.get("anomalies")):
+        tables += "\n\n" + unknown + "\n"
     write_text(out / "table.md", tables)
     write_csv(out / "results.csv", rows)
     write_json(out / "results.json", _json(results, rows))
@@ -195,6 +198,7 @@ def _json(results: EvalResults, rows: list[dict]) -> dict:
         "instances": results.extra.get("instances"),
         "scaling": results.extra.get("scaling"),
         "meta": meta_json(results.segments),
+        "anomalies": anomaly_json(results.extra.get("anomalies")),
         **_calibration(results),
     }
 

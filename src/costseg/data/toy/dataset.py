@@ -140,20 +140,23 @@ class StreetScenes(Dataset):
         """Every scene holds unknown objects (:meth:`with_anomalies`)."""
         return self.anomalies
 
-    def with_anomalies(self, index: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Item ``index`` with its (H, W) int64 anomaly mask: 1 = unknown object, 0 = a known
-        class, 255 = ignored (SegmentMeIfYouCan's encoding; ``docs/definitions.md §17``).
+    def with_anomalies(
+        self, index: int
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Item ``index`` with its instance ids and its (H, W) int64 anomaly mask: 1 = unknown
+        object, 0 = a known class, 255 = ignored (SegmentMeIfYouCan's encoding;
+        ``docs/definitions.md §17``).
 
         >>> scenes = StreetScenes("val", 1, (64, 128), anomalies=True)
-        >>> _, label, mask = scenes.with_anomalies(0)
+        >>> _, label, _, mask = scenes.with_anomalies(0)
         >>> bool((mask == 1).any()), bool((label[mask == 1] == 255).all())
         (True, True)
         """
         if not self.anomalies:
             raise ValueError("these scenes hold no unknown objects: StreetScenes(anomalies=True)")
-        image, label, _, mask = self._item(index, instances=False)
-        assert mask is not None
-        return image, label, mask
+        image, label, ids, mask = self._item(index, instances=True)
+        assert ids is not None and mask is not None
+        return image, label, ids, mask
 
     def with_instances(self, index: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Item ``index`` with its (H, W) int64 instance ids (``docs/definitions.md §9``).

@@ -28,7 +28,7 @@ from torch import Tensor
 
 from costseg.classes import IGNORE_INDEX
 
-BINS = 1000
+BINS = 10_000
 TAUS = tuple(round(0.25 + 0.05 * i, 2) for i in range(11))  # 0.25, 0.30, ..., 0.75
 DELTAS = tuple(round(0.1 * i, 1) for i in range(1, 10))  # thresholds of the anomaly prediction
 EIGHT = np.ones((3, 3), dtype=bool)
