@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 from sklearn.metrics import average_precision_score, roc_auc_score, roc_curve
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from costseg.checkpoints import find_checkpoint
 from costseg.cli import evaluate_main
@@ -186,6 +187,8 @@ def test_evaluate_with_anomalies_end_to_end(tiny_run, tmp_path):
     want = roc_auc_score(np.concatenate(labels), np.concatenate(scores))
     assert found["scores"]["max_softmax"]["auroc"] == pytest.approx(want, abs=2e-3)
     assert "## Unknown objects" in (out / "table.md").read_text()
+    logged = EventAccumulator(str(out)).Reload().Scalars("evaluation/anomaly/auroc/max_softmax")
+    assert logged[0].value == pytest.approx(found["scores"]["max_softmax"]["auroc"])
 
 
 def test_anomalies_need_the_procedural_scenes(tiny_run, tmp_path, cityscapes_root, capsys):

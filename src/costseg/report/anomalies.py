@@ -6,8 +6,11 @@ from __future__ import annotations
 
 from typing import Any
 
+from torch.utils.tensorboard import SummaryWriter
+
 from costseg.classes import CLASS_NAMES
 from costseg.report.tables import markdown_table
+from costseg.report.tensorboard import log_scalars
 
 SCORE_COLUMNS = ("auroc", "ap", "fpr95", "delta", "pixel_f1", "siou", "ppv", "mean_f1")
 SHOWN_CLASSES = 4  # the classes a rule gives most anomaly pixels, in table.md
@@ -56,3 +59,9 @@ def anomaly_table(found: dict[str, Any] | None) -> str:
             markdown_table(decided, percent=[]),
         ]
     )
+
+
+def log_anomalies(writer: SummaryWriter, found: dict[str, Any] | None) -> None:
+    """Every score's metrics as ``evaluation/anomaly/<metric>/<score>`` scalars."""
+    for name, values in (found or {}).get("scores", {}).items():
+        log_scalars(writer, {f"evaluation/anomaly/{k}/{name}": values[k] for k in SCORE_COLUMNS}, 0)

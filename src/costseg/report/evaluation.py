@@ -13,7 +13,7 @@ from torch.utils.tensorboard import SummaryWriter
 
 from costseg.classes import CLASS_NAMES, ROI_NAMES
 from costseg.metrics.names import DEFER_RULE_RATES, ERROR_COLUMNS, INSTANCE_COLUMNS
-from costseg.report.anomalies import anomaly_json, anomaly_table
+from costseg.report.anomalies import anomaly_json, anomaly_table, log_anomalies
 from costseg.report.drawing import Drawing, Job, figure_path, job
 from costseg.report.early_figures import EarlyFigures, example_figures, mask_names, plan_figures
 from costseg.report.figures import heatmap_grid_figures
@@ -76,6 +76,7 @@ def write_evaluation(results: EvalResults, early: EarlyFigures) -> None:
     with summary_writer(out) as writer:
         log_table(writer, "evaluation/table", tables)
         log_evaluation(writer, results, rows)
+        log_anomalies(writer, results.extra.get("anomalies"))
         if calibration := calibration_rows(results.extra.get("ece", {})):
             log_table(writer, "evaluation/calibration", markdown_table(calibration))
         shown = mask_names([g.group for g in results.groups])
