@@ -30,20 +30,21 @@ from costseg.cli import user_errors
 ROOT = Path(__file__).resolve().parents[1]
 RULES = ["robotistic", "altruistic", "egoistic", "ml"]
 TEMPERATURE = ["--calibrate", "temperature", "--calibration_split", "test"]
-# name → the configs/losses/ file composed with toy.yaml (None: toy.yaml's cross-entropy)
+# name in the tables → the configs/losses/ file composed with toy.yaml (None: its cross-entropy),
+# whose name is also the model's folder
 LOSSES = {
     "cross-entropy": None,
-    "weighted (altruistic)": "losses/weighted_altruistic",
-    "focal (γ = 2)": "losses/focal",
-    "logit-adjusted (τ = 1, pixel priors)": "losses/logit_adjusted",
-    "CE + expected altruistic cost (λ = 1)": "losses/expected_cost_altruistic",
+    "weighted (altruistic)": "weighted_altruistic",
+    "focal (γ = 2)": "focal",
+    "logit-adjusted (τ = 1, pixel priors)": "logit_adjusted",
+    "CE + expected altruistic cost (λ = 1)": "expected_cost_altruistic",
 }
 PERSON_COLUMNS = ("precision", "recall", "instance_recall", "missed_instances")
 SEGMENT_COLUMNS = ("fp_segments", "fn_segments")
 
 
 def folder_name(name: str) -> str:
-    return "".join(c if c.isalnum() else "_" for c in name.split(" (")[0]).strip("_")
+    return LOSSES[name] or "cross_entropy"
 
 
 def train(name: str, runs: Path, max_steps: int | None) -> tuple[Path, float]:
@@ -55,7 +56,7 @@ def train(name: str, runs: Path, max_steps: int | None) -> tuple[Path, float]:
         return Path(record["checkpoint"]), record["seconds"]
     command = [sys.executable, "train.py", "--config", "toy"]
     if LOSSES[name]:
-        command += ["--config", LOSSES[name]]
+        command += ["--config", f"losses/{LOSSES[name]}"]
     command += ["--trainer.logger.init_args.save_dir", str(runs)]
     command += ["--trainer.logger.init_args.name", run.name]
     if max_steps is not None:
