@@ -163,7 +163,7 @@ def test_evaluate_with_anomalies_end_to_end(tiny_run, tmp_path):
     out = tmp_path / "eval"
     evaluate_main(
         ["--ckpt_path", str(ckpt), "--cost", "robotistic", "altruistic", "--anomalies",
-         "--limit", "3", "--num_examples", "0", "--no-progress", "--save-probs",
+         "--limit", "3", "--num_examples", "1", "--no-progress", "--save-probs",
          "--output_dir", str(out)]
     )  # fmt: skip
     found = json.loads((out / "results.json").read_text())["anomalies"]
@@ -187,8 +187,11 @@ def test_evaluate_with_anomalies_end_to_end(tiny_run, tmp_path):
     want = roc_auc_score(np.concatenate(labels), np.concatenate(scores))
     assert found["scores"]["max_softmax"]["auroc"] == pytest.approx(want, abs=2e-3)
     assert "## Unknown objects" in (out / "table.md").read_text()
-    logged = EventAccumulator(str(out)).Reload().Scalars("evaluation/anomaly/auroc/max_softmax")
+    events = EventAccumulator(str(out)).Reload()
+    logged = events.Scalars("evaluation/anomaly/auroc/max_softmax")
     assert logged[0].value == pytest.approx(found["scores"]["max_softmax"]["auroc"])
+    assert (out / "figures" / "anomaly_maps_0.png").is_file()
+    assert "evaluation/anomaly_maps_0" in events.Tags()["images"]
 
 
 def test_anomalies_need_the_procedural_scenes(tiny_run, tmp_path, cityscapes_root, capsys):

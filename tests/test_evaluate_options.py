@@ -72,7 +72,7 @@ def test_vertex_scaling_mean_mixes_vertices_of_unit_mean_cost(ckpt, tmp_path):
     rows = json.loads((out / "sweep.json").read_text())["rows"]
     plain = [load_cost(n).double() for n in VERTICES]
     off = ~torch.eye(19, dtype=torch.bool)
-    scaled = [c / (sum(c[off].tolist()) / (19 * 18)) for c in plain]
+    scaled = [c / (math.fsum(c[off].tolist()) / (19 * 18)) for c in plain]
     val = _split("val", 3)
     probs = [_saved(out, f"val_{i:06d}") for i in range(3)]
     differs = False

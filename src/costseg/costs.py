@@ -219,25 +219,37 @@ def symmetric_cost(
 
 def rescale(cost: torch.Tensor) -> torch.Tensor:
     """Scale ``cost`` to unit mean off-diagonal cost (same decisions, different mixtures); a
-    defer row is scaled alike.
+    defer row is scaled alike. The mean is correctly rounded (``math.fsum``), so the scaled
+    matrix is the same on every machine, whatever order a vectorised sum would take.
 
     >>> rescale(4 * load_cost("robotistic")).max().item()
     1.0
     """
     n = cost.shape[-1]
     off = ~torch.eye(n, dtype=torch.bool, device=cost.device)
-    return cost / cost[..., :n, :][..., off].mean(-1)[..., None, None]
+    values = cost[..., :n, :][..., off].double()
+    means = [
+        math.fsum(row) / values.shape[-1] for row in values.reshape(-1, values.shape[-1]).tolist()
+    ]
+    mean = torch.tensor(means, dtype=cost.dtype, device=cost.device).reshape(values.shape[:-1])
+    return cost / mean[..., None, None]
 
 
 def mix_costs(vertices: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
     """Mixtures ``Σ_v w_v C_v``: vertices (V, R, N), weights (K, V) → (K, R, N) (R = N, or N + 1
-    with defer rows).
+    with defer rows), summed in the order of the vertices, ``(w_0 C_0 + w_1 C_1) + w_2 C_2``,
+    one rounding per product and per sum on every machine (a matrix product may fuse them, and
+    the explorer page mixes in this order).
 
     >>> mix_costs(torch.stack([load_cost("robotistic")] * 2), torch.tensor([[0.5, 0.5]])).shape
     torch.Size([1, 19, 19])
     """
     weights = torch.as_tensor(weights, dtype=torch.float64, device=vertices.device)
-    return torch.einsum("kv,vij->kij", weights, vertices.to(torch.float64))
+    vertices = vertices.to(torch.float64)
+    mixed = weights[:, 0, None, None] * vertices[0]
+    for v in range(1, vertices.shape[0]):
+        mixed = mixed + weights[:, v, None, None] * vertices[v]
+    return mixed
 
 
 def barycentric_grid(step: float) -> torch.Tensor:

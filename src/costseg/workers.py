@@ -42,6 +42,7 @@ PRELOAD = [
     "costseg.report.priors",
     "costseg.report.uncertainty",
     "costseg.report.segment_figures",
+    "costseg.report.anomaly_figures",
     "costseg.data.toy",
 ]
 """Modules the forkserver imports once, so that a worker forked from it starts at once: the

@@ -4,8 +4,8 @@
 Scores per pixel, each in [0, 1], higher = more likely unknown: ``max_softmax`` 1 − max p;
 ``entropy`` the normalised entropy E of §15; ``mutual_information`` MI / log N, where the source
 has several runs (Monte-Carlo dropout, an ensemble); ``cost_margin/<rule>`` 1 / (1 + R) with R
-the rule's cost margin (§15) in units of its mean off-diagonal cost (so that a matrix whose costs
-span 0.1 to 1000 keeps its margins apart), for every named rule.
+the rule's cost margin (§15) in units of its smallest off-diagonal cost (the altruistic matrix's
+costs span 0.1 to 1000, and its margins lie between its small costs), for every named rule.
 """
 
 from __future__ import annotations
@@ -33,36 +33,42 @@ def anomaly_scores(
     if "MI" in maps:
         scores["mutual_information"] = maps["MI"] / math.log(probs.shape[1])
     for rule in rules:
-        margin = cost_margin(probs, rule, priors) * _max_over_mean_cost(rule, probs.shape[1])
+        margin = cost_margin(probs, rule, priors) * _max_over_min_cost(rule, probs.shape[1])
         scores[f"cost_margin/{rule.name}"] = 1 / (1 + margin)
     return scores
 
 
-def _max_over_mean_cost(rule: Rule, n: int) -> float:
-    """R is in units of the largest off-diagonal cost; this turns it into units of the mean."""
+def _max_over_min_cost(rule: Rule, n: int) -> float:
+    """R is in units of the largest off-diagonal cost; this turns it into units of the
+    smallest."""
     cost = symmetric_cost(n) if rule.cost is None else rule.cost[:n]
     off = cost[~torch.eye(n, dtype=torch.bool)]
-    return float(off.max() / off.mean())
+    return float(off.max() / off.min())
 
 
 class AnomalyPass:
     """The anomaly metrics of one evaluation, fed batch by batch (the scores' names are known at
     the first batch: mutual information only where the source has several runs)."""
 
-    def __init__(self, rules: Sequence[Rule], num_classes: int) -> None:
-        self.rules, self.num_classes = list(rules), num_classes
+    def __init__(self, rules: Sequence[Rule], num_classes: int, num_examples: int) -> None:
+        self.rules, self.num_classes, self.num_examples = list(rules), num_classes, num_examples
         self.metric: AnomalyMetrics | None = None
+        self.examples: list[tuple[Tensor, Tensor, dict[str, Tensor]]] = []  # for the figures
 
     def update(
         self,
+        images: Tensor,
         probs: Tensor,
         masks: Tensor,
         preds: Tensor,
         priors: Tensor | None,
         expected_entropy: Tensor | None,
     ) -> None:
-        """``preds``: (B, R, H, W) the named rules' label maps."""
+        """``images`` (B, 3, H, W) uint8; ``preds``: (B, R, H, W) the named rules' label maps."""
         scores = anomaly_scores(probs, self.rules, priors, expected_entropy)
+        for i in range(min(len(images), self.num_examples - len(self.examples))):
+            maps = {k: v[i].half().cpu() for k, v in scores.items()}
+            self.examples.append((images[i].permute(1, 2, 0).cpu(), masks[i].cpu(), maps))
         if self.metric is None:
             self.metric = AnomalyMetrics(list(scores), len(self.rules), self.num_classes)
             self.metric.to(probs.device)

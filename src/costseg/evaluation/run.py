@@ -155,7 +155,9 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> 
     desc = "evaluate" if opts.progress and rank() == 0 else None
     described = opts.meta or opts.save_segments
     collector = SegmentCollector(plan.groups[named].rules, opts.num_examples) if described else None
-    unknown = AnomalyPass(plan.groups[named].rules, len(CLASS_NAMES)) if opts.anomalies else None
+    unknown = None
+    if opts.anomalies:
+        unknown = AnomalyPass(plan.groups[named].rules, len(CLASS_NAMES), opts.num_examples)
     with torch.inference_mode():
         # images with uncertainty maps (the segments' and the anomaly scores' MI: every image)
         every = opts.save_probs or described or opts.anomalies
@@ -185,7 +187,7 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> 
                 collector.add(probs, preds[named], batch.labels, priors, entropy, batch.stems)
             if unknown is not None:
                 entropy = batch.expected_entropy
-                unknown.update(probs, batch.anomalies, preds[named], priors, entropy)
+                unknown.update(batch.images, probs, batch.anomalies, preds[named], priors, entropy)
             kept = opts.explorer and probs
             shown = torch.cat([preds[g] for g in masked], 1)
             _keep_examples(examples, opts.num_examples, batch, shown, kept, uncertainty)
@@ -193,7 +195,7 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> 
                 after_batch(examples)
     extra["ece"] = {k: m.compute() for k, m in ece.items()}
     if unknown is not None:
-        extra["anomalies"] = unknown.result()
+        extra["anomalies"] = unknown.result() | {"examples": unknown.examples}
     segments = None
     if collector is not None:
         models = extra.pop("meta_models", None) if opts.meta else None

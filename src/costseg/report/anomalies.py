@@ -9,6 +9,8 @@ from typing import Any
 from torch.utils.tensorboard import SummaryWriter
 
 from costseg.classes import CLASS_NAMES
+from costseg.report.anomaly_figures import anomaly_map_figures
+from costseg.report.drawing import Job, job
 from costseg.report.tables import markdown_table
 from costseg.report.tensorboard import log_scalars
 
@@ -34,6 +36,13 @@ def anomaly_json(found: dict[str, Any] | None) -> dict[str, Any] | None:
         return None
     decided = {rule: decided_shares(counts) for rule, counts in found["decided"].items()}
     return {"scores": found["scores"], "decided": decided, "decided_pixels": found["decided"]}
+
+
+def anomaly_jobs(found: dict[str, Any] | None) -> list[tuple[str, Job]]:
+    """The figure job of the example images' score maps (none without ``--anomalies``)."""
+    if not found or not found.get("examples"):
+        return []
+    return [("evaluation", job(anomaly_map_figures, found["examples"]))]
 
 
 def anomaly_table(found: dict[str, Any] | None) -> str:

@@ -13,7 +13,7 @@ from torch.utils.tensorboard import SummaryWriter
 
 from costseg.classes import CLASS_NAMES, ROI_NAMES
 from costseg.metrics.names import DEFER_RULE_RATES, ERROR_COLUMNS, INSTANCE_COLUMNS
-from costseg.report.anomalies import anomaly_json, anomaly_table, log_anomalies
+from costseg.report.anomalies import anomaly_jobs, anomaly_json, anomaly_table, log_anomalies
 from costseg.report.drawing import Drawing, Job, figure_path, job
 from costseg.report.early_figures import EarlyFigures, example_figures, mask_names, plan_figures
 from costseg.report.figures import heatmap_grid_figures
@@ -96,7 +96,7 @@ def write_evaluation(results: EvalResults, early: EarlyFigures) -> None:
         if not early.examples_started:
             jobs.append(("evaluation", example_figures(shown, results.examples)))
         jobs += write_sweeps(results) + _figures(results) + write_calibration(results)
-        jobs += write_segments(results, writer)
+        jobs += write_segments(results, writer) + anomaly_jobs(results.extra.get("anomalies"))
         _draw_and_log(writer, jobs, early.drawing)
     if results.options.get("explorer"):
         from costseg.report.explorer_points import write_evaluation_explorer

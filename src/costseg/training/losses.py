@@ -141,7 +141,8 @@ def cost_weights(cost: Tensor) -> Tensor:
     """Class weights from a cost matrix (rows predicted, columns true): the mean cost of missing
     class j, ``w_j = mean_{k≠j} C[k, j]``, normalised to mean 1 over the classes.
 
-    >>> cost_weights(torch.tensor([[0., 1., 3.], [1., 0., 3.], [1., 1., 0.]])).tolist()
+    >>> cost = torch.tensor([[0, 1, 3], [1, 0, 3], [1, 1, 0]], dtype=torch.float64)
+    >>> [round(w, 6) for w in cost_weights(cost).tolist()]
     [0.6, 0.6, 1.8]
     """
     n = cost.shape[-1]
