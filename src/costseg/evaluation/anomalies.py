@@ -21,8 +21,6 @@ from costseg.meta.heat_maps import cost_margin, heat_maps
 from costseg.metrics.anomaly import AnomalyMetrics
 from costseg.rules import Rule
 
-PLAIN_SCORES = ("max_softmax", "entropy")
-
 
 def anomaly_scores(
     probs: Tensor, rules: Sequence[Rule], priors: Tensor | None, expected_entropy: Tensor | None
