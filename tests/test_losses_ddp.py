@@ -1,15 +1,12 @@
 """A training step under two DDP processes (gloo, CPU) gives each loss and its gradient of one
-process on the whole batch, although the processes hold different numbers of valid pixels."""
+process on the whole batch, although the processes hold different numbers of valid pixels. The
+processes are the ones :mod:`test_metrics_ddp` starts (each spawn costs seconds)."""
 
 from __future__ import annotations
 
-import os
-
 import torch
 import torch.distributed as dist
-import torch.multiprocessing as mp
 from test_losses import CLASSES, make_losses
-from test_metrics_ddp import free_port
 from torch import nn
 from torch.nn.parallel import DistributedDataParallel
 
@@ -44,30 +41,30 @@ def step(net: nn.Module, loss: nn.Module, images, labels) -> tuple[float, list[t
     return logged.item(), [p.grad.clone() for p in net.parameters()]
 
 
-def worker(rank: int, port: int, expected: list[tuple[float, list[torch.Tensor]]]) -> None:
-    os.environ |= {"MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(port)}
-    dist.init_process_group("gloo", rank=rank, world_size=WORLD)
-    try:
-        images, labels = data()
-        half = slice(2 * rank, 2 * rank + 2)
-        for loss, (want_loss, want_grads) in zip(make_losses(), expected, strict=True):
-            net = DistributedDataParallel(network())
-            got_loss, got_grads = step(net, loss, images[half], labels[half])
-            name = type(loss).__name__
-            assert abs(got_loss - want_loss) <= 1e-6 * abs(want_loss), (name, got_loss, want_loss)
-            for got, want in zip(got_grads, want_grads, strict=True):
-                torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-7, msg=name)
-    finally:
-        dist.destroy_process_group()
-
-
-def test_two_process_training_step_equals_one_process_on_the_whole_batch() -> None:
+def expected_losses() -> list[tuple[float, list[torch.Tensor]]]:
+    """Each loss's step on the whole batch in one process."""
     images, labels = data()
-    expected = [step(network(), loss, images, labels) for loss in make_losses()]
-    # the mean of the two halves' own means differs: a per-process mean would fail the test
+    return [step(network(), loss, images, labels) for loss in make_losses()]
+
+
+def check_losses(rank: int, expected: list[tuple[float, list[torch.Tensor]]]) -> None:
+    """In DDP process ``rank`` (of two): each loss's step on this process's half."""
+    images, labels = data()
+    half = slice(2 * rank, 2 * rank + 2)
+    for loss, (want_loss, want_grads) in zip(make_losses(), expected, strict=True):
+        net = DistributedDataParallel(network())
+        got_loss, got_grads = step(net, loss, images[half], labels[half])
+        name = type(loss).__name__
+        assert abs(got_loss - want_loss) <= 1e-6 * abs(want_loss), (name, got_loss, want_loss)
+        for got, want in zip(got_grads, want_grads, strict=True):
+            torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-7, msg=name)
+
+
+def test_a_mean_of_per_process_means_would_differ() -> None:
+    """The check can fail: the halves' own means average to another loss."""
+    images, labels = data()
     cross_entropy, net = make_losses()[0], network()
     halves = [
         batch_mean(cross_entropy(net(images[s]), labels[s]))[0] for s in (slice(0, 2), slice(2, 4))
     ]
-    assert abs((halves[0] + halves[1]).item() / 2 - expected[0][0]) > 1e-3
-    mp.spawn(worker, args=(free_port(), expected), nprocs=WORLD, join=True)
+    assert abs((halves[0] + halves[1]).item() / 2 - expected_losses()[0][0]) > 1e-3

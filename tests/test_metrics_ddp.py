@@ -1,5 +1,6 @@
 """Two CPU processes (gloo), each seeing part of the data, give the single-process metrics: the
-pixel and segment metrics, calibration and instance misses."""
+pixel and segment metrics, calibration and instance misses; and a training step of every loss
+gives the loss and gradients of one process on the whole batch (:mod:`test_losses_ddp`)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import torch.distributed as dist
 import torch.multiprocessing as mp
 from test_calibration import run_ece
 from test_instances import CLASSES, predictions, roi_blocks, scenes
+from test_losses_ddp import check_losses, expected_losses
 
 from costseg.metrics import InstanceMisses, RoIPrecisionRecall, SegmentErrors
 
@@ -65,10 +67,13 @@ FAMILIES = {
 }
 
 
-def worker(rank: int, port: int, expected: dict[str, list[dict[str, torch.Tensor]]]) -> None:
+def worker(
+    rank: int, port: int, expected: dict[str, list[dict[str, torch.Tensor]]], losses
+) -> None:
     os.environ |= {"MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(port)}
     dist.init_process_group("gloo", rank=rank, world_size=WORLD)
     try:
+        check_losses(rank, losses)
         for family, (metrics, shares) in FAMILIES.items():
             for got, want in zip(metrics(shares[rank]), expected[family], strict=True):
                 assert got.keys() == want.keys(), family
@@ -92,4 +97,4 @@ def test_two_process_ddp_equals_single_process() -> None:
     assert expected["pixels and segments"][1]["fn"].sum() > 0
     assert expected["pixels and segments"][1]["fp"].sum() > 0
     assert expected["instances"][0]["missed_instances"].sum() > 0
-    mp.spawn(worker, args=(free_port(), expected), nprocs=WORLD, join=True)
+    mp.spawn(worker, args=(free_port(), expected, expected_losses()), nprocs=WORLD, join=True)

@@ -97,7 +97,7 @@ def test_bad_shifts_are_refused():
 def _evaluate(ckpt, out, *extra):
     evaluate_main(
         ["--ckpt_path", str(ckpt), "--cost", "robotistic", "altruistic", "--classes", "person",
-         "--limit", "4", "--num_examples", "0", "--no-progress", "--output_dir", str(out), *extra]
+         "--limit", "2", "--num_examples", "0", "--no-progress", "--output_dir", str(out), *extra]
     )  # fmt: skip
     return out
 
