@@ -20,23 +20,6 @@ LABEL_IDS = np.array([*range(34), 255], dtype=np.uint8)
 """Every id a ``*_gtFine_labelIds.png`` may hold: 0-33 and license plate's -1 stored as 255."""
 
 
-# Modules whose tests take tens of seconds (processes started, training): collected first, so that
-# each pytest-xdist worker starts with them and the idle one steals short tests at the end, rather
-# than one worker meeting a long test when the other has nothing left.
-LONG_MODULES = (
-    "test_resume_after_kill.py",
-    "test_distributed_eval.py",
-    "test_write_errors.py",
-    "test_decision_triton.py",
-    "test_cli_edges.py",
-    "test_metrics_ddp.py",
-)
-
-
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    items.sort(key=lambda item: Path(str(item.fspath)).name not in LONG_MODULES)  # stable
-
-
 def cityscapes_label_ids(
     item: int, size: tuple[int, int] = CITYSCAPES_SIZE, valid_only: bool = False
 ) -> np.ndarray:
