@@ -34,6 +34,8 @@ from pathlib import Path
 from matplotlib.figure import Figure
 
 from costseg.cli import user_errors
+from costseg.data.shift import parse_shift
+from costseg.evaluation.shifts import shift_folder
 from costseg.report.files import save_figure
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -74,8 +76,7 @@ def anomaly_rows(ckpt: str, out: Path, limit: int | None) -> dict[str, dict]:
               "--anomalies"], out, shifts, limit)  # fmt: skip
     found = {}
     for shift in shifts:
-        name, severity = shift.split(":")
-        results = json.loads((out / f"{name}_{severity}" / "results.json").read_text())
+        results = json.loads((out / shift_folder(parse_shift(shift)) / "results.json").read_text())
         found[shift] = results["anomalies"]["scores"]
     return found
 

@@ -24,6 +24,7 @@ from costseg.metrics.functional.anomaly import (
     best_pixel_f1,
     component_counts,
     component_metrics,
+    ground_truth_components,
     pixel_metrics,
     score_histograms,
 )
@@ -61,10 +62,11 @@ class AnomalyMetrics(Metric):
         W) label maps (255: deferred) or None."""
         self.histograms += score_histograms(scores, mask)
         masks = mask.cpu().numpy()
+        objects = [ground_truth_components(m) for m in masks]  # once per image, not per δ
         for s, score in enumerate(scores.float().cpu().numpy()):
             for d, delta in enumerate(DELTAS):
-                for image, anomaly in zip(score, masks, strict=True):
-                    counts = component_counts(image >= delta, anomaly)
+                for image, anomaly, gt in zip(score, masks, objects, strict=True):
+                    counts = component_counts(image >= delta, anomaly, gt)
                     self.components[s, d] += torch.from_numpy(counts)
         if preds is not None and len(self.decided):
             on = mask == 1

@@ -82,15 +82,23 @@ def best_pixel_f1(hist: Tensor, deltas: tuple[float, ...] = DELTAS) -> tuple[int
     return best, f1[best]
 
 
-def component_counts(prediction: np.ndarray, mask: np.ndarray) -> np.ndarray:
+def ground_truth_components(mask: np.ndarray) -> tuple[np.ndarray, int]:
+    """The 8-connected components of the unknown objects (mask 1): (H, W) ids 1..n, and n."""
+    return ndimage.label(mask == 1, structure=EIGHT)
+
+
+def component_counts(
+    prediction: np.ndarray, mask: np.ndarray, ground_truth: tuple[np.ndarray, int] | None = None
+) -> np.ndarray:
     """(len(TAUS) + 1, 4) float64 of one image: rows per τ (TP, FN, FP, 0), and a last row
     (Σ sIoU, ground-truth components, Σ PPV, predicted components).
 
     Args:
         prediction: (H, W) bool anomaly prediction.
         mask: (H, W) anomaly mask (1, 0, 255).
+        ground_truth: :func:`ground_truth_components` of ``mask``, if already labelled.
     """
-    gt, n_gt = ndimage.label(mask == 1, structure=EIGHT)
+    gt, n_gt = ground_truth_components(mask) if ground_truth is None else ground_truth
     pred, n_pred = ndimage.label(prediction & (mask != IGNORE_INDEX), structure=EIGHT)
     both = np.bincount((gt * (n_pred + 1) + pred).ravel(), minlength=(n_gt + 1) * (n_pred + 1))
     overlap = both.reshape(n_gt + 1, n_pred + 1).astype(np.float64)  # [gt, pred] pixels
