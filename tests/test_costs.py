@@ -133,6 +133,22 @@ def test_inline_aggregate_file_equals_preset(tmp_path):
     assert torch.equal(load_cost(_write(tmp_path, _aggregate_spec())), load_cost("altruistic"))
 
 
+def test_aggregate_table_named_inline_or_packaged(tmp_path):
+    """``aggregates: aggregates.yaml`` outside the repository falls back to the packaged table;
+    a file of that name beside the cost file wins; the bare mapping works inline."""
+    paper = load_cost("altruistic")
+    outside = _write(tmp_path, _aggregate_spec(aggregates="aggregates.yaml"))
+    assert torch.equal(load_cost(outside), paper)
+    inline = _aggregate_spec(aggregates=AGGREGATES, suppressed=["sky"])
+    assert torch.equal(load_cost(_write(tmp_path, inline, "inline.yaml")), paper)
+    moved = {**AGGREGATES, "flat": ["sidewalk"], "static": [*AGGREGATES["static"], "terrain"]}
+    _write(tmp_path, {"aggregates": moved, "suppressed": ["sky"]}, "aggregates.yaml")
+    own = load_cost(outside)
+    terrain, sidewalk, road = (CLASS_NAMES.index(c) for c in ("terrain", "sidewalk", "road"))
+    assert own[road, terrain] == 10 and paper[road, terrain] == 1  # road -> static, not flat
+    assert own[road, sidewalk] == paper[road, sidewalk] == 1
+
+
 @pytest.mark.parametrize(
     ("spec", "message"),
     [

@@ -319,10 +319,22 @@ def full_matrix(spec: dict, class_names: Sequence[str]) -> torch.Tensor:
 
 
 def _aggregate_table(spec: dict, folder: Path | Traversable) -> tuple[dict, list]:
-    """The aggregates' classes by name, and the suppressed classes, of an aggregate cost file."""
+    """The aggregates' classes by name, and the suppressed classes, of an aggregate cost file.
+
+    ``aggregates`` names a table file (beside the cost file, else the packaged one of that
+    name) or is the table itself: ``{aggregate: [classes]}``, with ``suppressed`` beside it.
+    """
     table = spec["aggregates"]
     if isinstance(table, str):
-        table = read_yaml(folder / table)
+        beside, packaged = folder / table, COSTS_DIR / table
+        table = read_yaml(packaged if not beside.is_file() and packaged.is_file() else beside)
+    elif isinstance(table, dict) and "aggregates" not in table:
+        table = {"aggregates": table, "suppressed": spec.get("suppressed", [])}
+    if not (isinstance(table, dict) and isinstance(table.get("aggregates"), dict)):
+        raise ValueError(
+            "cost file: 'aggregates' must name a table file (e.g. aggregates.yaml) or map each "
+            "aggregate to its classes"
+        )
     return dict(table["aggregates"]), list(table.get("suppressed", []))
 
 
