@@ -242,6 +242,17 @@ class SourceOptions(NetworkOptions):
         help="Cityscapes root (needed for --network/--probs of other networks)"
     )
     split: Literal["train", "val", "test"] = option("val", "the split to run on")
+    priors: str | None = option(
+        help="pixel-wise priors file (a run's priors.pt, or scripts/count_priors.py's from a "
+        "label folder) for ml and the RoI map; default: the checkpoint's for its own data, else "
+        "counted from the data's train labels",
+        metavar="FILE",
+    )
+    roi: Literal["priors", "geometric"] = option(
+        "priors",
+        "regions of interest from the priors, or the fixed geometric map of a street camera "
+        "(docs/definitions.md §3) for data without training labels",
+    )
     overwrite: bool = option(False, "allow an --output_dir that holds results")
     limit: int | None = option(help="only the first N images", type=whole_number(1))
     batch_size: int | None = option(help="images per batch", type=whole_number(1))

@@ -92,12 +92,9 @@ class CityscapesSegmentation(Dataset[tuple[Tensor, Tensor]]):
         image_path, label_path = self.files[index]
         image = _decode(image_path, rgb=True)
         label = self._train_ids(label_path)
-        if image.shape[-2:] != label.shape:
-            raise ValueError(
-                f"{image_path} is {tuple(image.shape[-2:])} (H, W) but its label {label_path} "
-                f"is {tuple(label.shape)}; expected equal sizes"
-            )
         if self.transform is not None:
+            if image.shape[-2:] != label.shape:  # training crops image and label together
+                image = F.resize(image, list(label.shape), antialias=True)
             image, label = self.transform(tv_tensors.Image(image), tv_tensors.Mask(label))
         return image.as_subclass(Tensor), label.as_subclass(Tensor).long()
 

@@ -101,6 +101,39 @@ def data_settings(
         raise ValueError(f"data configuration of {kind.__name__}: {err}") from None
 
 
+def evaluated_data(config: dict[str, Any] | None, root: str | Path | None) -> dict[str, Any]:
+    """The data configuration an evaluation reads: ``config``, or Cityscapes at ``root``
+    (absolute) when a root replaces it.
+
+    >>> evaluated_data(None, "/data/cs")["init_args"]
+    {'root': '/data/cs'}
+    """
+    if root is None:
+        if config is None:
+            raise ValueError("no dataset named: pass --data_root")
+        return config
+    cityscapes = "costseg.data.datamodule.CityscapesDataModule"
+    return {"class_path": cityscapes, "init_args": {"root": str(Path(root).resolve())}}
+
+
+def same_data(counted_on: dict[str, Any] | None, evaluated: dict[str, Any]) -> bool:
+    """Whether priors counted on the data ``counted_on`` describes belong to ``evaluated``: the
+    same procedural world, or Cityscapes at the same root (docs/definitions.md §3).
+
+    >>> toy = {"class_path": "costseg.data.datamodule.StreetScenesDataModule", "init_args": {}}
+    >>> same_data(toy, toy), same_data(toy, evaluated_data(None, "/data/cs"))
+    (True, False)
+    """
+    if counted_on is None:
+        return False
+    before, now = data_settings(counted_on), data_settings(evaluated)
+    if isinstance(now, CityscapesSettings):
+        return isinstance(before, CityscapesSettings) and (
+            Path(before.root).resolve() == Path(now.root).resolve()
+        )
+    return before == now
+
+
 def build_dataset(config: dict[str, Any], split: str, root: str | Path | None = None) -> Dataset:
     """The un-augmented ``split`` of the dataset described by ``config``.
 

@@ -19,7 +19,7 @@ from torch import Tensor
 from torch.utils.data import Dataset
 
 from costseg.classes import CLASS_NAMES
-from costseg.data.priors import resize_priors, roi_map
+from costseg.data.priors import geometric_roi_map, resize_priors, roi_map
 
 MAX_CANVAS_WIDTH = 512
 
@@ -28,9 +28,11 @@ class PriorMaps:
     """Priors (N, H, W) and RoI map (H, W) per image size, resized on first use and kept.
 
     Args:
-        priors: (N, H, W) priors at label resolution, or None (then ``at`` gives Nones).
+        priors: (N, H, W) priors at label resolution, or None (then ``at`` gives no priors).
         class_names: class per channel (must include the RoI classes).
         device: where the resized maps live.
+        geometric: RoIs from :func:`~costseg.data.priors.geometric_roi_map` at each size instead
+            of the priors' map (data without training labels, docs/definitions.md §3).
     """
 
     def __init__(
@@ -38,26 +40,34 @@ class PriorMaps:
         priors: Tensor | None,
         class_names: Sequence[str] = CLASS_NAMES,
         device: torch.device | None = None,
+        geometric: bool = False,
     ) -> None:
         self.priors = None if priors is None else priors.to(device or "cpu")
         self.class_names = class_names
-        self._cache: dict[tuple[int, int], tuple[Tensor, Tensor]] = {}
+        self.device = device
+        self.geometric = geometric
+        self._cache: dict[tuple[int, int], tuple[Tensor | None, Tensor | None]] = {}
 
     def at(self, size: tuple[int, int]) -> tuple[Tensor | None, Tensor | None]:
-        """(priors (N, h, w), roi (h, w)) at ``size``; (None, None) without priors."""
-        if self.priors is None:
-            return None, None
+        """(priors (N, h, w) or None, roi (h, w) or None) at ``size``."""
         size = (int(size[0]), int(size[1]))
         if size not in self._cache:
-            resized = resize_priors(self.priors, size)
-            self._cache[size] = (resized, roi_map(resized, self.class_names))
+            resized = None if self.priors is None else resize_priors(self.priors, size)
+            self._cache[size] = (resized, self._roi(resized, size))
         return self._cache[size]
 
-    def roi_map(self) -> Tensor | None:
-        """(H, W) RoI map at the priors' own resolution (CPU), or None."""
-        if self.priors is None:
-            return None
-        return roi_map(self.priors, self.class_names).cpu()
+    def roi_map(self, size: tuple[int, int] | None = None) -> Tensor | None:
+        """(H, W) RoI map (CPU) at the priors' own resolution, or at ``size`` (the geometric
+        map's default: 256 x 512); None without priors and without the geometric map."""
+        if size is None and self.priors is not None:
+            size = tuple(self.priors.shape[-2:])
+        roi = self._roi(self.priors, size or (256, 512))
+        return None if roi is None else roi.cpu()
+
+    def _roi(self, priors: Tensor | None, size: tuple[int, int]) -> Tensor | None:
+        if self.geometric:
+            return geometric_roi_map(size).to(self.device or "cpu")
+        return None if priors is None else roi_map(priors, self.class_names)
 
 
 def heatmap_canvas(dataset: Dataset) -> tuple[int, int]:

@@ -172,6 +172,42 @@ def roi_map(pi: Tensor, class_names: Sequence[str] = CLASS_NAMES) -> Tensor:
     return roi.argmax(dim=0) + 1
 
 
+GEOMETRIC_HORIZON = 0.45
+"""Row of the geometric RoI map's horizon, as a fraction of the height (docs/definitions.md §3)."""
+
+
+def geometric_roi_map(size: tuple[int, int]) -> Tensor:
+    """The fixed RoI map of a forward-facing street camera, for data without training labels
+    (docs/definitions.md §3): with u, v the pixel centre's column and row as fractions of the
+    width and height and d = |u − 1/2|, below the horizon (v ≥ 0.45) the street is the wedge
+    d ≤ 0.15 + 0.6 (v − 0.45) and the sidewalk the rest; above it the sky is v < 0.2 with
+    d < 0.2, and the building is everything else.
+
+    Args:
+        size: (H, W) of the map.
+
+    Returns:
+        (H, W) int64 RoI ids as :func:`roi_map`'s.
+
+    >>> for row in geometric_roi_map((5, 8)).tolist():
+    ...     print(*row)
+    3 3 4 4 4 4 3 3
+    3 3 3 3 3 3 3 3
+    2 2 2 1 1 2 2 2
+    2 2 1 1 1 1 2 2
+    2 1 1 1 1 1 1 2
+    """
+    h, w = size
+    v = ((torch.arange(h, dtype=torch.float64) + 0.5) / h)[:, None]
+    d = ((torch.arange(w, dtype=torch.float64) + 0.5) / w - 0.5).abs()[None, :]
+    below = (v >= GEOMETRIC_HORIZON).expand(h, w)
+    roi = torch.full((h, w), 3, dtype=torch.int64)
+    roi[below] = 2
+    roi[below & (d <= 0.15 + 0.6 * (v - GEOMETRIC_HORIZON))] = 1
+    roi[(v < 0.2) & (d < 0.2)] = 4
+    return roi
+
+
 def resize_priors(pi: Tensor, size: tuple[int, int]) -> Tensor:
     """Priors at another resolution: bilinear (antialiased) resize, renormalised per location.
 

@@ -7,6 +7,7 @@ mistake is reported before a network is loaded.
 from __future__ import annotations
 
 import hashlib
+import json
 import re
 from pathlib import Path
 
@@ -14,9 +15,12 @@ import torch
 
 from costseg.calibration.guarantee import tests_sharing_delta
 from costseg.classes import CLASS_NAMES, INSTANCE_CLASSES, class_indices
+from costseg.data.from_config import same_data
+from costseg.data.priors import read_priors_file
 from costseg.evaluation.held_out import minimum_images
 from costseg.meta.fusion import fusion_group
 from costseg.metrics.selection import parse_metric, parse_target, risk_level
+from costseg.networks.probs_files import DATA_RECORD, records_its_data
 from costseg.networks.protocols import OPTIONS, Protocol
 from costseg.options import EvalOptions, candidate_flags, changed
 from costseg.rules import (
@@ -37,8 +41,11 @@ def check_options(opts: EvalOptions) -> list[RuleGroup]:
     class_indices(opts.classes)
     if opts.probs is not None and (opts.ckpt_path is not None or opts.network is not None):
         raise ValueError("--probs replaces the network: give it without --ckpt_path and --network")
-    if opts.probs is not None and opts.data_root is None:
-        raise ValueError("--probs needs --data_root: the dataset whose images were scored")
+    if opts.probs is not None and opts.data_root is None and not records_its_data(opts.probs):
+        raise ValueError(
+            f"--probs needs --data_root: {opts.probs} does not say which images were scored "
+            f"(a --save-probs folder does, in its {DATA_RECORD})"
+        )
     if opts.mc_dropout is not None and opts.probs is not None:
         raise ValueError("--mc_dropout needs a network: saved probabilities cannot be resampled")
     if Protocol.from_options(opts) != Protocol() and opts.probs is not None:
@@ -64,7 +71,30 @@ def check_options(opts: EvalOptions) -> list[RuleGroup]:
     _check_meta(opts)
     _check_selection(opts, groups)
     _check_calibration(opts)
+    _check_priors(opts, groups)
     return groups
+
+
+def _check_priors(opts: EvalOptions, groups: list[RuleGroup]) -> None:
+    """A ``--priors`` file that exists; and, for a Cityscapes root without a train split to
+    count priors from, ``--priors`` or ``--roi geometric`` (docs/definitions.md §3)."""
+    if opts.priors is not None:
+        if not Path(opts.priors).is_file():
+            raise ValueError(f"--priors file not found: {opts.priors}")
+        return
+    if opts.data_root is None or (Path(opts.data_root) / "gtFine" / "train").is_dir():
+        return
+    if opts.roi != "geometric" or any(g.needs_priors for g in groups):
+        raise ValueError(no_priors(opts.data_root, geometric=opts.roi != "geometric"))
+
+
+def no_priors(data: str, geometric: bool = True) -> str:
+    """The one line that refuses a run whose data has no priors to offer."""
+    return (
+        f"no pixel-wise priors for {data}: no train split to count them from (gtFine/train); "
+        "pass --priors FILE (a run's priors.pt, or scripts/count_priors.py's from a label folder)"
+        + (" or --roi geometric (then no ml, no --alpha_sweep)" if geometric else "")
+    )
 
 
 def _check_selection(opts: EvalOptions, groups: list[RuleGroup]) -> None:
@@ -175,35 +205,50 @@ def instance_classes(dataset, opts: EvalOptions) -> tuple[list[int], str]:
     return chosen, note
 
 
-def source_priors(source, opts: EvalOptions, config: dict, cache_dir: Path) -> torch.Tensor | None:
-    """The priors of a costseg checkpoint, or, for another network, the dataset's training
-    labels' priors (docs/definitions.md §3, §8), computed once and cached in ``cache_dir``
-    (next to the outputs)."""
-    if source.priors is not None:
+def source_priors(source, opts: EvalOptions, data: dict, cache_dir: Path) -> torch.Tensor | None:
+    """The pixel-wise priors of the evaluated ``data`` (docs/definitions.md §3, §8): the
+    ``--priors`` file; the source's own when they were counted on this data (a checkpoint's,
+    or those saved beside probabilities); else counted once from the data's train labels and
+    cached in ``cache_dir`` (next to the outputs). None only with ``--roi geometric`` and no
+    train labels; never another dataset's priors."""
+    if opts.priors is not None:
+        priors = read_priors_file(opts.priors, CLASS_NAMES)["priors"]
+        print(f"priors read from {opts.priors}")
+        source.description["priors"] = {"file": str(Path(opts.priors).resolve())}
+        return priors
+    if source.priors is not None and same_data(source.data_config, data):
         return source.priors
+    if source.priors is not None:
+        print("the source's priors were counted on other data: not used for this data")
+    return _counted_priors(source, opts, data, cache_dir)
+
+
+def _counted_priors(source, opts: EvalOptions, data: dict, cache_dir: Path) -> torch.Tensor | None:
     from costseg.data.from_config import build_dataset, data_settings
     from costseg.data.priors_cache import cached_priors
 
     try:
-        train = build_dataset(config, "train", opts.data_root)
+        train = build_dataset(data, "train")
     except FileNotFoundError:
-        print("no training labels found: no pixel-wise priors, no RoI map")
-        return None
-    root = str(Path(getattr(data_settings(config, opts.data_root), "root", "")).resolve())
-    key = hashlib.sha1(root.encode()).hexdigest()[:12]
+        if opts.roi == "geometric":
+            print("no training labels: no pixel-wise priors; RoIs from the geometric map")
+            source.description["priors"] = "none: no training labels"
+            return None
+        raise ValueError(no_priors(data_settings(data).root)) from None
+    key = hashlib.sha1(json.dumps(data, sort_keys=True).encode()).hexdigest()[:12]
     read = getattr(train, "read_label", None) or (lambda i: train[i][1])
     found = cached_priors(
         lambda: (read(i) for i in range(len(train))),
         cache_dir / f"train_{key}.pt",
-        {"root": root, "split": "train", "images": len(train)},
+        {"data": data, "split": "train", "images": len(train)},
         progress=opts.progress,
     )
     verb = "reused" if found.reused else "computed"
-    print(f"priors {verb} from {found.num_labels} training labels of {root} (σ = {found.sigma} px)")
+    print(f"priors {verb} from {found.num_labels} training labels (σ = {found.sigma} px)")
     source.description["priors"] = {
         "labels": found.num_labels,
         "sigma_px": found.sigma,
-        "root": root,
+        "data": data,
         "split": "train",
     }
     return found.priors

@@ -17,7 +17,12 @@ from torch.utils.data import Dataset
 
 from costseg import workers
 from costseg.classes import CLASS_NAMES, class_indices
-from costseg.data.from_config import StreetScenesSettings, build_dataset, data_settings
+from costseg.data.from_config import (
+    StreetScenesSettings,
+    build_dataset,
+    data_settings,
+    evaluated_data,
+)
 from costseg.data.prior_maps import PriorMaps, heatmap_canvas
 from costseg.evaluation.checks import (
     check_calibration_size,
@@ -57,6 +62,7 @@ class EvalPlan:
     canvas: tuple[int, int]
     instance_classes: tuple[list[int], str]  # classes of the instance metrics; what the outputs say
     shifts: list[Shift]  # --shift: with several, evaluation/shifts.py runs one evaluation each
+    data: dict  # the images' data configuration (Cityscapes at --data_root, else the source's)
 
 
 def plan(opts: EvalOptions) -> EvalPlan:
@@ -74,8 +80,8 @@ def plan(opts: EvalOptions) -> EvalPlan:
     )
     if source.data_config is None and opts.data_root is None:
         raise ValueError(f"{source.description} names no dataset: pass --data_root")
-    config = source.data_config or {}
-    settings = data_settings(config, opts.data_root)
+    config = evaluated_data(source.data_config, opts.data_root)
+    settings = data_settings(config)
     dataset = _reported_dataset(opts, config, settings)
     count = len(dataset) if opts.limit is None else min(opts.limit, len(dataset))
     if count == 0:
@@ -85,7 +91,7 @@ def plan(opts: EvalOptions) -> EvalPlan:
     if opts.meta or opts.fuse:
         meta_images = calibration
         if opts.meta_split is not None:
-            held = build_dataset(config, opts.meta_split, opts.data_root)
+            held = build_dataset(config, opts.meta_split)
             meta_images = (held, list(range(min(opts.meta_images, len(held)))))
     if calibration is not None:
         candidates = next((g for g in groups if g.candidates), named_group(groups))
@@ -93,7 +99,8 @@ def plan(opts: EvalOptions) -> EvalPlan:
     batch_size = opts.batch_size or settings.eval_batch_size
     base = source.default_output("evaluation", "eval")
     cache = (Path(opts.output_dir).resolve().parent if opts.output_dir else base.parent) / "priors"
-    priors = PriorMaps(source_priors(source, opts, config, cache), CLASS_NAMES, device)
+    geometric = opts.roi == "geometric"
+    priors = PriorMaps(source_priors(source, opts, config, cache), CLASS_NAMES, device, geometric)
     require_priors(groups, priors.priors)
     reported_images = dataset
     if len(shifts) == 1:
@@ -118,13 +125,14 @@ def plan(opts: EvalOptions) -> EvalPlan:
         instance_classes=instance_classes(dataset, opts),
         output_dir=on_rank0(lambda: claim_output_dir(opts.output_dir, opts.overwrite, base)),
         shifts=shifts,
+        data=config,
     )
 
 
 def _reported_dataset(opts: EvalOptions, config: dict, settings) -> Dataset:
     """The ``--split`` of the source's data (its scenes with unknown objects for --anomalies)."""
     if not opts.anomalies:
-        return build_dataset(config, opts.split, opts.data_root)
+        return build_dataset(config, opts.split)
     if not isinstance(settings, StreetScenesSettings) or opts.data_root is not None:
         raise ValueError("--anomalies needs the procedural scenes: a network trained on them")
     return settings.dataset(opts.split, anomalies=True)
@@ -145,7 +153,7 @@ def _split_calibration(opts: EvalOptions, config: dict, dataset: Dataset, count:
     if not (opts.calibrate or opts.guarantee is not None or meta_held_out):
         return list(range(count)), None
     if opts.calibration_split is not None:
-        held = build_dataset(config, opts.calibration_split, opts.data_root)
+        held = build_dataset(config, opts.calibration_split)
         return list(range(count)), (held, list(range(len(held))))
     half = count // 2
     if half == 0:

@@ -28,6 +28,7 @@ from costseg.meta.models import MetaModels, fit_models
 from costseg.meta.models import scores as meta_scores
 from costseg.metrics import CalibrationError
 from costseg.metrics.scoring import GroupMetrics, score_batch
+from costseg.networks.probs_files import save_data_record
 from costseg.networks.sources import (
     Batch,
     batches,
@@ -151,6 +152,8 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> 
     named = plan.groups.index(named_group(plan.groups))
     masked = [plan.groups.index(g) for g in masked_groups(plan.groups)]
     writer = BatchWriter(plan.output_dir, plan.groups[named].names, opts.save_predictions)
+    if opts.save_probs and rank() == 0:  # so that --probs needs no --data_root
+        save_data_record(plan.output_dir / "probs", plan.data, plan.priors.priors)
     examples: list[Example] = []
     desc = "evaluate" if opts.progress and rank() == 0 else None
     described = opts.meta or opts.save_segments
@@ -255,7 +258,7 @@ def evaluate_plan(planned: EvalPlan) -> EvalResults:
             from costseg.report.evaluation import write_evaluation
 
             write_evaluation(results, early)
-    except (KeyboardInterrupt, OSError, workers.Stalled, dist.DistError) as err:
+    except (KeyboardInterrupt, ValueError, OSError, workers.Stalled, dist.DistError) as err:
         if early:
             early.cancel()
         partial = f"the partial outputs in {out} are marked {INCOMPLETE}"
@@ -266,6 +269,8 @@ def evaluate_plan(planned: EvalPlan) -> EvalResults:
             raise workers.Stalled(f"another evaluation process: {first}; {partial}") from err
         if isinstance(err, workers.Stalled):
             raise workers.Stalled(f"{err}; {partial}") from err
+        if isinstance(err, ValueError):  # bad data met on the way (an unreadable file)
+            raise ValueError(f"{err}; {partial}") from err
         # a full disk under TensorBoard's writer thread names no file: the folder it writes in
         raise OSError(f"{err.strerror or err}: {err.filename or out}; {partial}") from err
     except BaseException:

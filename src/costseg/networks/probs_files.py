@@ -12,9 +12,11 @@ docs/definitions.md §13), which loading leaves aside.
 
 from __future__ import annotations
 
+import json
 import zipfile
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -22,9 +24,22 @@ from torch import Tensor
 
 from costseg.atomic import AtomicFile
 from costseg.checkpoints import read_torch_file
-from costseg.classes import NUM_CLASSES
+from costseg.classes import CLASS_NAMES, NUM_CLASSES
 
-__all__ = ["PROBS_SUFFIXES", "find_probs_file", "load_probs", "save_probs"]
+__all__ = [
+    "DATA_RECORD",
+    "PROBS_SUFFIXES",
+    "find_probs_file",
+    "load_probs",
+    "read_data_record",
+    "records_its_data",
+    "save_data_record",
+    "save_probs",
+]
+
+DATA_RECORD = "dataset.json"
+"""The file of a ``--save-probs`` folder that names the data its images came from."""
+_PRIORS = "priors.pt"
 
 PROBS_SUFFIXES = (".npz", ".pt")
 _KEYS = ("probs", "logits")
@@ -171,3 +186,39 @@ def _read(path: Path) -> tuple[str, Tensor]:
     if len(keys) != 1:
         raise ValueError(f"{path} should hold exactly one tensor named 'probs' or 'logits'")
     return keys[0], content[keys[0]]
+
+
+def save_data_record(folder: str | Path, data: dict[str, Any], priors: Tensor | None) -> None:
+    """Say beside saved probabilities which data their images are (a data configuration, see
+    :func:`costseg.data.from_config.evaluated_data`) and keep the priors used with them, so
+    that ``--probs`` needs no ``--data_root`` and decides as the run that saved them."""
+    from costseg.data.priors import save_priors
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    with AtomicFile(folder / DATA_RECORD) as tmp:
+        tmp.write_text(json.dumps({"data": data}, indent=1))
+    if priors is not None:
+        save_priors(folder / _PRIORS, priors)
+
+
+def records_its_data(folder: str | Path) -> bool:
+    """Whether a probabilities folder names its data (:func:`save_data_record`)."""
+    return (Path(folder) / DATA_RECORD).is_file()
+
+
+def read_data_record(folder: str | Path) -> tuple[dict[str, Any] | None, Tensor | None]:
+    """(data configuration, priors) recorded beside saved probabilities; (None, None) for a
+    folder without a record (another framework's files)."""
+    from costseg.data.priors import read_priors_file
+
+    folder = Path(folder)
+    if not records_its_data(folder):
+        return None, None
+    try:
+        data = json.loads((folder / DATA_RECORD).read_text())["data"]
+    except (ValueError, KeyError, TypeError):
+        raise ValueError(f"{folder / DATA_RECORD} is not a data record of --save-probs") from None
+    priors_file = folder / _PRIORS
+    priors = read_priors_file(priors_file, CLASS_NAMES)["priors"] if priors_file.is_file() else None
+    return data, priors

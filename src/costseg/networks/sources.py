@@ -14,6 +14,7 @@ from typing import Any
 
 import torch
 from torch import Tensor
+from torch.nn import functional as F
 from torch.utils.data import DataLoader, Dataset
 
 from costseg import workers
@@ -32,8 +33,10 @@ class Source:
         description: what it is, for every output (spec, path).
         network: for kind "network", the module mapping uint8 images to logits.
         probs_dir: for kind "probs", the folder of per-image files.
-        priors: (N, H, W) pixel-wise priors stored with a costseg checkpoint, else None.
-        data_config: the dataset a costseg checkpoint was trained on, else None.
+        priors: (N, H, W) pixel-wise priors stored with a costseg checkpoint (or saved beside
+            probabilities), else None; they belong to ``data_config``'s data.
+        data_config: the dataset a costseg checkpoint was trained on (or whose images saved
+            probabilities are), else None.
         run_dir: the training run's folder of a costseg checkpoint (default output place).
         probabilities: what the scores are when not a network's logits (saved probabilities,
             Monte-Carlo dropout), for every output.
@@ -65,8 +68,12 @@ class Source:
         """The logits of this source's ``scores``: themselves, or ``log p`` of probabilities."""
         return scores if self.kind == "network" else scores.clamp_min(1e-30).log()
 
-    def scores(self, images: Tensor, stems: list[str]) -> Tensor:
-        """(B, N, H, W) float logits (network) or probabilities (files, Monte-Carlo dropout)."""
+    def scores(
+        self, images: Tensor, stems: list[str], size: tuple[int, int] | None = None
+    ) -> Tensor:
+        """(B, N, H, W) float logits (network) or probabilities (files, Monte-Carlo dropout) at
+        the images' size; saved probabilities are read at ``size`` (the labels'), default the
+        images'."""
         if self.network is not None and self.kind == "probs":  # MCDropout, seeded by the names
             return self.network(images, stems).float()
         if self.network is not None:
@@ -74,7 +81,7 @@ class Source:
         from costseg.networks.probs_files import find_probs_file, load_probs
 
         assert self.probs_dir is not None
-        size = tuple(images.shape[-2:])
+        size = tuple(size or images.shape[-2:])
         files = [find_probs_file(self.probs_dir, stem) for stem in stems]
         probs = [load_probs(f, len(CLASS_NAMES), size=size) for f in files]
         return torch.stack(probs).to(images.device)
@@ -89,6 +96,27 @@ class Source:
         runs = average(images, stems)
         return runs.mean.float(), runs.expected_entropy
 
+    def at_label_size(
+        self, scores: Tensor, expected_entropy: Tensor | None, size: tuple[int, int]
+    ) -> tuple[Tensor, Tensor | None]:
+        """``scores`` (and the expected entropy) brought to the labels' ``size`` (H, W) as the
+        official evaluators score, at label resolution: bilinear on logits, or on probabilities
+        where the source gives probabilities (a convex combination, so they still sum to 1).
+        The first time a size pair is met it is said on the terminal and in the description
+        (results.json)."""
+        if tuple(scores.shape[-2:]) == tuple(size):
+            return scores, expected_entropy
+        pair = f"{scores.shape[-2]}x{scores.shape[-1]} -> {size[0]}x{size[1]}"
+        resized = self.description.setdefault("resized_to_labels", [])
+        if pair not in resized:
+            what = "logits" if self.kind == "network" else "probabilities"
+            print(f"images and labels differ in size: {what} resized bilinearly {pair}")
+            resized.append(pair)
+        scores = resize_bilinear(scores, size)
+        if expected_entropy is not None:
+            expected_entropy = resize_bilinear(expected_entropy[:, None], size)[:, 0]
+        return scores, expected_entropy
+
 
 def open_source(
     ckpt_path: str | None, network: str | None, probs: str | None, device: torch.device
@@ -96,11 +124,19 @@ def open_source(
     """The source the options name: ``--network SPEC``, ``--probs DIR`` or a costseg checkpoint
     (``--ckpt_path``, default the newest ``runs/**/last.ckpt``)."""
     if probs is not None:
+        from costseg.networks.probs_files import read_data_record
+
         folder = Path(probs)
         if not folder.is_dir():
             raise FileNotFoundError(f"--probs folder not found: {probs}")
+        data, priors = read_data_record(folder)
         return Source(
-            "probs", {"probs": str(folder)}, probs_dir=folder, probabilities="saved probabilities"
+            "probs",
+            {"probs": str(folder)},
+            probs_dir=folder,
+            priors=priors,
+            data_config=data,
+            probabilities="saved probabilities",
         )
     if network is not None and not network.startswith("costseg:"):
         from costseg.networks import load_network
@@ -172,7 +208,7 @@ def resolve_device(name: str) -> torch.device:
 class Batch:
     """Images of one size with their labels, names and the source's scores, on the device."""
 
-    images: Tensor  # (B, 3, H, W) uint8
+    images: Tensor  # (B, 3, H, W) uint8, at the labels' size (resized when the files differ)
     labels: Tensor  # (B, H, W) int64
     stems: list[str]
     scores: Tensor  # (B, N, H, W) logits or probabilities (see Source.kind)
@@ -213,10 +249,14 @@ def batches(
                 stems = image_stems(dataset, chosen)
                 ids = None if ids is None else ids.to(device)
                 masks = None if masks is None else masks.to(device)
+                size = tuple(labels.shape[-2:])
                 if entropy_images is None or seen < entropy_images:
                     scores, expected_entropy = source.scores_and_entropy(images, stems)
                 else:
-                    scores, expected_entropy = source.scores(images, stems), None
+                    scores, expected_entropy = source.scores(images, stems, size), None
+                scores, expected_entropy = source.at_label_size(scores, expected_entropy, size)
+                if images.shape[-2:] != labels.shape[-2:]:  # figures draw on the labels' grid
+                    images = resize_bilinear(images.float(), size).round().to(torch.uint8)
                 seen += len(images)
                 yield Batch(images, labels, stems, scores, ids, expected_entropy, masks)
 
@@ -245,12 +285,18 @@ class _Indexed(Dataset):
         return image, label, index, None, None
 
 
+def resize_bilinear(maps: Tensor, size: tuple[int, int]) -> Tensor:
+    """(B, C, h, w) float maps resized bilinearly to ``size`` (H, W) (half-pixel centres, as
+    torchvision and the official Cityscapes evaluators' resizing)."""
+    return F.interpolate(maps, size=size, mode="bilinear", align_corners=False)
+
+
 def _collate_by_size(items) -> list[tuple]:
-    """A batch as sub-batches of equal image size (datasets may mix resolutions):
+    """A batch as sub-batches of equal image and label sizes (datasets may mix resolutions):
     (images, labels, indices, instance ids or None, anomaly masks or None)."""
     by_size: dict[tuple[int, ...], list] = {}
     for item in items:
-        by_size.setdefault(tuple(item[1].shape), []).append(item)
+        by_size.setdefault((*item[0].shape, *item[1].shape), []).append(item)
     return [
         (
             torch.stack([i[0] for i in same]),

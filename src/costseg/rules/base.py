@@ -143,7 +143,10 @@ def require_priors(groups: Sequence[RuleGroup], priors: torch.Tensor | None) -> 
     """ValueError if a rule of ``groups`` divides by pixel-wise priors (``ml``, the α sweep)
     and there are none."""
     if priors is None and any(g.needs_priors for g in groups):
-        raise ValueError("ml and --alpha_sweep need pixel-wise priors, and this source has none")
+        raise ValueError(
+            "ml and --alpha_sweep need pixel-wise priors, and this data has none: pass --priors "
+            "FILE (a run's priors.pt, or scripts/count_priors.py's from a label folder)"
+        )
 
 
 def named_group(groups: Sequence[RuleGroup]) -> RuleGroup:
