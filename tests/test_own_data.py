@@ -148,3 +148,40 @@ def test_saved_probabilities_of_the_procedural_scenes_need_no_data_root(network,
     first, second = _results(direct), _results(again)
     for key in ("rows", "confusion_matrix", "miou", "nll"):
         assert first[key] == second[key], key
+
+
+def test_python_api_equals_the_command_line(network, tmp_path):
+    """costseg.evaluate(module, dataset) gives the rows of evaluate.py on the same network,
+    data and priors."""
+    import costseg
+
+    root = _tree(tmp_path / "cs", LABEL_SIZE, train=False)
+    priors, cli, api = tmp_path / "p.pt", tmp_path / "cli", tmp_path / "api"
+    labels = root / "gtFine" / "val"
+    subprocess.run([sys.executable, ROOT / "scripts" / "count_priors.py", str(labels),
+                    "--output", str(priors)], check=True)  # fmt: skip
+    rules = ["robotistic", "ml"]
+    evaluate_main([*ARGS, "--cost", *rules, "--network", network, "--data_root", str(root),
+                   "--priors", str(priors), "--output_dir", str(cli)])  # fmt: skip
+    results = costseg.evaluate(
+        load_network(network), CityscapesSegmentation(root, "val"), rules, priors=priors,
+        classes=["road"], num_examples=1, progress=False, output_dir=str(api),
+    )  # fmt: skip
+    assert results.output_dir == api
+    assert _results(api)["rows"] == _results(cli)["rows"]
+    with pytest.raises(ValueError, match="unknown option 'no_such'"):
+        costseg.evaluate(load_network(network), CityscapesSegmentation(root, "val"), no_such=1)
+    with pytest.raises(ValueError, match=r"\(3, H, W\) uint8 RGB image"):
+        costseg.evaluate(load_network(network), [(torch.zeros(3, 4, 4), torch.zeros(4, 4))])
+
+
+def test_the_python_example_of_usage_md_runs(tmp_path):
+    text = (ROOT / "docs" / "usage.md").read_text()
+    section = text[text.index("### Your own network and dataset, from Python") :]
+    code = section.split("```python\n", 1)[1].split("```", 1)[0]
+    (tmp_path / "example.py").write_text(code)
+    run = subprocess.run([sys.executable, "example.py"], cwd=tmp_path, capture_output=True,
+                         text=True, timeout=300)  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    assert (tmp_path / "eval" / "my_network" / "results.json").is_file()
+    assert not (tmp_path / "eval" / "my_network" / "INCOMPLETE").exists()

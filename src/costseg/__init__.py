@@ -8,3 +8,12 @@ __version__ = "0.1.0"
 # in the repository's top-level configs/; src/costseg/configs is a link to it, so a checkout reads
 # them there and the wheel carries them as files (read wherever the package is installed).
 CONFIGS = files("costseg") / "configs"
+
+
+def __getattr__(name: str):
+    """``costseg.evaluate``: :func:`costseg.api.evaluate`, imported on first use (torch)."""
+    if name == "evaluate":
+        from costseg import api
+
+        return getattr(api, name)
+    raise AttributeError(f"module 'costseg' has no attribute {name!r}")

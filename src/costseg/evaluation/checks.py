@@ -205,36 +205,44 @@ def instance_classes(dataset, opts: EvalOptions) -> tuple[list[int], str]:
     return chosen, note
 
 
-def source_priors(source, opts: EvalOptions, data: dict, cache_dir: Path) -> torch.Tensor | None:
+def source_priors(
+    source, opts: EvalOptions, data: dict | None, cache_dir: Path
+) -> torch.Tensor | None:
     """The pixel-wise priors of the evaluated ``data`` (docs/definitions.md §3, §8): the
     ``--priors`` file; the source's own when they were counted on this data (a checkpoint's,
-    or those saved beside probabilities); else counted once from the data's train labels and
-    cached in ``cache_dir`` (next to the outputs). None only with ``--roi geometric`` and no
-    train labels; never another dataset's priors."""
+    or those saved beside probabilities; for a dataset given in Python, ``data`` None, those
+    given with it); else counted once from the data's train labels and cached in ``cache_dir``
+    (next to the outputs). None only with ``--roi geometric`` and no train labels; never
+    another dataset's priors."""
     if opts.priors is not None:
         priors = read_priors_file(opts.priors, CLASS_NAMES)["priors"]
         print(f"priors read from {opts.priors}")
         source.description["priors"] = {"file": str(Path(opts.priors).resolve())}
         return priors
-    if source.priors is not None and same_data(source.data_config, data):
+    if source.priors is not None and (data is None or same_data(source.data_config, data)):
         return source.priors
     if source.priors is not None:
         print("the source's priors were counted on other data: not used for this data")
     return _counted_priors(source, opts, data, cache_dir)
 
 
-def _counted_priors(source, opts: EvalOptions, data: dict, cache_dir: Path) -> torch.Tensor | None:
+def _counted_priors(
+    source, opts: EvalOptions, data: dict | None, cache_dir: Path
+) -> torch.Tensor | None:
     from costseg.data.from_config import build_dataset, data_settings
     from costseg.data.priors_cache import cached_priors
 
     try:
+        if data is None:
+            raise FileNotFoundError("a dataset given in Python has no train split")
         train = build_dataset(data, "train")
     except FileNotFoundError:
         if opts.roi == "geometric":
             print("no training labels: no pixel-wise priors; RoIs from the geometric map")
             source.description["priors"] = "none: no training labels"
             return None
-        raise ValueError(no_priors(data_settings(data).root)) from None
+        name = "the given dataset" if data is None else data_settings(data).root
+        raise ValueError(no_priors(name)) from None
     key = hashlib.sha1(json.dumps(data, sort_keys=True).encode()).hexdigest()[:12]
     read = getattr(train, "read_label", None) or (lambda i: train[i][1])
     found = cached_priors(

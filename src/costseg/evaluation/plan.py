@@ -62,11 +62,31 @@ class EvalPlan:
     canvas: tuple[int, int]
     instance_classes: tuple[list[int], str]  # classes of the instance metrics; what the outputs say
     shifts: list[Shift]  # --shift: with several, evaluation/shifts.py runs one evaluation each
-    data: dict  # the images' data configuration (Cityscapes at --data_root, else the source's)
+    data: dict | None  # the images' data configuration (None: a dataset given in Python)
 
 
-def plan(opts: EvalOptions) -> EvalPlan:
-    """Check the options, open source and data, and claim the output folder."""
+@dataclass
+class Images:
+    """The images of an evaluation: a named dataset (a data configuration: the source's, or
+    Cityscapes at ``--data_root``), or a dataset given in Python (:func:`costseg.evaluate`)."""
+
+    config: dict | None  # the data configuration; None for a dataset given in Python
+    reported: Dataset  # the --split (with unknown objects for --anomalies)
+    batch_size: int
+    num_workers: int
+
+    def split(self, name: str) -> Dataset:
+        """Another split of the same data (--calibration_split, --meta_split)."""
+        if self.config is None:
+            raise ValueError(f"a dataset given in Python has no {name!r} split to hold out")
+        return build_dataset(self.config, name)
+
+
+def plan(
+    opts: EvalOptions, source: Source | None = None, dataset: Dataset | None = None
+) -> EvalPlan:
+    """Check the options, open source and data, and claim the output folder; ``source`` and
+    ``dataset`` replace the ones the options name (the Python API, :mod:`costseg.api`)."""
     groups = check_options(opts)
     shifts = _shifts(opts)
     device = resolve_device(opts.device)
@@ -74,33 +94,32 @@ def plan(opts: EvalOptions) -> EvalPlan:
         # a peer that stops answering ends each collective after STALL_SECONDS (evaluate())
         timeout = datetime.timedelta(seconds=workers.STALL_SECONDS)
         dist.init_process_group("nccl" if device.type == "cuda" else "gloo", timeout=timeout)
-    protocol = Protocol.from_options(opts)
-    source = open_sources(
-        opts.ckpt_path, opts.network, opts.probs, device, protocol, opts.mc_dropout, opts.seed
-    )
-    if source.data_config is None and opts.data_root is None:
-        raise ValueError(f"{source.description} names no dataset: pass --data_root")
-    config = evaluated_data(source.data_config, opts.data_root)
-    settings = data_settings(config)
-    dataset = _reported_dataset(opts, config, settings)
+    if source is None:
+        protocol = Protocol.from_options(opts)
+        source = open_sources(
+            opts.ckpt_path, opts.network, opts.probs, device, protocol, opts.mc_dropout, opts.seed
+        )
+    images = _named_images(opts, source) if dataset is None else Images(None, dataset, 1, 0)
+    dataset = images.reported
     count = len(dataset) if opts.limit is None else min(opts.limit, len(dataset))
     if count == 0:
         raise ValueError(f"the {opts.split} split holds no images: nothing to evaluate")
-    reported, calibration = _split_calibration(opts, config, dataset, count)
+    reported, calibration = _split_calibration(opts, images, count)
     meta_images = None
     if opts.meta or opts.fuse:
         meta_images = calibration
         if opts.meta_split is not None:
-            held = build_dataset(config, opts.meta_split)
+            held = images.split(opts.meta_split)
             meta_images = (held, list(range(min(opts.meta_images, len(held)))))
     if calibration is not None:
         candidates = next((g for g in groups if g.candidates), named_group(groups))
         check_calibration_size(opts, len(calibration[1]), candidates)
-    batch_size = opts.batch_size or settings.eval_batch_size
+    batch_size = opts.batch_size or images.batch_size
     base = source.default_output("evaluation", "eval")
     cache = (Path(opts.output_dir).resolve().parent if opts.output_dir else base.parent) / "priors"
     geometric = opts.roi == "geometric"
-    priors = PriorMaps(source_priors(source, opts, config, cache), CLASS_NAMES, device, geometric)
+    pixel_priors = source_priors(source, opts, images.config, cache)
+    priors = PriorMaps(pixel_priors, CLASS_NAMES, device, geometric)
     require_priors(groups, priors.priors)
     reported_images = dataset
     if len(shifts) == 1:
@@ -117,7 +136,7 @@ def plan(opts: EvalOptions) -> EvalPlan:
         calibration=calibration,
         meta_images=meta_images,
         batch_size=batch_size,
-        num_workers=min(settings.num_workers, -(-count // batch_size)),  # no idle workers
+        num_workers=min(images.num_workers, -(-count // batch_size)),  # no idle workers
         groups=groups,
         class_ids=class_indices(opts.classes),
         priors=priors,
@@ -125,17 +144,24 @@ def plan(opts: EvalOptions) -> EvalPlan:
         instance_classes=instance_classes(dataset, opts),
         output_dir=on_rank0(lambda: claim_output_dir(opts.output_dir, opts.overwrite, base)),
         shifts=shifts,
-        data=config,
+        data=images.config,
     )
 
 
-def _reported_dataset(opts: EvalOptions, config: dict, settings) -> Dataset:
-    """The ``--split`` of the source's data (its scenes with unknown objects for --anomalies)."""
+def _named_images(opts: EvalOptions, source: Source) -> Images:
+    """The ``--split`` of the source's data or of Cityscapes at ``--data_root`` (the procedural
+    scenes with unknown objects for --anomalies)."""
+    if source.data_config is None and opts.data_root is None:
+        raise ValueError(f"{source.description} names no dataset: pass --data_root")
+    config = evaluated_data(source.data_config, opts.data_root)
+    settings = data_settings(config)
     if not opts.anomalies:
-        return build_dataset(config, opts.split)
-    if not isinstance(settings, StreetScenesSettings) or opts.data_root is not None:
+        reported = build_dataset(config, opts.split)
+    elif not isinstance(settings, StreetScenesSettings) or opts.data_root is not None:
         raise ValueError("--anomalies needs the procedural scenes: a network trained on them")
-    return settings.dataset(opts.split, anomalies=True)
+    else:
+        reported = settings.dataset(opts.split, anomalies=True)
+    return Images(config, reported, settings.eval_batch_size, settings.num_workers)
 
 
 def _shifts(opts: EvalOptions) -> list[Shift]:
@@ -147,18 +173,18 @@ def _shifts(opts: EvalOptions) -> list[Shift]:
     return [parse_shift(text) for text in opts.shift]
 
 
-def _split_calibration(opts: EvalOptions, config: dict, dataset: Dataset, count: int):
+def _split_calibration(opts: EvalOptions, images: Images, count: int):
     """(reported indices, calibration (dataset, indices) or None), disjoint by construction."""
     meta_held_out = (opts.meta or opts.fuse) and opts.meta_split is None
     if not (opts.calibrate or opts.guarantee is not None or meta_held_out):
         return list(range(count)), None
     if opts.calibration_split is not None:
-        held = build_dataset(config, opts.calibration_split)
+        held = images.split(opts.calibration_split)
         return list(range(count)), (held, list(range(len(held))))
     half = count // 2
     if half == 0:
         raise ValueError(f"{count} image(s): too few to split into calibration and report halves")
-    return list(range(half, count)), (dataset, list(range(half)))
+    return list(range(half, count)), (images.reported, list(range(half)))
 
 
 def on_rank0(make):

@@ -15,6 +15,7 @@ from dataclasses import asdict
 
 import torch
 import torch.distributed as dist
+from torch.utils.data import Dataset
 
 from costseg import workers
 from costseg.calibration.scaling import Scaling
@@ -29,10 +30,7 @@ from costseg.meta.models import scores as meta_scores
 from costseg.metrics import CalibrationError
 from costseg.metrics.scoring import GroupMetrics, score_batch
 from costseg.networks.probs_files import save_data_record
-from costseg.networks.sources import (
-    Batch,
-    batches,
-)
+from costseg.networks.sources import Batch, Source, batches
 from costseg.networks.uncertainty import output_maps
 from costseg.options import EvalOptions
 from costseg.progress import progress
@@ -152,7 +150,7 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> 
     named = plan.groups.index(named_group(plan.groups))
     masked = [plan.groups.index(g) for g in masked_groups(plan.groups)]
     writer = BatchWriter(plan.output_dir, plan.groups[named].names, opts.save_predictions)
-    if opts.save_probs and rank() == 0:  # so that --probs needs no --data_root
+    if opts.save_probs and plan.data is not None and rank() == 0:  # --probs: no --data_root
         save_data_record(plan.output_dir / "probs", plan.data, plan.priors.priors)
     examples: list[Example] = []
     desc = "evaluate" if opts.progress and rank() == 0 else None
@@ -226,16 +224,19 @@ def _report_pass(plan: EvalPlan, scaling: Scaling, extra: dict, after_batch) -> 
     )
 
 
-def evaluate(opts: EvalOptions) -> EvalResults | list[EvalResults]:
+def evaluate(
+    opts: EvalOptions, source: Source | None = None, dataset: Dataset | None = None
+) -> EvalResults | list[EvalResults]:
     """Plan, run, and (on rank 0) write every output; returns the results (a list of them, one
-    per shift, with several ``--shift``: :mod:`costseg.evaluation.shifts`).
+    per shift, with several ``--shift``: :mod:`costseg.evaluation.shifts`). ``source`` and
+    ``dataset`` replace the ones the options name (:func:`costseg.api.evaluate`).
 
     Figures known before the loop ends are drawn meanwhile, by workers of the forkserver
     (:mod:`costseg.workers`), which starts first, while the network loads. The output
     folder is marked ``INCOMPLETE`` until every file is written; an interrupt or a failed write
     says where the partial outputs are."""
     workers.start()
-    planned = plan(opts)
+    planned = plan(opts, source, dataset)
     if len(planned.shifts) > 1:
         from costseg.evaluation.shifts import evaluate_shifts
 

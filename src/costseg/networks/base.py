@@ -28,7 +28,8 @@ class ImageNetwork(nn.Module):
     """A network behind its input normalisation, with logits resized to the input size.
 
     Args:
-        net: maps (B, 3, H, W) normalised images to (B, N, h, w) logits.
+        net: maps (B, 3, H, W) normalised images to (B, N, h, w) logits (or a dict holding them
+            under ``"out"``, as torchvision's segmentation models return).
         mean, std: per-channel normalisation, applied after the rescaling.
         rescale: factor taking uint8 values to the network's range (1/255: [0, 1]).
         channels_last: run the network on channels-last tensors (as costseg trains).
@@ -64,6 +65,8 @@ class ImageNetwork(nn.Module):
                 f"got {tuple(images.shape)} {str(images.dtype).removeprefix('torch.')}"
             )
         logits = self.net(normalised(images, self.mean, self.std, self.divisor, self.channels_last))
+        if isinstance(logits, dict):  # torchvision's segmentation models: {"out": ..., "aux": ...}
+            logits = logits["out"]
         if logits.shape[-2:] != images.shape[-2:]:
             logits = F.interpolate(
                 logits, size=images.shape[-2:], mode="bilinear", align_corners=False

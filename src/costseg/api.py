@@ -1,0 +1,117 @@
+"""costseg from Python: your own network on your own dataset, evaluated as ``evaluate.py`` does.
+
+``costseg.evaluate`` is this module's :func:`evaluate` (imported on first use, so that
+``import costseg`` stays light). Everything ``evaluate.py`` can be told is a keyword argument of
+the same name (``sweep=0.1``, ``defer=0.3``, ``calibrate="temperature"``, ...; see
+``python evaluate.py --help``), and the outputs go into a folder as the command's do. Figures are
+drawn by worker processes of Python's forkserver: a script that calls it needs the usual
+``if __name__ == "__main__":`` guard. docs/usage.md has a runnable example.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import Tensor, nn
+from torch.utils.data import Dataset
+
+from costseg.networks.base import IMAGENET_MEAN, IMAGENET_STD, ImageNetwork
+from costseg.networks.sources import Source, resolve_device
+from costseg.options import RULES, EvalOptions
+from costseg.report.results import EvalResults
+
+__all__ = ["evaluate"]
+
+
+def evaluate(
+    network: nn.Module | str,
+    dataset: Dataset,
+    costs: Sequence[str] = RULES,
+    *,
+    priors: Tensor | str | Path | None = None,
+    mean: Sequence[float] = IMAGENET_MEAN,
+    std: Sequence[float] = IMAGENET_STD,
+    **options: Any,
+) -> EvalResults | list[EvalResults]:
+    """Evaluate ``network`` on ``dataset`` under the cost rules ``costs``.
+
+    Args:
+        network: a module mapping (B, 3, H, W) normalised float images to (B, 19, h, w) logits
+            in Cityscapes' train-id order, or a dict holding them under ``"out"`` (torchvision's
+            segmentation models), at the input size or a fraction of it (resized bilinearly);
+            or a ``--network`` spec such as ``"costseg:runs/.../last.ckpt"``.
+        dataset: items ``(image, label)``: (3, H, W) uint8 RGB and (H, W) int64 train ids
+            (255 ignored), e.g. :class:`costseg.data.cityscapes.CityscapesSegmentation`.
+            Images may have another size than their labels: scores are brought to the labels'.
+        costs: the rules (``robotistic``, ``altruistic``, ``egoistic``, ``ml``, a YAML file).
+        priors: pixel-wise priors of this data, (19, H, W) or a file written by costseg
+            (docs/definitions.md §3), for ``ml`` and the RoI map; without them give
+            ``roi="geometric"`` (the fixed map of a street camera) and no ``ml``.
+        mean, std: the per-channel normalisation the network expects, of images in [0, 1].
+        **options: any option of ``evaluate.py`` by its field name (``output_dir``,
+            ``batch_size``, ``classes``, ``sweep``, ``defer``, ``roi``, ``device``, ...).
+
+    Returns:
+        the results (:class:`costseg.report.results.EvalResults`: ``output_dir``, ``groups``
+        with their metrics and ``rows``), a list of them with several ``shift``.
+
+    Raises:
+        ValueError: an unknown option, a malformed item of ``dataset``, or what
+            ``evaluate.py`` refuses.
+    """
+    from costseg.evaluation.run import evaluate as run_evaluation
+
+    known = {f.name for f in dataclasses.fields(EvalOptions)} - {"cost", "priors"}
+    unknown = sorted(set(options) - known)
+    if unknown:
+        raise ValueError(
+            f"unknown option {unknown[0]!r}: expected one of {', '.join(sorted(known))}"
+        )
+    if isinstance(network, str):
+        options["network"] = [network]
+    if isinstance(priors, (str, Path)):
+        options["priors"] = str(priors)
+    opts = EvalOptions(cost=list(costs), **options)
+    _check_item(dataset)
+    source = None
+    if isinstance(network, nn.Module):
+        given = priors if isinstance(priors, Tensor) else None
+        source = module_source(network, resolve_device(opts.device), mean, std, given)
+    return run_evaluation(opts, source, dataset)
+
+
+def module_source(
+    network: nn.Module,
+    device: torch.device,
+    mean: Sequence[float] = IMAGENET_MEAN,
+    std: Sequence[float] = IMAGENET_STD,
+    priors: Tensor | None = None,
+) -> Source:
+    """A probability source of a module given in Python (behind its normalisation, unless it is
+    an :class:`~costseg.networks.base.ImageNetwork` already), with the priors of its data."""
+    if not isinstance(network, ImageNetwork):
+        network = ImageNetwork(network, tuple(mean), tuple(std))
+    described = {"network": f"python:{type(network.net).__name__}"}
+    return Source("network", described, network=network.to(device).eval(), priors=priors)
+
+
+def _check_item(dataset: Dataset) -> None:
+    """ValueError unless ``dataset``'s first item is a (uint8 image, integer label) pair."""
+    try:
+        image, label = dataset[0][:2]
+    except (TypeError, IndexError, ValueError) as err:
+        raise ValueError(f"the dataset's items must be (image, label) pairs: {err}") from None
+    if not (
+        isinstance(image, Tensor) and image.dtype == torch.uint8 and image.ndim == 3
+        and image.shape[0] == 3 and isinstance(label, Tensor) and label.ndim == 2
+        and not label.is_floating_point()
+    ):  # fmt: skip
+        shapes = [getattr(t, "shape", type(t).__name__) for t in (image, label)]
+        raise ValueError(
+            "the dataset's items must be ((3, H, W) uint8 RGB image, (H, W) integer train ids); "
+            f"its first item holds {shapes[0]} and {shapes[1]}"
+        )
