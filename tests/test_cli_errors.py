@@ -86,7 +86,7 @@ EVALUATE_CASES = {
     ),
     "too few calibration images": (
         [*_target("person:roi1:recall>=0.9"), "--guarantee", "0.1"],
-        ["calibration images cannot certify anything", "at least"],
+        ["calibration images cannot certify anything", "at least", "--calibration_split"],
     ),
     "overlapping calibration": (
         ["--calibrate", "temperature", "--calibration_split", "val"],

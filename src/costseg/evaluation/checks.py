@@ -179,9 +179,11 @@ def check_calibration_size(opts: EvalOptions, n_images: int, candidates: RuleGro
     tests = tests_sharing_delta(opts.guarantee_method, family, len(candidates.paths))
     needed = minimum_images(alpha, opts.guarantee, tests)
     if n_images < needed:
+        more = "" if opts.calibration_split else "--calibration_split (another split's images), "
         raise ValueError(
             f"{n_images} calibration images cannot certify anything at α = {alpha:.3g}, "
-            f"δ = {opts.guarantee} over {family} candidates: at least {needed} are needed"
+            f"δ = {opts.guarantee} over {family} candidates: at least {needed} are needed; give "
+            f"{more}a looser --target, a larger --guarantee δ or a coarser sweep"
         )
 
 

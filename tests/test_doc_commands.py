@@ -1,0 +1,106 @@
+"""Every command the README and docs show is one its program takes as written: each option exists
+and accepts the value shown, and evaluate.py's commands pass every option check. Paths in them
+(FILE.pth, /data/cityscapes, a.ckpt) stand for the reader's own files; a Cityscapes root is
+replaced by a small tree with a train split. ``scripts/run_doc_commands.py`` runs the README's
+commands for real on a trained model."""
+
+from __future__ import annotations
+
+import argparse
+import re
+import runpy
+import shlex
+import sys
+from pathlib import Path
+
+import pytest
+
+from costseg.cli import evaluate_parser, predict_parser, train_main
+from costseg.evaluation.checks import check_options
+from costseg.options import EvalOptions
+
+ROOT = Path(__file__).resolve().parents[1]
+PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+BACKSLASH = "\\"
+PLACEHOLDERS = ("[--config", "toy]", "[--KEY", "VALUE", "...]")  # README's synopsis of train.py
+COMMAND = re.compile(r"^\s*(python3? (?:\S+/)?\S+\.py\b.*)$")
+
+
+def documented_commands(text: str) -> list[str]:
+    """The ``python X.py ...`` lines of a page (continuation lines joined, comments dropped).
+
+    >>> documented_commands("    python evaluate.py --sweep 0.1 \\\\\\n        --explorer  # see")
+    ['python evaluate.py --sweep 0.1 --explorer']
+    """
+    found, pending = [], None
+    for line in text.splitlines():
+        if pending is None:
+            match = COMMAND.match(line)
+            if not match:
+                continue
+            pending, line = "", match.group(1)
+        body = line.split(" # ", 1)[0].strip()
+        continued = body.endswith(BACKSLASH)
+        pending = " ".join(p for p in (pending, body.removesuffix(BACKSLASH).strip()) if p)
+        if not continued:
+            found.append(pending)
+            pending = None
+    return found
+
+
+COMMANDS = [
+    pytest.param(shlex.split(command)[1:], id=f"{page.name}: {command[:70]}")
+    for page in PAGES
+    for command in documented_commands(page.read_text())
+]
+
+
+def _program(args: list[str]) -> str:
+    return Path(args[0]).name
+
+
+@pytest.mark.parametrize("args", [c for c in COMMANDS if _program(c.values[0]) == "evaluate.py"])
+def test_documented_evaluate_commands_pass_every_option_check(
+    args, cityscapes_root, tmp_path, monkeypatch
+):
+    monkeypatch.chdir(tmp_path)  # the reader's own cost file
+    (tmp_path / "my_costs.yaml").write_text("off_diagonal: 1.0\n")
+    args = [str(cityscapes_root) if previous == "--data_root" else a
+            for previous, a in zip(["", *args[:-1]], args, strict=True)]  # fmt: skip
+    opts = EvalOptions(**vars(evaluate_parser().parse_args(args[1:])))
+    check_options(opts)
+
+
+@pytest.mark.parametrize("args", [c for c in COMMANDS if _program(c.values[0]) == "predict.py"])
+def test_documented_predict_commands_parse(args):
+    predict_parser().parse_args(args[1:])
+
+
+@pytest.mark.parametrize("args", [c for c in COMMANDS if _program(c.values[0]) == "train.py"])
+def test_documented_train_commands_parse(args, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        train_main([a for a in args[1:] if a not in PLACEHOLDERS] + ["--print_config"])
+    assert exit_info.value.code == 0, capsys.readouterr().err
+
+
+class _Parsed(Exception):
+    """Raised in place of a script's work once its arguments are parsed."""
+
+
+@pytest.mark.parametrize("args", [c for c in COMMANDS if c.values[0][0].startswith("scripts/")])
+def test_documented_script_commands_parse(args, monkeypatch):
+    parse = argparse.ArgumentParser.parse_args
+
+    def parse_only(self, argv=None, namespace=None):
+        raise _Parsed(parse(self, argv, namespace))
+
+    monkeypatch.setattr(argparse.ArgumentParser, "parse_args", parse_only)
+    monkeypatch.setattr(sys, "argv", args)
+    monkeypatch.syspath_prepend(str(ROOT / "scripts"))
+    with pytest.raises(_Parsed):
+        runpy.run_path(str(ROOT / args[0]), run_name="__main__")
+
+
+def test_the_pages_show_commands_of_every_kind():
+    programs = {_program(c.values[0]) for c in COMMANDS}
+    assert {"evaluate.py", "predict.py", "train.py", "check_guarantee.py"} <= programs
