@@ -18,10 +18,14 @@ from torch import nn
 
 from costseg.models.entries import module_builder
 
-__all__ = ["NetworkAdapter", "network_output_error"]
+__all__ = ["NetworkAdapter", "NetworkOutputError", "network_output_error"]
 
 ADAPTER = f"{__name__}.NetworkAdapter"
 """The adapter's ``class_path``, as error messages name it."""
+
+
+class NetworkOutputError(ValueError):
+    """The adapted network's output has no entry ``output``."""
 
 
 class NetworkAdapter(nn.Module):
@@ -76,19 +80,20 @@ class NetworkAdapter(nn.Module):
         try:
             return out[self.output]
         except (KeyError, IndexError, TypeError):
-            raise ValueError(
+            raise NetworkOutputError(
                 f"{self.init_args['builder']} returned {_described(out)}: set "
                 "model.net.init_args.output to the key of its logits"
             ) from None
 
 
-def network_output_error(out: Any, num_classes: int, batch: int) -> str | None:
-    """What is wrong with a network's output ``out`` for a batch of ``batch`` images, or None
-    where it is (batch, num_classes, h, w) logits; the text ends with how to fix it.
+def network_output_error(net: nn.Module, out: Any, num_classes: int, batch: int) -> str | None:
+    """What is wrong with the output ``out`` of ``net`` for a batch of ``batch`` images, or
+    None where it is (batch, num_classes, h, w) logits; the text ends with how to fix it.
 
-    >>> network_output_error({"out": torch.zeros(1, 19, 8, 8)}, 19, 1)[:48]
+    >>> net = nn.Conv2d(3, 2, 1)
+    >>> network_output_error(net, {"out": torch.zeros(1, 19, 8, 8)}, 19, 1)[:48]
     "model.net returned a dict with keys ['out'], not"
-    >>> network_output_error(torch.zeros(1, 19, 8, 8), 19, 1) is None
+    >>> network_output_error(net, torch.zeros(1, 19, 8, 8), 19, 1) is None
     True
     """
     if isinstance(out, torch.Tensor) and out.ndim == 4 and out.shape[0] == batch:
@@ -96,13 +101,15 @@ def network_output_error(out: Any, num_classes: int, batch: int) -> str | None:
             return None
         return (
             f"model.net returned logits of {out.shape[1]} classes, and model.num_classes is "
-            f"{num_classes}: build the network with num_classes (train.py passes it as "
-            "model.net.init_args.num_classes)"
+            f"{num_classes}: model.net must take num_classes and return that many (train.py "
+            "sets model.net.init_args.num_classes)"
         )
+    kind = type(net)
     return (
-        f"model.net returned {_described(out)}, not (B, {num_classes}, H, W) logits: wrap it as "
-        f"--model.net {ADAPTER} --model.net.init_args.builder CLASS_OR_FUNCTION "
-        '(docs/usage.md, "Your own network")'
+        f"model.net returned {_described(out)}, not (B, {num_classes}, H, W) logits: pass "
+        f"--model.net {ADAPTER} --model.net.init_args.builder {kind.__module__}."
+        f"{kind.__qualname__} and, where the logits' key is not 'out', "
+        '--model.net.init_args.output KEY (docs/usage.md, "Your own network")'
     )
 
 

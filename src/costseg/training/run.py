@@ -27,7 +27,7 @@ from lightning.pytorch.cli import LightningCLI
 from costseg import workers
 from costseg.checkpoints import find_checkpoint, read_checkpoint
 from costseg.data.priors import roi_map, save_priors
-from costseg.models.adapter import ADAPTER, network_output_error
+from costseg.models.adapter import ADAPTER, NetworkOutputError, network_output_error
 from costseg.training.module import SegmentationModule
 from costseg.training.precision import choose_precision, cpu_has_native_bf16
 from costseg.training.progress import StepProgress
@@ -142,7 +142,7 @@ def _parse(args: Sequence[str]) -> TrainCLI:
         if "linked_targets" not in str(err):
             raise
         raise ValueError(
-            f"model.net names a function, and takes an nn.Module class: pass --model.net "
+            f"model.net names a function, and takes only nn.Module classes: pass --model.net "
             f"{ADAPTER} --model.net.init_args.builder {_net_class_path(args) or 'FUNCTION'} "
             '(docs/usage.md, "Your own network")'
         ) from err
@@ -194,11 +194,13 @@ def _check_network(model: SegmentationModule) -> None:
     try:
         with torch.no_grad():
             out = model.net.eval()(torch.zeros(1, 3, 64, 64))
+    except NetworkOutputError:
+        raise
     except Exception:
         return
     finally:
         model.net.train(was_training)
-    error = network_output_error(out, model.hparams.num_classes, batch=1)
+    error = network_output_error(model.net, out, model.hparams.num_classes, batch=1)
     if error:
         raise ValueError(error)
 
