@@ -2,8 +2,14 @@
 outputs, logits smaller than the input, and the one-line refusal of a network that does not fit.
 """
 
+import re
+import shlex
+import textwrap
+from pathlib import Path
+
 import pytest
 import torch
+import yaml
 from conftest import TINY_TRAIN
 from own_networks import DictLogits
 from torch.nn import functional as F
@@ -20,6 +26,16 @@ ADAPTER = "costseg.models.adapter.NetworkAdapter"
 MOBILENET = "torchvision.models.segmentation.deeplabv3_mobilenet_v3_large"
 NO_WEIGHTS = "{weights: null, weights_backbone: null}"  # random weights: nothing downloaded
 TINY = [a for a in TINY_TRAIN if not a.startswith("--model.net")]  # those are DeepLabV3Plus's
+USAGE = (Path(__file__).resolve().parents[1] / "docs" / "usage.md").read_text()
+
+
+def _documented() -> tuple[list[str], dict]:
+    """The command and the YAML of docs/usage.md's "Your own network", as written there."""
+    text = USAGE.split("### Your own network\n", 1)[1].split("\n### ", 1)[0]
+    command, config = (textwrap.dedent(b) for b in re.findall(r"\n\n((?:    .*\n)+)", text))
+    words = shlex.split(command.replace("\\\n", " "))
+    assert words[:2] == ["python", "train.py"]
+    return words[2:], yaml.safe_load(config)
 
 
 def _train(tmp_path, *net_args):
@@ -45,13 +61,22 @@ def _net_state(checkpoint, prefix):
     return {k.removeprefix(prefix): v for k, v in state.items() if k.startswith(prefix)}
 
 
+def test_the_documented_command_and_config_name_torchvision_s_mobilenet_without_weights():
+    args, config = _documented()
+    assert args == [
+        "--model.net",
+        ADAPTER,
+        "--model.net.init_args.builder",
+        MOBILENET,
+        "--model.net.init_args.builder_args",
+        NO_WEIGHTS,
+    ]
+    entry = {"builder": MOBILENET, "builder_args": yaml.safe_load(NO_WEIGHTS)}
+    assert config == {"model": {"net": {"class_path": ADAPTER, "init_args": entry}}}
+
+
 def test_torchvision_deeplabv3_mobilenet_trains_and_its_checkpoint_rebuilds_it(tmp_path):
-    module, last = _train(
-        tmp_path,
-        f"--model.net={ADAPTER}",
-        f"--model.net.init_args.builder={MOBILENET}",
-        f"--model.net.init_args.builder_args={NO_WEIGHTS}",
-    )
+    module, last = _train(tmp_path, *_documented()[0])  # the command of docs/usage.md
     loaded = load_costseg_checkpoint(last)
     assert loaded.hparams["net"]["init_args"]["builder"] == MOBILENET
     # torchvision's own network with the checkpoint's weights is the reference
