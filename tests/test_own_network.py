@@ -110,12 +110,13 @@ def test_a_checkpoint_rebuilds_the_adapter_without_its_initial_weights():
         "init_args": {
             "builder": "torchvision.models.segmentation.lraspp_mobilenet_v3_large",
             "num_classes": 2,
-            "builder_args": {"weights": None, "weights_backbone": "IMAGENET1K_V1"},
         },
     }
-    # IMAGENET1K_V1 would be downloaded; the checkpoint's weights replace it anyway
-    net = network_from_entry(entry, initial_weights=False)
-    assert net.init_args["builder_args"] == {"weights": None, "weights_backbone": None}
+    # ImageNet weights would be downloaded (given, and by default); the checkpoint's replace them
+    for builder_args in ({"weights_backbone": "IMAGENET1K_V1"}, {}):
+        entry["init_args"]["builder_args"] = builder_args
+        net = network_from_entry(entry, initial_weights=False)
+        assert net.init_args["builder_args"] == {"weights": None, "weights_backbone": None}
 
 
 def test_the_adapter_names_a_missing_output_key():

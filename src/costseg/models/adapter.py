@@ -11,12 +11,13 @@ one entry of its output.
 
 from __future__ import annotations
 
+import inspect
 from typing import Any
 
 import torch
 from torch import nn
 
-from costseg.models.entries import module_builder
+from costseg.models.entries import initial_weights_argument, module_builder
 
 __all__ = ["NetworkAdapter", "NetworkOutputError", "network_output_error"]
 
@@ -40,7 +41,8 @@ class NetworkAdapter(nn.Module):
         builder_args: further keyword arguments of ``builder``, e.g. ``{weights: null,
             weights_backbone: null}`` (torchvision's builders download ImageNet weights by
             default). A checkpoint rebuilds the network with every ``weights``, ``weights_*``
-            and ``*_weights`` argument set to None: its own weights replace them.
+            and ``*_weights`` argument of the builder set to None, given or not: its own
+            weights replace them.
         output: the key of the logits in the network's output (``out`` for torchvision's
             segmentation models, ``logits`` for a Hugging Face model output).
 
@@ -71,6 +73,16 @@ class NetworkAdapter(nn.Module):
         }
         self.net = module_builder(builder)(num_classes=num_classes, **builder_args)
         self.output = output
+
+    @classmethod
+    def without_initial_weights(cls, init_args: dict[str, Any]) -> dict[str, Any]:
+        """``init_args`` with every initial-weights argument of the builder set to None, given
+        or not (torchvision's builders download ImageNet weights by default); a checkpoint
+        rebuilds the network this way (:func:`costseg.models.entries.network_from_entry`)."""
+        names = inspect.signature(module_builder(init_args["builder"])).parameters
+        builder_args = dict(init_args.get("builder_args") or {})
+        builder_args.update({n: None for n in names if initial_weights_argument(n)})
+        return {**init_args, "builder_args": builder_args}
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """(B, 3, H, W) normalised images → the network's logits."""

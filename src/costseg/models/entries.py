@@ -18,7 +18,7 @@ from typing import Any
 
 from torch import nn
 
-__all__ = ["module_builder", "module_entry", "network_from_entry"]
+__all__ = ["initial_weights_argument", "module_builder", "module_entry", "network_from_entry"]
 
 
 def network_from_entry(
@@ -29,10 +29,10 @@ def network_from_entry(
     Args:
         entry: ``{"class_path": "package.module.Class", "init_args": {...}}``.
         num_classes: sets ``init_args["num_classes"]`` (a config links it to the model's).
-        initial_weights: False sets every argument that names initial weights (``weights``,
-            ``*_weights``, ``weights_*``, at any depth of ``init_args``: e.g.
-            ``backbone_weights``, or torchvision's ``weights_backbone`` in an adapter's
-            ``builder_args``) to None: weights loaded next replace them.
+        initial_weights: False sets every argument that names initial weights
+            (:func:`initial_weights_argument`, e.g. ``backbone_weights``) to None, or calls
+            the class's ``without_initial_weights(init_args)`` where it has one: weights loaded
+            next replace them.
 
     Raises:
         ValueError: not such an entry, or its class cannot be imported or is no ``nn.Module``
@@ -44,8 +44,9 @@ def network_from_entry(
     init_args = dict(entry.get("init_args") or {})
     if num_classes is not None:
         init_args["num_classes"] = num_classes
-    if not initial_weights:
-        init_args = _without_initial_weights(init_args)
+    if not initial_weights:  # a class may say where its initial weights are named
+        hook = getattr(kind, "without_initial_weights", None)
+        init_args = hook(init_args) if hook else _without_initial_weights(init_args)
     return kind(**init_args)
 
 
@@ -85,14 +86,18 @@ def _returns_module(function: Callable) -> bool:
     return isinstance(returned, type) and issubclass(returned, nn.Module)
 
 
-def _without_initial_weights(args: dict[str, Any]) -> dict[str, Any]:
-    def initial(key: str) -> bool:
-        return key == "weights" or key.endswith("_weights") or key.startswith("weights_")
+def initial_weights_argument(name: str) -> bool:
+    """Whether an argument called ``name`` names initial weights (``backbone_weights``,
+    torchvision's ``weights`` and ``weights_backbone``).
 
-    return {
-        k: None if initial(k) else _without_initial_weights(v) if isinstance(v, dict) else v
-        for k, v in args.items()
-    }
+    >>> [initial_weights_argument(n) for n in ("weights", "weights_backbone", "num_classes")]
+    [True, True, False]
+    """
+    return name == "weights" or name.endswith("_weights") or name.startswith("weights_")
+
+
+def _without_initial_weights(init_args: dict[str, Any]) -> dict[str, Any]:
+    return {k: None if initial_weights_argument(k) else v for k, v in init_args.items()}
 
 
 def module_entry(module: nn.Module) -> dict[str, Any] | None:
