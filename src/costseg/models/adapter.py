@@ -44,7 +44,7 @@ class NetworkAdapter(nn.Module):
             and ``*_weights`` argument of the builder set to None, given or not: its own
             weights replace them.
         output: the key of the logits in the network's output (``out`` for torchvision's
-            segmentation models, ``logits`` for a Hugging Face model output).
+            segmentation models; any key of a dict-like output).
 
     Raises:
         ValueError: ``builder`` is no module class or function returning one.
