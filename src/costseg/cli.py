@@ -173,6 +173,8 @@ def print_train_help(args: Sequence[str]) -> None:
         "  python train.py --config cityscapes --data.init_args.root DIR\n"
         "  python train.py --config toy --config losses/focal   # a loss of configs/losses/\n"
         "  python train.py --ckpt_path last        # resume the newest runs/**/last.ckpt\n"
+        "Another network (torchvision's builders, a dict output): docs/usage.md, "
+        '"Your own network".\n'
         "--help_all lists every option of the trainer, model and data classes.\n\n"
         f"Keys of {path} and their values:"
     )

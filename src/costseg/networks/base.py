@@ -8,7 +8,14 @@ import torch
 from torch import Tensor, nn
 from torch.nn import functional as F
 
-__all__ = ["IMAGENET_MEAN", "IMAGENET_STD", "ImageNetwork", "check_state_keys", "normalised"]
+__all__ = [
+    "IMAGENET_MEAN",
+    "IMAGENET_STD",
+    "ImageNetwork",
+    "at_input_size",
+    "check_state_keys",
+    "normalised",
+]
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
@@ -22,6 +29,17 @@ def normalised(
     1/255) is what costseg trains on, bit for bit."""
     x = (images.float() / divisor - mean) / std
     return x.contiguous(memory_format=torch.channels_last) if channels_last else x
+
+
+def at_input_size(logits: Tensor, images: Tensor) -> Tensor:
+    """(B, N, h, w) logits resized bilinearly to the (H, W) of ``images`` (unchanged at it).
+
+    >>> at_input_size(torch.zeros(1, 19, 8, 16), torch.zeros(1, 3, 32, 64)).shape
+    torch.Size([1, 19, 32, 64])
+    """
+    if logits.shape[-2:] == images.shape[-2:]:
+        return logits
+    return F.interpolate(logits, size=images.shape[-2:], mode="bilinear", align_corners=False)
 
 
 class ImageNetwork(nn.Module):
@@ -67,11 +85,7 @@ class ImageNetwork(nn.Module):
         logits = self.net(normalised(images, self.mean, self.std, self.divisor, self.channels_last))
         if isinstance(logits, dict):  # torchvision's segmentation models: {"out": ..., "aux": ...}
             logits = logits["out"]
-        if logits.shape[-2:] != images.shape[-2:]:
-            logits = F.interpolate(
-                logits, size=images.shape[-2:], mode="bilinear", align_corners=False
-            )
-        return logits
+        return at_input_size(logits, images)
 
 
 def check_state_keys(expected: dict[str, Tensor], state: dict[str, Any], what: str) -> None:

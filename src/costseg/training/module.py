@@ -30,7 +30,7 @@ from costseg.metrics import CalibrationError
 from costseg.metrics.names import PIXEL_RATES
 from costseg.metrics.scoring import GroupMetrics, score_batch
 from costseg.models.entries import module_entry
-from costseg.networks.base import IMAGENET_MEAN, IMAGENET_STD, normalised
+from costseg.networks.base import IMAGENET_MEAN, IMAGENET_STD, at_input_size, normalised
 from costseg.rules import parse_rules, rules_group
 from costseg.training.losses import CrossEntropy, SegmentationLoss, batch_mean
 
@@ -39,9 +39,11 @@ class SegmentationModule(L.LightningModule):
     """A segmentation network with cost-based validation.
 
     Args:
-        net: (B, 3, H, W) ImageNet-normalised images → (B, num_classes, H, W) logits, e.g.
-            `costseg.models.deeplabv3plus.DeepLabV3Plus`; in a config, ``model.net`` with
-            ``class_path`` and ``init_args`` (``num_classes`` is linked to this module's).
+        net: (B, 3, H, W) ImageNet-normalised images → (B, num_classes, h, w) logits (smaller
+            logits are resized to the input), e.g. `costseg.models.deeplabv3plus.DeepLabV3Plus`;
+            in a config, ``model.net`` with ``class_path`` and ``init_args`` (``num_classes`` is
+            linked to this module's); a builder function or a network returning a dict goes
+            through `costseg.models.adapter.NetworkAdapter`.
             train.py records the config's entry; a network built in Python is recorded from
             its ``init_args`` attribute (:func:`costseg.models.entries.module_entry`).
         num_classes: output classes (19 Cityscapes train classes).
@@ -98,8 +100,10 @@ class SegmentationModule(L.LightningModule):
         self.priors_info: dict[str, Any] | None = None  # how the priors were estimated
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
-        """(B, 3, H, W) uint8 RGB → (B, N, H, W) logits."""
-        return self.net(normalised(images, self.mean, self.std, 255.0, self.hparams.channels_last))
+        """(B, 3, H, W) uint8 RGB → (B, N, H, W) logits (a network's smaller logits resized
+        bilinearly to the input, as evaluation does)."""
+        x = normalised(images, self.mean, self.std, 255.0, self.hparams.channels_last)
+        return at_input_size(self.net(x), images)
 
     @property
     def priors(self) -> torch.Tensor | None:

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 import torch
+from jsonargparse import ArgumentError
 from lightning.fabric.utilities.exceptions import MisconfigurationException
 from lightning.pytorch import LightningDataModule, Trainer
 from lightning.pytorch.callbacks import RichProgressBar, TQDMProgressBar
@@ -26,6 +27,7 @@ from lightning.pytorch.cli import LightningCLI
 from costseg import workers
 from costseg.checkpoints import find_checkpoint, read_checkpoint
 from costseg.data.priors import roi_map, save_priors
+from costseg.models.adapter import ADAPTER, NetworkOutputError, network_output_error
 from costseg.training.module import SegmentationModule
 from costseg.training.precision import choose_precision, cpu_has_native_bf16
 from costseg.training.progress import StepProgress
@@ -134,6 +136,16 @@ def _parse(args: Sequence[str]) -> TrainCLI:
             save_config_kwargs={"overwrite": True},
             parser_kwargs={"exit_on_error": False},
         )
+    except ArgumentError as err:
+        # jsonargparse takes a function returning a module as model.net, then fails on the
+        # num_classes link; train.py takes such a function through the adapter.
+        if "linked_targets" not in str(err):
+            raise
+        raise ValueError(
+            f"model.net names a function, and takes only nn.Module classes: pass --model.net "
+            f"{ADAPTER} --model.net.init_args.builder {_net_class_path(args) or 'FUNCTION'} "
+            '(docs/usage.md, "Your own network")'
+        ) from err
     except MisconfigurationException as err:
         if "gpu backend" not in str(err).lower():
             raise
@@ -141,6 +153,17 @@ def _parse(args: Sequence[str]) -> TrainCLI:
             "this config trains on a GPU (trainer.accelerator: gpu) and none is found; on the "
             "CPU add --trainer.accelerator cpu --trainer.precision 32-true (slow)"
         ) from err
+
+
+def _net_class_path(args: Sequence[str]) -> str | None:
+    """The ``model.net`` class path given on the command line, or None."""
+    for i, arg in enumerate(args):
+        for key in ("--model.net", "--model.net.class_path"):
+            if arg == key and i + 1 < len(args):
+                return args[i + 1]
+            if arg.startswith(f"{key}="):
+                return arg.split("=", 1)[1]
+    return None
 
 
 def _check(model: SegmentationModule, data: LightningDataModule, trainer: Trainer) -> None:
@@ -160,6 +183,26 @@ def _check(model: SegmentationModule, data: LightningDataModule, trainer: Traine
             f"--trainer.max_steps must be >= 1 (the optimiser steps to train), "
             f"got {trainer.max_steps}"
         )
+    _check_network(model)
+
+
+def _check_network(model: SegmentationModule) -> None:
+    """One forward pass of the network in eval mode on a small image: its output must be
+    logits of ``num_classes`` classes (:mod:`costseg.models.adapter`). A network that cannot
+    run at this size is left to training, which runs it at the data's size."""
+    was_training = model.net.training
+    try:
+        with torch.no_grad():
+            out = model.net.eval()(torch.zeros(1, 3, 64, 64))
+    except NetworkOutputError:
+        raise
+    except Exception:
+        return
+    finally:
+        model.net.train(was_training)
+    error = network_output_error(model.net, out, model.hparams.num_classes, batch=1)
+    if error:
+        raise ValueError(error)
 
 
 def _first_missing(folder: Path) -> Path | None:
