@@ -32,8 +32,9 @@ _TO_LABEL_ID = np.zeros(256, dtype=np.uint8)  # everything else, incl. 255, is "
 _TO_LABEL_ID[: len(TRAIN_ID_TO_LABEL_ID)] = TRAIN_ID_TO_LABEL_ID
 
 
-def write_item(scenes: StreetScenes, root: Path, index: int) -> None:
-    """Write scene ``index`` of ``scenes`` as an image, a label-id and an instance-id PNG."""
+def write_item(scenes: StreetScenes, root: Path, index: int, image_scale: float = 1.0) -> None:
+    """Write scene ``index`` of ``scenes`` as an image (resized by ``image_scale``), a label-id and
+    an instance-id PNG."""
     image, train_ids, instance_ids = scenes.with_instances(index)
     name = f"toy_000000_{index:06d}"
     for folder, suffix, array in (
@@ -43,7 +44,11 @@ def write_item(scenes: StreetScenes, root: Path, index: int) -> None:
     ):
         path = root / folder / scenes.split / "toy" / f"{name}{suffix}"
         path.parent.mkdir(parents=True, exist_ok=True)
-        Image.fromarray(array).save(path, compress_level=1)
+        picture = Image.fromarray(array)
+        if folder == "leftImg8bit" and image_scale != 1:
+            size = (round(picture.width * image_scale), round(picture.height * image_scale))
+            picture = picture.resize(size, Image.Resampling.BILINEAR)
+        picture.save(path, compress_level=1)
 
 
 def main() -> None:
@@ -54,11 +59,18 @@ def main() -> None:
     parser.add_argument("--size", type=int, nargs=2, default=(1024, 2048), metavar=("H", "W"))
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=None, help="processes (default: all)")
+    parser.add_argument(
+        "--image_scale",
+        type=float,
+        default=1.0,
+        help="images resized by this factor beside full-size labels (0.5: half-resolution)",
+    )
     args = parser.parse_args()
     with ProcessPoolExecutor(args.workers, mp_context=workers.CONTEXT) as pool:
         for split, count in (("train", args.train), ("val", args.val)):
             scenes = StreetScenes(split, count, tuple(args.size), args.seed)
-            list(pool.map(partial(write_item, scenes, args.root), range(count), chunksize=4))
+            write = partial(write_item, scenes, args.root, image_scale=args.image_scale)
+            list(pool.map(write, range(count), chunksize=4))
     print(f"wrote {args.train} train and {args.val} val scenes of {args.size} to {args.root}")
 
 
