@@ -142,8 +142,13 @@ class RuleGroup:
 def require_priors(groups: Sequence[RuleGroup], priors: torch.Tensor | None) -> None:
     """ValueError if a rule of ``groups`` divides by pixel-wise priors (``ml``, the α sweep)
     and there are none."""
-    if priors is None and any(g.needs_priors for g in groups):
-        raise ValueError("ml and --alpha_sweep need pixel-wise priors, and this source has none")
+    needing = dict.fromkeys(
+        "--alpha_sweep" if g.family == "alpha" else "the rule ml" for g in groups if g.needs_priors
+    )
+    if priors is None and needing:
+        raise ValueError(
+            f"{' and '.join(needing)} need pixel-wise priors, and this source has none"
+        )
 
 
 def named_group(groups: Sequence[RuleGroup]) -> RuleGroup:
