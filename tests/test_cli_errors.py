@@ -13,7 +13,7 @@ from torch._utils import ExceptionWrapper
 
 from costseg.checkpoints import find_checkpoint
 from costseg.classes import CLASS_NAMES
-from costseg.cli import evaluate_main, train_main, user_errors
+from costseg.cli import CLASS_PREFIX, evaluate_main, train_main, user_errors
 from costseg.costs import COSTS_DIR
 
 CHECK_GUARANTEE = Path(__file__).resolve().parents[1] / "scripts" / "check_guarantee.py"
@@ -26,6 +26,7 @@ def _one_line(main, args, capsys, *needles):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1, err
     assert all(n in err[0] for n in needles), err[0]
+    assert err[0].startswith("error: ") and not CLASS_PREFIX.match(err[0][7:]), err[0]
 
 
 @pytest.fixture(scope="module")

@@ -17,7 +17,7 @@ from PIL import Image
 from scipy import ndimage
 
 from costseg.classes import LABEL_ID_TO_TRAIN_ID, class_index
-from costseg.cli import predict_main
+from costseg.cli import CLASS_PREFIX, predict_main
 from costseg.costs import load_cost
 from costseg.data.priors import resize_priors
 from costseg.decision import decide_reference
@@ -198,6 +198,7 @@ def test_bad_inputs_end_in_one_line_before_the_network_loads(tmp_path, capsys, k
     err = capsys.readouterr().err.strip().splitlines()
     assert exit_.value.code == 2 and len(err) == 1, err
     assert err[0].startswith("error: ") and str(path) in err[0], err
+    assert not CLASS_PREFIX.match(err[0][7:]), err
 
 
 def test_ctrl_c_ends_in_one_line_and_status_130(checkpoint, tmp_path):

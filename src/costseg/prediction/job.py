@@ -173,7 +173,8 @@ def predict(opts: PredictOptions) -> Path:
 
 
 def run(job: PredictPlan) -> Path:
-    """One pass over the planned images or frames; returns the output folder."""
+    """One pass over the planned images, then over each video's frames; returns the output
+    folder."""
     opts = job.options
     k = len(job.rule_names)
     writer = PredictionWriter(job.output_dir, job.rules[:k], opts.save_probs)
