@@ -146,9 +146,8 @@ def require_priors(groups: Sequence[RuleGroup], priors: torch.Tensor | None) -> 
         "--alpha_sweep" if g.family == "alpha" else "the rule ml" for g in groups if g.needs_priors
     )
     if priors is None and needing:
-        raise ValueError(
-            f"{' and '.join(needing)} need pixel-wise priors, and this source has none"
-        )
+        verb = "need" if len(needing) > 1 else "needs"
+        raise ValueError(f"{' and '.join(needing)} {verb} pixel-wise priors; this source has none")
 
 
 def named_group(groups: Sequence[RuleGroup]) -> RuleGroup:
