@@ -31,7 +31,7 @@ from costseg.models.deeplabv3plus import DeepLabV3Plus
 from costseg.networks.base import ImageNetwork
 from costseg.networks.sources import Source
 from costseg.options import PredictOptions
-from costseg.prediction.inputs import Inputs
+from costseg.prediction.inputs import find_inputs
 from costseg.prediction.job import PredictPlan, run
 from costseg.rules import parse_rules
 
@@ -50,18 +50,18 @@ def forward_seconds(net: torch.nn.Module, image: np.ndarray, repeats: int) -> fl
 
 
 def predict_seconds(net: torch.nn.Module, paths: list[Path], out: Path) -> float:
-    opts = PredictOptions(input=str(paths[0].parent), cost=RULES, progress=False)
+    opts = PredictOptions(input=[str(paths[0].parent)], cost=RULES, progress=False)
     priors = torch.rand(len(CLASS_NAMES), 64, 128).softmax(0)
     job = PredictPlan(
         options=opts,
-        inputs=Inputs(paths),
+        inputs=find_inputs(paths),
         device=torch.device("cpu"),
         source=Source("network", {"network": "bench"}, network=net),
         rules=parse_rules(RULES),
         output_dir=out,
         priors=PriorMaps(priors),
     )
-    run(PredictPlan(**{**vars(job), "inputs": Inputs(paths[:1])}))  # warm-up (numba, caches)
+    run(PredictPlan(**{**vars(job), "inputs": find_inputs(paths[:1])}))  # warm-up (numba, caches)
     start = time.perf_counter()
     run(PredictPlan(**{**vars(job), "output_dir": out / "timed"}))
     return (time.perf_counter() - start) / len(paths)

@@ -44,6 +44,7 @@ from costseg.calibration.guarantee import learn_then_test_paths, tests_sharing_d
 from costseg.checkpoints import find_checkpoint
 from costseg.classes import CLASS_NAMES
 from costseg.cli import build_parser as build_options_parser
+from costseg.cli import user_errors
 from costseg.data.prior_maps import PriorMaps
 from costseg.data.shift import Shift, ShiftedDataset, parse_shift
 from costseg.data.toy import StreetScenes
@@ -364,13 +365,10 @@ def plot(out: dict[str, Any], path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    try:
+    with user_errors():  # a bad option or file: one line, exit status 2
         args = parse_args(argv)
         counts, name, seconds = cached_counts(args)
         shifted = {str(shift): cached_counts(args, shift)[0] for shift in args.shifts}
-    except (FileNotFoundError, ValueError) as err:
-        print(f"check_guarantee.py: error: {err}", file=sys.stderr)
-        return 2
     out = summarise(args, counts) | {"network": name, "count_seconds": seconds}
     out["shifts"] = {shift: summarise(args, counts, test) for shift, test in shifted.items()}
     write_json(args.output_dir / "guarantee_check.json", out)

@@ -1,14 +1,22 @@
-"""Every bad input of `evaluate.py` and `train.py` ends with one line on stderr and status 2."""
+"""Every bad input of `evaluate.py`, `train.py` and `scripts/check_guarantee.py` ends with one
+line on stderr and status 2, which never starts with an exception's class name."""
+
+import importlib.util
+import sys
+from pathlib import Path
 
 import pytest
 import torch
 import yaml
 from conftest import TINY_TRAIN
+from torch._utils import ExceptionWrapper
 
 from costseg.checkpoints import find_checkpoint
 from costseg.classes import CLASS_NAMES
-from costseg.cli import evaluate_main, train_main
+from costseg.cli import CLASS_PREFIX, evaluate_main, train_main, user_errors
 from costseg.costs import COSTS_DIR
+
+CHECK_GUARANTEE = Path(__file__).resolve().parents[1] / "scripts" / "check_guarantee.py"
 
 
 def _one_line(main, args, capsys, *needles):
@@ -18,6 +26,7 @@ def _one_line(main, args, capsys, *needles):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1, err
     assert all(n in err[0] for n in needles), err[0]
+    assert err[0].startswith("error: ") and not CLASS_PREFIX.match(err[0][7:]), err[0]
 
 
 @pytest.fixture(scope="module")
@@ -199,3 +208,48 @@ def test_train_bad_option(case, tmp_path, capsys):
     if case in ("gpu config without gpu", "pixel priors on random crops"):  # Cityscapes' options
         order = [*args, logs]
     _one_line(train_main, order, capsys, *needles)
+
+
+def test_an_error_of_a_data_loader_worker_is_one_line_without_its_class_name(
+    ckpt, cityscapes_root, tmp_path, capsys
+):
+    image = next((cityscapes_root / "leftImg8bit" / "val").rglob("*.png"))
+    image.write_text("not an image")  # read in a DataLoader worker: the error has its traceback
+    out = str(tmp_path / "out")
+    args = ["--ckpt_path", ckpt, "--data_root", str(cityscapes_root), "--cost", "robotistic",
+            "--num_examples", "0", "--output_dir", out, "--no-progress"]  # fmt: skip
+    with pytest.raises(SystemExit) as exit_info:
+        evaluate_main(args)
+    errors = [line for line in capsys.readouterr().err.splitlines() if "error" in line.lower()]
+    assert exit_info.value.code == 2
+    assert errors == [f"error: cannot decode {image}: cannot identify image file '{image}'"]
+
+
+def test_a_reraised_error_keeps_only_its_message(capsys):
+    """torch's own wrapper of a worker's error (its traceback, then ``ValueError: ...``)."""
+    try:
+        raise OSError("disk full")
+    except OSError:
+        wrapped = ExceptionWrapper(sys.exc_info(), "in DataLoader worker process 0")
+    with pytest.raises(SystemExit), user_errors():
+        wrapped.reraise()
+    assert capsys.readouterr().err == "error: disk full\n"
+    with pytest.raises(SystemExit), user_errors():
+        raise ValueError("torch.OutOfMemoryError: ValueError: nested")
+    assert capsys.readouterr().err == "error: nested\n"
+    with pytest.raises(SystemExit), user_errors():
+        raise FileNotFoundError
+    assert capsys.readouterr().err == "error: failed without a message (FileNotFoundError)\n"
+
+
+def test_check_guarantee_bad_input(tmp_path, capsys):
+    spec = importlib.util.spec_from_file_location("check_guarantee", CHECK_GUARANTEE)
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    missing = tmp_path / "none.ckpt"
+    _one_line(
+        script.main,
+        ["--ckpt_path", str(missing)],
+        capsys,
+        f"error: checkpoint not found: {missing}",
+    )

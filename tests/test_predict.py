@@ -17,11 +17,12 @@ from PIL import Image
 from scipy import ndimage
 
 from costseg.classes import LABEL_ID_TO_TRAIN_ID, class_index
-from costseg.cli import predict_main
+from costseg.cli import CLASS_PREFIX, predict_main
 from costseg.costs import load_cost
 from costseg.data.priors import resize_priors
 from costseg.decision import decide_reference
 from costseg.networks import load_costseg_checkpoint
+from costseg.prediction.inputs import find_inputs
 from costseg.report.outputs import INCOMPLETE
 
 RULES = ["robotistic", "altruistic", "egoistic", "ml"]
@@ -82,6 +83,57 @@ def test_labels_equal_the_reference_on_the_saved_probabilities(checkpoint, image
     assert counts["rois"] == ["image", "street", "sidewalk", "building", "sky"]
 
 
+def _cityscapes_layout(root: Path) -> Path:
+    """``leftImg8bit/val/<city>/`` with the same file name in two cities (different pictures)."""
+    for seed, city in enumerate(("aachen", "bonn")):
+        (root / city).mkdir(parents=True)
+        Image.fromarray(_picture(24, 40, seed)).save(root / city / "x_leftImg8bit.png")
+    Image.fromarray(_picture(24, 40, 2)).save(root / "bonn" / "y_leftImg8bit.png")
+    return root
+
+
+def test_inputs_are_named_by_their_path_below_the_common_folder(tmp_path):
+    val = _cityscapes_layout(tmp_path / "leftImg8bit" / "val")
+    Image.fromarray(_picture(24, 40, 3)).save(extra := tmp_path / "x_leftImg8bit.png")
+    given = [val, extra, val / "bonn" / "y_leftImg8bit.png"]
+    names = {i.path: i.name for i in find_inputs(given).items}
+    assert names == {
+        val / "aachen" / "x_leftImg8bit.png": "leftImg8bit/val/aachen/x_leftImg8bit",
+        val / "bonn" / "x_leftImg8bit.png": "leftImg8bit/val/bonn/x_leftImg8bit",
+        val / "bonn" / "y_leftImg8bit.png": "leftImg8bit/val/bonn/y_leftImg8bit",  # read once
+        extra: "x_leftImg8bit",
+    }
+    assert [i.name for i in find_inputs([val]).items] == [
+        "aachen/x_leftImg8bit", "bonn/x_leftImg8bit", "bonn/y_leftImg8bit"]  # fmt: skip
+
+
+def test_a_cityscapes_folder_keeps_its_layout(checkpoint, tmp_path, capsys):
+    val = _cityscapes_layout(tmp_path / "val")
+    out, run = tmp_path / "out", ["--ckpt_path", str(checkpoint), "--no-progress", "--cost", "ml"]
+    predict_main(["--input", str(val), "--output_dir", str(out), *run])
+    alone = tmp_path / "alone"  # the reference: bonn's x in a run of its own
+    predict_main(["--input", str(val / "bonn" / "x_leftImg8bit.png"), "--output_dir", str(alone),
+                  *run])  # fmt: skip
+    for kind in ("labels/ml", "color/ml", "panels"):
+        mine = np.asarray(Image.open(out / kind / "bonn" / "x_leftImg8bit.png"))
+        reference = np.asarray(Image.open(alone / kind / "x_leftImg8bit.png"))
+        np.testing.assert_array_equal(mine, reference, kind)
+    aachen = np.asarray(Image.open(out / "panels" / "aachen" / "x_leftImg8bit.png"))
+    assert (aachen != reference).any()  # the other x: its own picture, not overwritten
+    counts = json.loads((out / "counts.json").read_text())
+    assert sorted(counts["images"]) == ["aachen/x_leftImg8bit", "bonn/x_leftImg8bit",
+                                        "bonn/y_leftImg8bit"]  # fmt: skip
+    capsys.readouterr()
+    with pytest.raises(SystemExit):  # an earlier run's folder needs --overwrite ...
+        predict_main(["--input", str(val / "bonn"), "--output_dir", str(out), *run])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "pass --overwrite" in err[0], err
+    predict_main(["--input", str(val / "bonn"), "--output_dir", str(out), "--overwrite", *run])
+    counts = json.loads((out / "counts.json").read_text())  # ... which predict.py takes
+    assert counts["input"] == [str(val / "bonn")]
+    assert sorted(counts["images"]) == ["x_leftImg8bit", "y_leftImg8bit"]
+
+
 def _write_video(path: Path, frames: int, rate: int) -> None:
     import av
 
@@ -106,11 +158,17 @@ def test_a_video_gives_videos_of_the_same_frame_count_and_rate(checkpoint, tmp_p
     pytest.importorskip("av")
     video, out = tmp_path / "clip.mp4", tmp_path / "out"
     _write_video(video, 6, 12)
-    predict_main(["--input", str(video), "--ckpt_path", str(checkpoint), "--output_dir", str(out)])
-    assert "predict: 6/6 (100%)" in capsys.readouterr().err  # progress without a terminal
+    Image.fromarray(_picture(48, 64, 0)).save(image := tmp_path / "still.png")
+    predict_main(["--input", str(video), str(image), "--ckpt_path", str(checkpoint),
+                  "--output_dir", str(out)])  # fmt: skip
+    err = capsys.readouterr().err
+    assert "predict clip: 6/6 (100%)" in err and "predict: 1/1 (100%)" in err  # no terminal
     for name in ("clip_panels", "clip_robotistic", "clip_altruistic", "clip_egoistic"):
         assert _frames_and_rate(out / f"{name}.mp4") == (6, Fraction(12)), name
-    assert len(json.loads((out / "counts.json").read_text())["images"]) == 6
+    images = json.loads((out / "counts.json").read_text())["images"]
+    assert sorted(images) == ["clip_000000", "clip_000001", "clip_000002", "clip_000003",
+                              "clip_000004", "clip_000005", "still"]  # fmt: skip
+    assert (out / "panels" / "still.png").is_file()
 
 
 def _bad(tmp_path: Path, kind: str) -> Path:
@@ -120,12 +178,19 @@ def _bad(tmp_path: Path, kind: str) -> Path:
         (path := tmp_path / "broken.mp4").write_bytes(b"\x00\x00\x00\x18ftypmp42" + bytes(300))
     elif kind == "empty folder":
         (path := tmp_path / "empty").mkdir()
+        (path / "sub").mkdir()  # a sub-folder without images either
+    elif kind == "two images named alike":
+        (path := tmp_path / "twice").mkdir()
+        for name in ("a.png", "a.jpg"):
+            Image.fromarray(_picture(8, 8, 0)).save(path / name)
     else:
         path = tmp_path / "missing.jpg"
     return path
 
 
-@pytest.mark.parametrize("kind", ["text.png", "corrupt.mp4", "empty folder", "missing"])
+@pytest.mark.parametrize(
+    "kind", ["text.png", "corrupt.mp4", "empty folder", "two images named alike", "missing"]
+)
 def test_bad_inputs_end_in_one_line_before_the_network_loads(tmp_path, capsys, kind):
     path = _bad(tmp_path, kind)
     with pytest.raises(SystemExit) as exit_:  # a checkpoint that does not exist is never read
@@ -133,6 +198,7 @@ def test_bad_inputs_end_in_one_line_before_the_network_loads(tmp_path, capsys, k
     err = capsys.readouterr().err.strip().splitlines()
     assert exit_.value.code == 2 and len(err) == 1, err
     assert err[0].startswith("error: ") and str(path) in err[0], err
+    assert not CLASS_PREFIX.match(err[0][7:]), err
 
 
 def test_ctrl_c_ends_in_one_line_and_status_130(checkpoint, tmp_path):

@@ -11,8 +11,9 @@ CONFIGS = files("costseg") / "configs"
 
 
 def __getattr__(name: str):
-    """``costseg.evaluate``: :func:`costseg.api.evaluate`, imported on first use (torch)."""
-    if name == "evaluate":
+    """``costseg.evaluate`` and ``costseg.predict``: :mod:`costseg.api`'s, imported on first use
+    (they import torch)."""
+    if name in ("evaluate", "predict"):
         from costseg import api
 
         return getattr(api, name)

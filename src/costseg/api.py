@@ -1,7 +1,8 @@
-"""costseg from Python: your own network on your own dataset, evaluated as ``evaluate.py`` does.
+"""costseg from Python: your own network on your own dataset or images, as ``evaluate.py`` and
+``predict.py`` run them.
 
-``costseg.evaluate`` is this module's :func:`evaluate` (imported on first use, so that
-``import costseg`` stays light). Everything ``evaluate.py`` can be told is a keyword argument of
+``costseg.evaluate`` and ``costseg.predict`` are this module's (imported on first use, so that
+``import costseg`` stays light). Everything the command can be told is a keyword argument of
 the same name (``sweep=0.1``, ``defer=0.3``, ``calibrate="temperature"``, ...; see
 ``python evaluate.py --help``), and the outputs go into a folder as the command's do. Figures are
 drawn by worker processes of Python's forkserver: a script that calls it needs the usual
@@ -21,10 +22,10 @@ from torch.utils.data import Dataset
 
 from costseg.networks.base import IMAGENET_MEAN, IMAGENET_STD, ImageNetwork
 from costseg.networks.sources import Source, resolve_device
-from costseg.options import RULES, EvalOptions
+from costseg.options import RULES, EvalOptions, PredictOptions
 from costseg.report.results import EvalResults
 
-__all__ = ["evaluate"]
+__all__ = ["evaluate", "module_source", "predict"]
 
 
 def evaluate(
@@ -65,23 +66,56 @@ def evaluate(
     """
     from costseg.evaluation.run import evaluate as run_evaluation
 
-    known = {f.name for f in dataclasses.fields(EvalOptions)} - {"cost", "priors"}
+    opts, source = _options(EvalOptions, network, costs, priors, mean, std, options)
+    _check_item(dataset)
+    return run_evaluation(opts, source, dataset)
+
+
+def predict(
+    network: nn.Module | str,
+    inputs: Sequence[str | Path],
+    costs: Sequence[str] = RULES,
+    *,
+    priors: Tensor | str | Path | None = None,
+    mean: Sequence[float] = IMAGENET_MEAN,
+    std: Sequence[float] = IMAGENET_STD,
+    **options: Any,
+) -> Path:
+    """Apply the cost rules ``costs`` to ``network``'s probabilities on images without labels,
+    as ``predict.py`` does (docs/predict.md): panels, label PNGs and counts per image.
+
+    Args:
+        network, costs, priors, mean, std: as for :func:`evaluate` (priors at any size: they
+            are resized to each image's).
+        inputs: images, folders (read recursively) and videos.
+        **options: any option of ``predict.py`` by its field name.
+
+    Returns:
+        the output folder.
+    """
+    from costseg.prediction import job
+
+    options["input"] = [str(path) for path in inputs]
+    opts, source = _options(PredictOptions, network, costs, priors, mean, std, options)
+    return job.predict(opts, source)
+
+
+def _options(kind, network, costs, priors, mean, std, options: dict[str, Any]):
+    """(the job's options, a source of a module given in Python or None)."""
+    known = {f.name for f in dataclasses.fields(kind)} - {"cost", "priors"}
     unknown = sorted(set(options) - known)
     if unknown:
-        raise ValueError(
-            f"unknown option {unknown[0]!r}: expected one of {', '.join(sorted(known))}"
-        )
+        names = ", ".join(sorted(known))
+        raise ValueError(f"unknown option {unknown[0]!r}: expected one of {names}")
     if isinstance(network, str):
         options["network"] = [network]
     if isinstance(priors, (str, Path)):
         options["priors"] = str(priors)
-    opts = EvalOptions(cost=list(costs), **options)
-    _check_item(dataset)
-    source = None
-    if isinstance(network, nn.Module):
-        given = priors if isinstance(priors, Tensor) else None
-        source = module_source(network, resolve_device(opts.device), mean, std, given)
-    return run_evaluation(opts, source, dataset)
+    opts = kind(cost=list(costs), **options)
+    if not isinstance(network, nn.Module):
+        return opts, None
+    given = priors if isinstance(priors, Tensor) else None
+    return opts, module_source(network, resolve_device(opts.device), mean, std, given)
 
 
 def module_source(

@@ -14,6 +14,7 @@ import argparse
 import contextlib
 import dataclasses
 import os
+import re
 import sys
 import threading
 import traceback
@@ -32,11 +33,29 @@ def fail(message: str, join: bool = False) -> NoReturn:
     """Print one line ``error: message`` on stderr and exit with status 2.
 
     Of a multi-line message the last line is kept (an error raised in a DataLoader worker
-    carries the worker's traceback before it), or, with ``join``, all lines joined.
+    carries the worker's traceback before it), or, with ``join``, all lines joined; the line
+    never starts with an exception's class name (:func:`error_line`).
+    """
+    print(f"error: {error_line(message, join)}", file=sys.stderr)
+    sys.exit(2)
+
+
+CLASS_PREFIX = re.compile(r"(?:[A-Za-z_]\w*\.)*[A-Z]\w*(?:Error|Exception|Stalled|Exit):\s*")
+"""``ValueError: ``, ``torch.OutOfMemoryError: ``: how a traceback's last line starts."""
+
+
+def error_line(message: str, join: bool = False) -> str:
+    """The one line of an error message: its last line (with ``join``: all lines joined),
+    without the exception class names a traceback puts before it.
+
+    >>> error_line("Traceback ...\\nValueError: image a.png is (4, 8), its label (8, 16)")
+    'image a.png is (4, 8), its label (8, 16)'
     """
     lines = [line.strip() for line in str(message).strip().splitlines()] or ["unknown error"]
-    print(f"error: {' '.join(lines) if join else lines[-1]}", file=sys.stderr)
-    sys.exit(2)
+    line = " ".join(lines) if join else lines[-1]
+    while (prefix := CLASS_PREFIX.match(line)) and line[prefix.end() :]:
+        line = line[prefix.end() :]
+    return line
 
 
 def interrupted(message: str = "") -> NoReturn:
@@ -77,7 +96,8 @@ def user_errors(*extra: type[BaseException]) -> Iterator[None]:
         if os.environ.get("COSTSEG_DEBUG"):
             raise
         err = own_cause(err)
-        fail(str(err) or err.__class__.__name__, isinstance(err, argparse.ArgumentError))
+        message = str(err) or f"failed without a message ({err.__class__.__name__})"
+        fail(message, isinstance(err, argparse.ArgumentError))
     finally:
         threading.excepthook = default_hook
 

@@ -213,7 +213,14 @@ class NetworkOptions:
         metavar="S",
         group=PROTOCOL,
     )
+    priors: str | None = option(
+        help="pixel-wise priors file (a run's priors.pt, or scripts/count_priors.py's from a "
+        "label folder) for ml and the RoI map; default: a checkpoint's for its own data, else "
+        "(evaluate.py) counted from the data's train labels",
+        metavar="FILE",
+    )
     output_dir: str | None = option(help="default: a new numbered folder <run>/<job>/version_<n>")
+    overwrite: bool = option(False, "allow an --output_dir that holds results")
     device: str = option("auto", "auto, cpu, cuda, cuda:1, ...")
     save_probs: bool = option(
         False,
@@ -242,18 +249,11 @@ class SourceOptions(NetworkOptions):
         help="Cityscapes root (needed for --network/--probs of other networks)"
     )
     split: Literal["train", "val", "test"] = option("val", "the split to run on")
-    priors: str | None = option(
-        help="pixel-wise priors file (a run's priors.pt, or scripts/count_priors.py's from a "
-        "label folder) for ml and the RoI map; default: the checkpoint's for its own data, else "
-        "counted from the data's train labels",
-        metavar="FILE",
-    )
     roi: Literal["priors", "geometric"] = option(
         "priors",
         "regions of interest from the priors, or the fixed geometric map of a street camera "
         "(docs/definitions.md §3) for data without training labels",
     )
-    overwrite: bool = option(False, "allow an --output_dir that holds results")
     limit: int | None = option(help="only the first N images", type=whole_number(1))
     batch_size: int | None = option(help="images per batch", type=whole_number(1))
 
@@ -389,7 +389,11 @@ def candidate_flags() -> str:
 class PredictOptions(NetworkOptions):
     """Everything ``predict.py`` can be told (see ``python predict.py --help``)."""
 
-    input: str = option(help="an image, a folder of images, or a video (needs PyAV)", required=True)
+    input: list[str] | None = option(
+        help="images, folders of images (read with their sub-folders) and videos (need PyAV)",
+        required=True,
+        metavar="PATH",
+    )
     meta_models: str | None = option(
         help="meta/models.joblib of an evaluate.py --meta run: each rule's segments coloured by "
         "their predicted IoU, one more row of the panels",

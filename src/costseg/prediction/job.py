@@ -12,6 +12,7 @@ import torch
 
 from costseg.classes import CLASS_NAMES
 from costseg.data.prior_maps import PriorMaps
+from costseg.data.priors import read_priors_file
 from costseg.meta.collect import rule_segments
 from costseg.meta.features import painted
 from costseg.meta.models import SHOWN_MODEL, MetaModels, load_models
@@ -20,7 +21,7 @@ from costseg.networks.protocols import Protocol
 from costseg.networks.sources import Source, resolve_device
 from costseg.networks.uncertainty import output_maps
 from costseg.options import PredictOptions
-from costseg.prediction.inputs import Inputs, find_inputs, read_image, video_frames
+from costseg.prediction.inputs import Inputs, Item, find_inputs, read_image, video_frames
 from costseg.prediction.outputs import PredictionWriter
 from costseg.progress import progress
 from costseg.report.explorer import ExplorerExample, embedded
@@ -55,20 +56,27 @@ class PredictPlan:
         return [r.name for r in self.rules[: len(self.options.cost)]]
 
 
-def plan(opts: PredictOptions) -> PredictPlan:
-    """Check options and inputs (before the network loads), open the source, claim the folder."""
+def plan(opts: PredictOptions, source: Source | None = None) -> PredictPlan:
+    """Check options and inputs (before the network loads), open the source (``source``
+    replaces the one the options name: :func:`costseg.api.predict`), claim the folder."""
     rules = parse_rules(opts.cost, defer=opts.defer)
     if opts.explorer:
         vertex_matrices(opts.vertices, opts.vertex_scaling)
     inputs = find_inputs(opts.input)
+    if opts.priors is not None and not Path(opts.priors).is_file():
+        raise ValueError(f"--priors file not found: {opts.priors}")
     meta_models = _meta_models(opts.meta_models, rules) if opts.meta_models else None
     protocol = Protocol.from_options(opts)
     device = resolve_device(opts.device)
-    claimed = claim_output_dir(opts.output_dir, False, Path()) if opts.output_dir else None
-    source = open_sources(
-        opts.ckpt_path, opts.network, None, device, protocol, opts.mc_dropout, opts.seed
-    )
-    require_priors([rules_group(rules)], source.priors)
+    claimed = claim_output_dir(opts.output_dir, opts.overwrite, Path()) if opts.output_dir else None
+    if source is None:
+        source = open_sources(
+            opts.ckpt_path, opts.network, None, device, protocol, opts.mc_dropout, opts.seed
+        )
+    priors = source.priors
+    if opts.priors is not None:
+        priors = read_priors_file(opts.priors, CLASS_NAMES)["priors"]
+    require_priors([rules_group(rules)], priors)
     if meta_models:
         _require_runs(meta_models, source)
     base = source.default_output("prediction", "predict")
@@ -82,7 +90,7 @@ def plan(opts: PredictOptions) -> PredictPlan:
         source=source,
         rules=rules,
         output_dir=claimed or claim_output_dir(None, False, base),
-        priors=PriorMaps(source.priors, CLASS_NAMES, device),
+        priors=PriorMaps(priors, CLASS_NAMES, device),
         meta_models=meta_models,
     )
 
@@ -167,43 +175,53 @@ def _predicted_iou(models: MetaModels, probs, labels, rule, priors, expected_ent
     return painted(table.ids, models.predicted_iou(SHOWN_MODEL, table.columns))
 
 
-def predict(opts: PredictOptions) -> Path:
-    """Run ``predict.py``; returns the output folder."""
-    return run(plan(opts))
+def predict(opts: PredictOptions, source: Source | None = None) -> Path:
+    """Run ``predict.py`` (with ``source`` in place of the one the options name); returns the
+    output folder."""
+    return run(plan(opts, source))
 
 
 def run(job: PredictPlan) -> Path:
-    """One pass over the planned images or frames; returns the output folder."""
+    """One pass over the planned images, then over each video's frames; returns the output
+    folder."""
     opts = job.options
     k = len(job.rule_names)
     writer = PredictionWriter(job.output_dir, job.rules[:k], opts.save_probs)
     argmax = next((i for i, r in enumerate(job.rules) if _is_argmax(r)), k)
-    video, desc = job.inputs.video, "predict" if opts.progress else None
-    if video is None:
-        for path in progress(job.inputs.images, desc):
-            image = read_image(path)
-            probs, maps, roi, uncertainty, iou = decide_image(job, image, path.stem)
-            writer.image(path.stem, image, maps[:k], maps[argmax], roi, probs, uncertainty, iou)
-            _keep_example(job, path.stem, image, probs, uncertainty)
-    else:
-        writer.open_video(video.path.stem, video.rate)
-        try:
-            frames = enumerate(video_frames(video.path))
-            for i, image in progress(frames, desc, total=video.frames):
-                stem = f"{video.path.stem}_{i:06d}"
-                probs, maps, roi, uncertainty, iou = decide_image(job, image, stem)
-                writer.frame(stem, image, maps[:k], maps[argmax], roi, probs, uncertainty, iou)
-                _keep_example(job, stem, image, probs, uncertainty)
-        except BaseException:
-            writer.close_videos(abandon=True)
-            raise
-        writer.close_videos()
+    desc = "predict" if opts.progress else None
+    images = job.inputs.images
+    for item in progress(images, desc if images else None):
+        image = read_image(item.path)
+        probs, maps, roi, uncertainty, iou = decide_image(job, image, item.name)
+        writer.image(item.name, image, maps[:k], maps[argmax], roi, probs, uncertainty, iou)
+        _keep_example(job, item.name, image, probs, uncertainty)
+    for item in job.inputs.videos:
+        _run_video(job, writer, item, argmax, desc)
     if opts.explorer:
         _write_explorer(job)
-    writer.finish({"source": job.source.description, "input": str(opts.input)})
+    writer.finish({"source": job.source.description, "input": [str(p) for p in job.inputs.paths]})
     mark_complete(job.output_dir)
     print(f"predictions written to {job.output_dir}")
     return job.output_dir
+
+
+def _run_video(
+    job: PredictPlan, writer: PredictionWriter, item: Item, argmax: int, desc: str | None
+) -> None:
+    """One video, frame by frame: ``<name>_panels.mp4``, one overlay video per rule, counts."""
+    k, video = len(job.rule_names), item.video
+    writer.open_video(item.name, video.rate)
+    try:
+        frames = enumerate(video_frames(item.path))
+        for i, image in progress(frames, desc and f"{desc} {item.name}", total=video.frames):
+            stem = f"{item.name}_{i:06d}"
+            probs, maps, roi, uncertainty, iou = decide_image(job, image, stem)
+            writer.frame(stem, image, maps[:k], maps[argmax], roi, probs, uncertainty, iou)
+            _keep_example(job, stem, image, probs, uncertainty)
+    except BaseException:
+        writer.close_videos(abandon=True)
+        raise
+    writer.close_videos()
 
 
 def _keep_example(

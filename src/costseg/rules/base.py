@@ -142,10 +142,14 @@ class RuleGroup:
 def require_priors(groups: Sequence[RuleGroup], priors: torch.Tensor | None) -> None:
     """ValueError if a rule of ``groups`` divides by pixel-wise priors (``ml``, the α sweep)
     and there are none."""
-    if priors is None and any(g.needs_priors for g in groups):
+    needing = dict.fromkeys(
+        "--alpha_sweep" if g.family == "alpha" else "the rule ml" for g in groups if g.needs_priors
+    )
+    if priors is None and needing:
+        verb = "need" if len(needing) > 1 else "needs"
         raise ValueError(
-            "ml and --alpha_sweep need pixel-wise priors, and this data has none: pass --priors "
-            "FILE (a run's priors.pt, or scripts/count_priors.py's from a label folder)"
+            f"{' and '.join(needing)} {verb} pixel-wise priors, and there are none for these "
+            "images: pass --priors FILE (a run's priors.pt, or scripts/count_priors.py's)"
         )
 
 

@@ -80,8 +80,8 @@ def defer_group(
     for base in bases:
         if base.defers:
             raise ValueError(
-                f"{base.name} has a defer row of its own: --defer_sweep gives every class one "
-                "defer cost, so it takes N x N cost matrices"
+                "--defer_sweep gives every class one defer cost, so it takes N x N cost "
+                f"matrices; {base.name} has a defer row of its own"
             )
     n, rules, paths = len(class_names), [], []
     for base in bases:

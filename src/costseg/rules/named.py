@@ -60,7 +60,9 @@ def parse_rules(
             )
         if defer is not None:
             if rule.cost is not None and has_defer_row(rule.cost):
-                raise ValueError(f"{name} has a defer row of its own; leave out --defer")
+                raise ValueError(
+                    f"--defer with {name}, which has a defer row of its own: leave it out"
+                )
             cost = cost_or_symmetric(rule.cost, len(class_names))
             rule = Rule(rule.name, with_defer(cost, defer), rule.priors_alpha)
         rules.append(rule)
