@@ -185,3 +185,29 @@ def test_the_python_example_of_usage_md_runs(tmp_path):
     assert run.returncode == 0, run.stderr
     assert (tmp_path / "eval" / "my_network" / "results.json").is_file()
     assert not (tmp_path / "eval" / "my_network" / "INCOMPLETE").exists()
+
+
+def test_python_predict_equals_predict_py_with_the_same_priors(network, tmp_path):
+    """costseg.predict(module, inputs, priors=tensor) writes the label maps of predict.py with
+    --priors FILE."""
+    import costseg
+    from costseg.cli import predict_main
+
+    images = _tree(tmp_path / "cs", LABEL_SIZE, train=False) / "leftImg8bit" / "val"
+    priors_file = tmp_path / "p.pt"
+    subprocess.run([sys.executable, ROOT / "scripts" / "count_priors.py",
+                    str(tmp_path / "cs" / "gtFine" / "val"), "--output", str(priors_file)],
+                   check=True)  # fmt: skip
+    cli, api = tmp_path / "cli", tmp_path / "api"
+    rules = ["robotistic", "ml"]
+    predict_main(["--input", str(images), "--network", network, "--cost", *rules, "--priors",
+                  str(priors_file), "--output_dir", str(cli), "--no-progress"])  # fmt: skip
+    out = costseg.predict(load_network(network), [images], rules, priors=_priors(priors_file),
+                          output_dir=str(api), progress=False)  # fmt: skip
+    assert out == api
+    written = sorted(p.relative_to(cli) for p in (cli / "labels").rglob("*.png"))
+    assert len(written) == 2 * len(CITYSCAPES_FILES["val"])
+    for path in written:
+        assert np.array_equal(
+            np.asarray(Image.open(cli / path)), np.asarray(Image.open(api / path))
+        )
