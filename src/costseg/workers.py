@@ -82,8 +82,9 @@ class Stalled(RuntimeError):
 
 
 def loader_options(num_workers: int) -> dict:
-    """A DataLoader's keywords for ``num_workers`` workers: forked from the forkserver, and a
-    batch that does not come within :data:`STALL_SECONDS` is an error, not a wait.
+    """A DataLoader's keywords for ``num_workers`` workers, at most one per usable CPU (more
+    only compete for them, and torch warns): forked from the forkserver, and a batch that does
+    not come within :data:`STALL_SECONDS` is an error, not a wait.
 
     >>> loader_options(0)
     {'num_workers': 0}
@@ -92,7 +93,7 @@ def loader_options(num_workers: int) -> dict:
         return {"num_workers": 0}
     start()
     return {
-        "num_workers": num_workers,
+        "num_workers": min(num_workers, len(os.sched_getaffinity(0))),
         "multiprocessing_context": CONTEXT,
         "timeout": STALL_SECONDS,
     }

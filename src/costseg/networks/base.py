@@ -15,6 +15,7 @@ __all__ = [
     "at_input_size",
     "check_state_keys",
     "normalised",
+    "resize_bilinear",
 ]
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
@@ -39,7 +40,13 @@ def at_input_size(logits: Tensor, images: Tensor) -> Tensor:
     """
     if logits.shape[-2:] == images.shape[-2:]:
         return logits
-    return F.interpolate(logits, size=images.shape[-2:], mode="bilinear", align_corners=False)
+    return resize_bilinear(logits, tuple(images.shape[-2:]))
+
+
+def resize_bilinear(maps: Tensor, size: tuple[int, int]) -> Tensor:
+    """(B, C, h, w) float maps resized bilinearly to ``size`` (H, W), half-pixel centres (as
+    torchvision's and the official Cityscapes evaluators' resizing)."""
+    return F.interpolate(maps, size=size, mode="bilinear", align_corners=False)
 
 
 class ImageNetwork(nn.Module):

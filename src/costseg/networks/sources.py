@@ -14,13 +14,13 @@ from typing import Any
 
 import torch
 from torch import Tensor
-from torch.nn import functional as F
 from torch.utils.data import DataLoader, Dataset
 
 from costseg import workers
 from costseg.checkpoints import find_checkpoint
 from costseg.classes import CLASS_NAMES
 from costseg.data.from_config import image_stems
+from costseg.networks.base import resize_bilinear
 from costseg.progress import progress
 
 
@@ -283,12 +283,6 @@ class _Indexed(Dataset):
             return image, label, index, ids, None
         image, label = self.dataset[index]
         return image, label, index, None, None
-
-
-def resize_bilinear(maps: Tensor, size: tuple[int, int]) -> Tensor:
-    """(B, C, h, w) float maps resized bilinearly to ``size`` (H, W) (half-pixel centres, as
-    torchvision and the official Cityscapes evaluators' resizing)."""
-    return F.interpolate(maps, size=size, mode="bilinear", align_corners=False)
 
 
 def _collate_by_size(items) -> list[tuple]:
