@@ -14,10 +14,10 @@ CHAIN = [
     {"data", "metrics", "models", "networks", "meta"},
     {"report", "compile_kernels"},
     {"evaluation", "prediction", "training"},
-    {"cli"},
+    {"cli", "api"},
 ]
 NO_LIGHTNING = {"costs", "decision", "rules", "calibration", "metrics", "networks", "meta",
-                "report", "evaluation", "prediction", "workers", "compile_kernels"}  # fmt: skip
+                "report", "evaluation", "prediction", "workers", "compile_kernels", "api"}  # fmt: skip
 NO_MODEL = {"costs", "decision", "rules", "calibration", "metrics", "meta", "report"}
 
 
