@@ -94,9 +94,11 @@ def write_evaluation(results: EvalResults, early: EarlyFigures) -> None:
                 writer.add_image(f"evaluation/uncertainty/{i}", strip, dataformats="HWC")
         jobs = [] if early.plan_started else plan_figures(named.group, results.roi)
         if not early.examples_started:
-            jobs.append(("evaluation", example_figures(shown, results.examples)))
+            jobs.append(("evaluation", example_figures(shown, results.examples, results.subject)))
         jobs += write_sweeps(results) + _figures(results) + write_calibration(results)
-        jobs += write_segments(results, writer) + anomaly_jobs(results.extra.get("anomalies"))
+        jobs += write_segments(results, writer) + anomaly_jobs(
+            results.extra.get("anomalies"), results.subject
+        )
         _draw_and_log(writer, jobs, early.drawing)
     if results.options.get("explorer"):
         from costseg.report.explorer_points import write_evaluation_explorer
@@ -250,4 +252,4 @@ def _figures(results: EvalResults) -> list[tuple[str, Job]]:
             for c, cls in enumerate(instances["classes"].tolist())
         }
         grids.append(("missed_instances", maps, "missed instances"))
-    return [("evaluation", job(heatmap_grid_figures, grids))]
+    return [("evaluation", job(heatmap_grid_figures, grids, results.subject))]

@@ -107,7 +107,9 @@ def _meta_jobs(results: EvalResults) -> list[tuple[str, Job]]:
             mine = table["image"] == i
             predicted = segments.predicted(rule, SHOWN_MODEL)["iou"][mine]
             tag = f"meta/segments_{i}_{rule}"
-            examples.append((tag, image, maps[rule], table["iou"][mine], predicted))
+            title = f"{rule}: segments of example {i}, IoU predicted by {SHOWN_MODEL}"
+            title += f"\n{results.subject}" if results.subject else ""
+            examples.append((tag, title, image, maps[rule], table["iou"][mine], predicted))
     if examples:
         jobs.append(("evaluation", job(segment_iou_figures, examples)))
     true = [segments.tables[r]["iou"] for r in rules]
@@ -116,9 +118,11 @@ def _meta_jobs(results: EvalResults) -> list[tuple[str, Job]]:
         for m in ("logistic", "gradient_boosting")
         if all(segments.predicted(r, m) for r in rules)
     }
-    jobs.append(("evaluation", job(iou_scatter_figures, rules, true, predicted)))
+    jobs.append(("evaluation", job(iou_scatter_figures, rules, true, predicted, results.subject)))
     importances = [segments.models[r].importances(SHOWN_MODEL) for r in rules]
-    jobs.append(("evaluation", job(importance_figures, rules, importances, SHOWN_MODEL)))
+    jobs.append(
+        ("evaluation", job(importance_figures, rules, importances, SHOWN_MODEL, results.subject))
+    )
     return jobs
 
 
@@ -149,7 +153,7 @@ def _fusion_jobs(results: EvalResults) -> list[tuple[str, Job]]:
                     fp = np.array([r["fp_segments"] for r in mine])
                     panels.append((title, fp, np.array([r[y] for r in mine]), marks))
         if panels:
-            args = (panels, list(decider.taus), y.replace("_", " "))
+            args = (panels, list(decider.taus), y.replace("_", " "), results.subject)
             jobs.append(("evaluation", job(tradeoff_figures, *args)))
     return jobs
 
