@@ -20,7 +20,7 @@ from costseg.report.figures import heatmap_grid_figures
 from costseg.report.files import write_csv, write_json, write_text
 from costseg.report.results import EvalResults, GroupResult
 from costseg.report.risk_coverage import risk_coverage_json, risk_coverage_table
-from costseg.report.segments import meta_json, meta_table, write_segments
+from costseg.report.segments import meta_console, meta_json, meta_table, write_segments
 from costseg.report.tables import (
     PAPER_COLUMNS,
     PAPER_ROIS,
@@ -65,6 +65,8 @@ def write_evaluation(results: EvalResults, early: EarlyFigures) -> None:
     deferral = DEFER_SUMMARY if named.group.defers else ()
     print(console_table(headline, (*SUMMARY_COLUMNS, *deferral, *instances)))
     print("mIoU: " + ", ".join(f"{n} {100 * v:.2f}" for n, v in _miou(named).items()))
+    if meta := meta_console(results.segments):
+        print(meta)
     tables = _tables(headline, named, _probability_note(results)) + _risk_coverage_table(results)
     if meta := meta_table(results.segments):
         tables += "\n\n" + meta + "\n"

@@ -21,7 +21,7 @@ from costseg.report.segment_figures import (
     segment_iou_figures,
     tradeoff_figures,
 )
-from costseg.report.tables import markdown_table
+from costseg.report.tables import console_table, markdown_table
 
 SCORES = ("auroc", "accuracy", "r2", "sigma", "segments")
 MODELS_FILE = "meta/models.joblib"
@@ -57,6 +57,32 @@ def meta_table(segments: SegmentResults | None) -> str:
         "reported ones: AUROC and accuracy of iou0 (false segment), R² and σ of the IoU.\n\n"
         + markdown_table(rows)
     )
+
+
+def meta_console(segments: SegmentResults | None) -> str:
+    """The terminal's summary of ``--meta`` (empty without it): per rule, each model's AUROC of
+    iou0 (a false segment) and R² of the IoU on the reported images.
+
+    >>> scores = {m: {"auroc": 0.8, "r2": 0.5} for m in MODELS}
+    >>> print(meta_console(SegmentResults({}, [], [], scores={"ml": scores})))
+    meta models, scored on the reported images' segments: AUROC of iou0, R² of the IoU
+    rule  AUROC logistic  AUROC boosting  AUROC entropy  R² logistic  R² boosting  R² entropy
+    ----  --------------  --------------  -------------  -----------  -----------  ----------
+    ml               0.8             0.8            0.8          0.5          0.5         0.5
+    """
+    if segments is None or not segments.scores:
+        return ""
+    scores = {"auroc": "AUROC", "r2": "R²"}
+    columns = [(s, m) for s in scores for m in MODELS]
+    rows = [
+        {"rule": rule} | {f"{s} {m}": by_model.get(m, {}).get(s) for s, m in columns}
+        for rule, by_model in segments.scores.items()
+    ]
+    names = [f"{s} {m}" for s, m in columns]
+    headers = ["rule", *(f"{scores[s]} {m.replace('gradient_', '')}" for s, m in columns)]
+    table = console_table(rows, ["rule", *names], headers, percent=())
+    what = "meta models, scored on the reported images' segments: AUROC of iou0, R² of the IoU"
+    return f"{what}\n{table}"
 
 
 def write_segments(results: EvalResults, writer: SummaryWriter) -> list[tuple[str, Job]]:
