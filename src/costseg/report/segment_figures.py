@@ -30,7 +30,10 @@ def segment_iou_figures(
         axes = fig.subplots(1, 3)
         axes[0].imshow(image)
         axes[0].set_title("image")
-        for ax, values, name in ((axes[1], true, "true IoU"), (axes[2], predicted, "predicted")):
+        for ax, values, name in (
+            (axes[1], true, "true IoU"),
+            (axes[2], predicted, "predicted IoU"),
+        ):
             shown = ax.imshow(painted(ids, values), cmap=IOU_COLOURS, vmin=0, vmax=1)
             ax.set_facecolor("0.5")  # no segment (ignored or deferred pixels): grey
             ax.set_title(f"segments: {name}")
