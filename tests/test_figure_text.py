@@ -5,11 +5,15 @@ compared with the figure's bounding box (figure_text.py)."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
+import torch
 from figure_text import InProcessDrawing, clipped_texts
 
+from costseg.classes import CLASS_NAMES
 from costseg.report.figures import plot_heatmap_grid
 from costseg.report.files import render
+from costseg.report.priors import plot_priors, plot_roi_map
 
 
 @pytest.fixture(scope="module")
@@ -44,3 +48,12 @@ def test_a_tall_colour_bar_label_fits_one_row_of_panels():
     fig.colorbar(fig.axes[0].images[0], ax=fig.axes[:2], label="x" * 80)  # a label too long
     render(fig)
     assert any("x" * 80 in what for what in clipped_texts(fig))
+
+
+def test_the_training_run_s_figures_show_all_their_text():
+    """priors.png and roi_map.png of train.py, at the toy world's size."""
+    priors = torch.full((len(CLASS_NAMES), 128, 256), 1 / len(CLASS_NAMES))
+    roi = np.repeat(np.arange(1, 5), 128 * 256 // 4).reshape(128, 256)
+    for fig in (plot_priors(priors), plot_roi_map(roi)):
+        render(fig)
+        assert clipped_texts(fig) == []
