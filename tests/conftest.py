@@ -121,3 +121,40 @@ def vainf(tmp_path_factory) -> tuple[torch.nn.Module, Path]:
     path = tmp_path_factory.mktemp("vainf") / "best_deeplabv3plus_resnet50_cityscapes_os16.pth"
     torch.save({"model_state": export_vainf_state(net.eval())}, path)
     return net, path
+
+
+EVERY_OUTPUT = [
+    ["--cost", "robotistic", "ml", "--calibrate", "temperature", "--temperature_sweep",
+     "--sweep", "0.5", "--alpha_sweep", "0.5", "--defer_sweep", "0.2", "0.6", "0.2",
+     "--meta", "--meta_split", "train", "--meta_images", "6", "--fuse", "ml", "--fuse_tau", "0",
+     "1", "--save-segments", "--save-predictions", "--save-probs", "--explorer"],
+    ["--cost", "robotistic", "--anomalies", "--shift", "fog:2"],
+]  # fmt: skip
+"""Options of the evaluations of ``every_output``: together, every figure and most files."""
+
+
+@pytest.fixture(scope="session")
+def every_output(tiny_run, tmp_path_factory) -> list[Path]:
+    """The folders of tiny evaluations with the options of ``EVERY_OUTPUT`` (of the person class,
+    one example), their figures drawn in this process by ``figure_text.InProcessDrawing``, which
+    keeps the figures' titles and clipped texts; the terminal's output in each ``stdout.txt``."""
+    import contextlib
+    import io
+
+    from figure_text import InProcessDrawing
+
+    from costseg.checkpoints import find_checkpoint
+    from costseg.cli import evaluate_main
+
+    ckpt = str(find_checkpoint(None, runs_dir=tiny_run[2]))
+    folders = []
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr("costseg.report.early_figures.Drawing", InProcessDrawing)
+        for i, args in enumerate(EVERY_OUTPUT):
+            out = tmp_path_factory.mktemp(f"every_output_{i}") / "evaluation"
+            common = ["--ckpt_path", ckpt, "--output_dir", str(out), "--classes", "person"]
+            with contextlib.redirect_stdout(io.StringIO()) as printed:
+                evaluate_main([*common, *args, "--num_examples", "1", "--no-progress"])
+            (out / "stdout.txt").write_text(printed.getvalue())
+            folders.append(out)
+    return folders

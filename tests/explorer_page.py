@@ -50,11 +50,19 @@ function run(i) {
       slider.value = String(step.slider);
       slider.dispatchEvent(new win.Event("input"));
     }
+    if (step.cls !== null) {
+      const select = doc.getElementById("cls");
+      select.value = step.cls;
+      select.dispatchEvent(new win.Event("change"));
+    }
     const pre = doc.getElementById("costseg-state");
     previous = url.split("#")[0] + win.location.hash;
     states.push({hash: win.location.hash, state: pre && JSON.parse(pre.textContent),
                  shown: doc.getElementById("defer-value").textContent,
-                 metrics: doc.getElementById("metrics").textContent});
+                 metrics: doc.getElementById("metrics").textContent,
+                 legend: doc.getElementById("legend").innerText,
+                 choice: win.getComputedStyle(doc.getElementById("choice")).display,
+                 visible: doc.body.innerText});
     frame.remove();
     run(i + 1);
   };
@@ -65,24 +73,31 @@ run(0);
 """
 
 
-def states_page(folder: Path, steps: list[tuple[Path | None, str, int | None]]) -> Path:
+def states_page(folder: Path, steps: list[tuple]) -> Path:
     """A page that opens explorer pages one after another in a frame and lists what each shows.
 
     Args:
         folder: where the page is written.
-        steps: ``(page, fragment, slider)`` each: open ``page#fragment`` (``page`` None: the
-            previous step's page at the hash it ended with), then, unless ``slider`` is None,
-            move the defer slider to that position.
+        steps: ``(page, fragment, slider[, cls])`` each: open ``page#fragment`` (``page``
+            None: the previous step's page at the hash it ended with), then, unless ``slider``
+            is None, move the defer slider to that position, and choose the class ``cls`` in
+            the page's menu where given.
 
     Returns:
         The page; once its scripts ran (Chromium with ``--allow-file-access-from-files``, so a
         page may read its frames), its ``<pre id="states">`` holds a JSON list with, per step,
         ``{"hash", "state" (the costseg-state JSON), "shown" (the defer slider's text),
-        "metrics" (the text of the metrics at the point)}``.
+        "metrics" (the text of the metrics at the point), "legend" (the class legend's text),
+        "choice" (the CSS display of the metric and class menus), "visible" (the text the
+        page shows)}``.
     """
     plan = [
-        {"url": None if page is None else f"{page.as_uri()}#{fragment}", "slider": slider}
-        for page, fragment, slider in steps
+        {
+            "url": None if page is None else f"{page.as_uri()}#{fragment}",
+            "slider": slider,
+            "cls": cls[0] if cls else None,
+        }
+        for page, fragment, slider, *cls in steps
     ]
     path = folder / "states.html"
     script = STATES_SCRIPT % json.dumps(plan)

@@ -1,8 +1,10 @@
-"""docs/usage.md cannot drift: its tables of training defaults are the YAML files' values, and
-every option its tables (and predict.md's) name is an option of the parser it documents."""
+"""docs/usage.md cannot drift: its tables of training defaults are the YAML files' values, every
+option its tables (and predict.md's) name is an option of the parser it documents, and its
+tables of an evaluation's files and CSV columns name every file and column of real runs."""
 
 from __future__ import annotations
 
+import csv
 import re
 from pathlib import Path
 
@@ -116,3 +118,34 @@ def test_every_option_the_docs_name_is_a_parser_s_option():
         assert named, doc
         unknown = named - _options(parsers[doc])
         assert not unknown, (doc, sorted(unknown))
+
+
+def patterns(text: str) -> list[re.Pattern]:
+    """The code spans in the first cells of a table's rows as patterns: ``<name>`` and ``*``
+    stand for any characters but ``/``, a trailing ``/`` for any path below."""
+    found = []
+    for line in text.splitlines():
+        if line.startswith("| "):
+            for span in re.findall(r"`([^`]+)`", line.strip("|").split("|")[0]):
+                regex = re.sub(r"<[^>]+>", "[^/]+", re.escape(span)).replace(r"\*", "[^/]*")
+                found.append(re.compile(regex + (".*" if span.endswith("/") else "")))
+    return found
+
+
+def test_usage_names_every_file_and_csv_column_of_real_runs(every_output):
+    files = patterns(section(USAGE, "### What an evaluation writes"))
+    columns = patterns(section(USAGE, "#### Columns of the CSV files"))
+    checked = set()
+    for folder in every_output:
+        for path in sorted(p for p in folder.rglob("*") if p.is_file()):
+            name = path.relative_to(folder).as_posix()
+            if name == "stdout.txt":  # the test's own copy of the terminal
+                continue
+            assert any(p.fullmatch(name) for p in files), f"{name} is not in usage.md"
+            if path.suffix == ".csv":
+                with path.open() as f:
+                    header = next(csv.reader(f))
+                unnamed = [c for c in header if not any(p.fullmatch(c) for p in columns)]
+                assert not unnamed, f"columns of {name} not in usage.md: {unnamed}"
+                checked.add(path.name)
+    assert {"results.csv", "calibration.csv", "defer_sweep.csv", "fusion.csv"} <= checked

@@ -18,6 +18,7 @@ import pytest
 import torch
 from explorer_page import embedded_probs, page_json, states_page
 
+from costseg.classes import CLASS_NAMES
 from costseg.costs import barycentric_grid, mix_costs, with_defer
 from costseg.decision import decide_reference
 from costseg.report.explorer import Marks, SweepData, embedded, write_explorer
@@ -249,3 +250,39 @@ def test_hovering_a_pixel_shows_its_uncertainty(tmp_path):
     assert shown, dom[-500:]
     for value, key in zip(shown.groups(), ("entropy", "mutual_information"), strict=True):
         assert float(value) == pytest.approx(float(maps[key].half()[4, 5]), rel=5e-3)  # 3 digits
+
+
+@needs_chromium
+def test_the_page_shows_a_class_legend_no_debug_output_and_only_menus_that_act(page, tmp_path):
+    """A page with a sweep: its heatmap menus; one with labels but no sweep (evaluate.py without
+    --sweep): the class of its metrics, which changes them; one without either (predict.py):
+    no menu. Each: every class in the legend, and no state JSON or timing shown."""
+    g = torch.Generator().manual_seed(1)
+    labels = torch.randint(0, 19, (6, 8), generator=g).numpy().astype(np.uint8)
+    probs = torch.rand(19, 6, 8, generator=g).softmax(0)
+    vertices = vertex_matrices(VERTEX_NAMES)
+    labelled = write_explorer(
+        tmp_path / "labelled.html", [embedded("ex", np.zeros((6, 8, 3), np.uint8), probs, labels)],
+        vertices, VERTEX_NAMES,
+    )  # fmt: skip
+    bare = write_explorer(
+        tmp_path / "bare.html", [embedded("ex", np.zeros((6, 8, 3), np.uint8), probs)],
+        vertices, VERTEX_NAMES,
+    )  # fmt: skip
+    steps = [(page, "w=1,0,0", None), (labelled, "w=1,0,0", None),
+             (labelled, "w=1,0,0", None, "car"), (bare, "w=1,0,0", None)]  # fmt: skip
+    shown = page_states(page, steps)
+    for step in shown:
+        assert all(name in step["legend"] for name in (*CLASS_NAMES, "deferred"))
+        assert '"ms"' not in step["visible"] and "labels_sha256" not in step["visible"]
+        assert step["state"]["examples"]  # the state stays readable for scripts
+    assert [step["choice"] for step in shown] == ["block", "block", "block", "none"]
+    assert "of person over the 1 embedded" in shown[1]["metrics"]
+    assert "of car over the 1 embedded" in shown[2]["metrics"]
+    precision = [re.findall(r"image(–|[01]\.\d{4})", step["metrics"]) for step in shown[1:3]]
+    d, t = np.asarray(reference_labels(probs, [1, 0, 0])), labels  # the reference's numbers
+    for cls, found in zip((11, 13), precision, strict=True):
+        tp = np.sum((d == cls) & (t == cls))
+        expected = f"{tp / np.sum(d == cls):.4f}" if np.sum(d == cls) else "–"
+        assert found[0] == expected, (cls, found)
+    assert shown[3]["metrics"] == ""

@@ -4,7 +4,9 @@ models give the same predictions, the fused rules are reported, and the refusals
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import io
 import json
 
 import numpy as np
@@ -19,7 +21,7 @@ from costseg.checkpoints import find_checkpoint
 from costseg.classes import CLASS_NAMES, IGNORE_INDEX, LABEL_ID_TO_TRAIN_ID
 from costseg.cli import evaluate_main, predict_main
 from costseg.data.toy import StreetScenes
-from costseg.meta.models import SHOWN_MODEL, load_models
+from costseg.meta.models import MODELS, SHOWN_MODEL, load_models
 from costseg.prediction.panels import TITLE
 from costseg.report.uncertainty import IOU_COLOURS, NO_SEGMENT
 
@@ -43,7 +45,9 @@ GUARANTEED_TARGET = [
 def evaluated(ckpt, tmp_path_factory):
     out = tmp_path_factory.mktemp("meta") / "eval"
     args = ["--ckpt_path", ckpt, "--cost", *RULES, *META, *FUSE, "--output_dir", str(out)]
-    results = evaluate_main([*args, "--num_examples", "1", "--no-progress"])
+    with contextlib.redirect_stdout(io.StringIO()) as printed:
+        results = evaluate_main([*args, "--num_examples", "1", "--no-progress"])
+    (out / "stdout.txt").write_text(printed.getvalue())  # the terminal, beside the outputs
     return out, results
 
 
@@ -85,6 +89,22 @@ def test_the_scores_equal_sklearn_s_on_the_csv_and_the_saved_models(evaluated) -
             predicted = models[rule].predicted_iou(model, columns)
             np.testing.assert_allclose(predicted, columns[f"{model}_iou"], rtol=1e-12)
         assert record["fitted_on"]["images"] == 6
+
+
+def test_the_terminal_gives_each_rule_s_auroc_and_r2(evaluated) -> None:
+    out, _ = evaluated
+    scores = json.loads((out / "results.json").read_text())["meta"]["scores"]
+    printed = (out / "stdout.txt").read_text().splitlines()
+    header = printed.index(next(line for line in printed if line.split()[:2] == ["rule", "AUROC"]))
+    assert printed[header].split() == ["rule"] + [
+        word
+        for s in ("AUROC", "R²")
+        for m in ("logistic", "boosting", "entropy")
+        for word in (s, m)
+    ]
+    for rule, line in zip(RULES, printed[header + 2 : header + 2 + len(RULES)], strict=True):
+        values = [scores[rule][m][s] for s in ("auroc", "r2") for m in MODELS]
+        assert line.split() == [rule, *(f"{v:.4g}" for v in values)]
 
 
 def test_the_fused_rules_are_reported_like_any_rule(evaluated) -> None:

@@ -103,23 +103,31 @@ def _evaluate(ckpt, out, *extra):
 
 
 def test_evaluate_under_several_shifts(tiny_run, tmp_path, capsys):
-    """One complete evaluation per shift; severity 0 reports what the clean images give."""
+    """One complete evaluation of the clean images and one per shift; severity 0 reports what
+    the clean images give; shifts.md in table.md's units (ECE as the terminal's fraction)."""
     ckpt = find_checkpoint(None, runs_dir=tiny_run[2])
-    clean = json.loads((_evaluate(ckpt, tmp_path / "clean") / "results.json").read_text())
     out = _evaluate(ckpt, tmp_path / "shifted", "--shift", "fog:0", "night:4")
-    assert not (out / "INCOMPLETE").exists()
+    assert not (out / "INCOMPLETE").exists() and not (out / "clean").exists()  # fog:0 is
     same = json.loads((out / "fog_0" / "results.json").read_text())
+    out = _evaluate(ckpt, tmp_path / "with_clean", "--shift", "night:4", "fog:2")
+    clean = json.loads((out / "clean" / "results.json").read_text())
     dark = json.loads((out / "night_4" / "results.json").read_text())
     assert same["rows"] == clean["rows"] and same["miou"] == clean["miou"]
+    assert clean["options"]["shift"] == [] and "seen through" not in clean["probabilities"]
     assert dark["miou"] != clean["miou"] and dark["options"]["shift"] == ["night:4"]
     assert "seen through night:4" in dark["probabilities"]
     summary = json.loads((out / "shifts.json").read_text())
     assert [(r["shift"], r["rule"]) for r in summary["rows"]] == [
-        ("fog:0", "robotistic"), ("fog:0", "altruistic"),
+        ("clean", "robotistic"), ("clean", "altruistic"),
         ("night:4", "robotistic"), ("night:4", "altruistic"),
+        ("fog:2", "robotistic"), ("fog:2", "altruistic"),
     ]  # fmt: skip
     assert summary["rows"][2]["miou"] == dark["miou"]["robotistic"]
-    assert "| night:4 | altruistic |" in (out / "shifts.md").read_text()
+    table = (out / "shifts.md").read_text()
+    row = next(line for line in table.splitlines() if line.startswith("| clean | robotistic |"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[2] == f"{100 * clean['miou']['robotistic']:.2f}"  # in %, as table.md
+    assert cells[-2:] == [f"{clean['ece']['raw']:.4g}", f"{clean['nll']['raw']:.4g}"]
 
 
 def test_shift_refusals(tiny_run, tmp_path, capsys):

@@ -251,9 +251,11 @@ def evaluate_plan(planned: EvalPlan) -> EvalResults:
     try:
         if rank() == 0:
             from costseg.report.early_figures import EarlyFigures
+            from costseg.report.results import figure_subject
 
             roi = planned.priors.roi_map()
-            early = EarlyFigures(out, planned.groups, roi, opts.num_examples)
+            subject = figure_subject(planned.source.description, opts.shift or [])
+            early = EarlyFigures(out, planned.groups, roi, opts.num_examples, subject)
         results = run(planned, early.after_batch if early else None)
         if early:
             from costseg.report.evaluation import write_evaluation

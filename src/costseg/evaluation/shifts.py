@@ -1,7 +1,8 @@
 """Several ``--shift`` at once: one evaluation of the reported images per shift, with the network,
 the priors and the (clean) held-out images of one plan, each into
-``<output_dir>/<name>_<severity>/`` as a complete evaluation folder, then the summary over the
-shifts (:mod:`costseg.report.shifts`) in ``<output_dir>``."""
+``<output_dir>/<name>_<severity>/`` as a complete evaluation folder, the clean images' in
+``<output_dir>/clean/``, then the summary over the shifts (:mod:`costseg.report.shifts`) in
+``<output_dir>``."""
 
 from __future__ import annotations
 
@@ -22,24 +23,35 @@ def shift_folder(shift: Shift) -> str:
 def evaluate_shifts(
     planned: EvalPlan, evaluate_plan: Callable[[EvalPlan], EvalResults]
 ) -> list[EvalResults]:
-    """``evaluate_plan`` once per shift of ``planned``; the summary written on rank 0."""
-    from costseg.report.shifts import write_shift_summary
+    """``evaluate_plan`` once on the clean images (``<output_dir>/clean/``, unless a shift of
+    severity 0, which leaves the images as they are, is among the shifts) and once per shift of
+    ``planned``; the summary written on rank 0."""
+    from costseg.report.shifts import CLEAN, write_shift_summary
 
-    out, results = planned.output_dir, []
-    for shift in planned.shifts:
-        folder = out / shift_folder(shift)
-        print(f"shift {shift}: {folder}")
+    out, results, folders = planned.output_dir, [], {}
+    clean = [] if any(s.severity == 0 for s in planned.shifts) else [None]
+    for shift in [*clean, *planned.shifts]:
+        name, folder = (CLEAN, CLEAN) if shift is None else (str(shift), shift_folder(shift))
+        print(f"{'clean images' if shift is None else f'shift {shift}'}: {out / folder}")
+        shifted = [] if shift is None else [shift]
         one = dataclasses.replace(
             planned,
-            options=dataclasses.replace(planned.options, shift=[str(shift)]),
-            dataset=ShiftedDataset(planned.dataset, shift, planned.options.seed),
-            output_dir=on_rank0(lambda folder=folder: claim_output_dir(str(folder), False, out)),
+            options=dataclasses.replace(planned.options, shift=[str(s) for s in shifted]),
+            dataset=_seen_through(planned, shift),
+            output_dir=on_rank0(lambda f=out / folder: claim_output_dir(str(f), False, out)),
             groups=list(planned.groups),  # a fitted temperature adds a group to the run's list
-            shifts=[shift],
+            shifts=shifted,
         )
         results.append(evaluate_plan(one))
+        folders[name] = folder
     if rank() == 0:
-        folders = {str(s): shift_folder(s) for s in planned.shifts}
         write_shift_summary(out, folders, planned.class_ids)
         mark_complete(out)
     return results
+
+
+def _seen_through(planned: EvalPlan, shift: Shift | None):
+    """The reported images seen through ``shift`` (None: as they are)."""
+    if shift is None:
+        return planned.dataset
+    return ShiftedDataset(planned.dataset, shift, planned.options.seed)

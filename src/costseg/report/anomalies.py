@@ -38,11 +38,12 @@ def anomaly_json(found: dict[str, Any] | None) -> dict[str, Any] | None:
     return {"scores": found["scores"], "decided": decided, "decided_pixels": found["decided"]}
 
 
-def anomaly_jobs(found: dict[str, Any] | None) -> list[tuple[str, Job]]:
-    """The figure job of the example images' score maps (none without ``--anomalies``)."""
+def anomaly_jobs(found: dict[str, Any] | None, subject: str = "") -> list[tuple[str, Job]]:
+    """The figure job of the example images' score maps (none without ``--anomalies``), titled
+    with ``subject`` (the network and shift)."""
     if not found or not found.get("examples"):
         return []
-    return [("evaluation", job(anomaly_map_figures, found["examples"]))]
+    return [("evaluation", job(anomaly_map_figures, found["examples"], subject))]
 
 
 def anomaly_table(found: dict[str, Any] | None) -> str:

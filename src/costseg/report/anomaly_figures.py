@@ -14,14 +14,18 @@ MASK_COLOURS = ListedColormap(["0.15", "tab:red", "0.6"])  # known, unknown obje
 
 def anomaly_map_figures(
     examples: Sequence[tuple[np.ndarray, np.ndarray, Mapping[str, np.ndarray]]],
+    subject: str = "",
 ) -> Iterator[tuple[str, Figure]]:
     """Per ``(image (H, W, 3) uint8, mask (H, W), {score: (H, W) map in [0, 1]})``: the image,
-    the mask (red: unknown objects, grey: void) and the score maps, one row of panels."""
+    the mask (red: unknown objects, grey: void) and the score maps, one row of panels, under a
+    title with ``subject`` (the network and shift)."""
     for i, (image, mask, maps) in enumerate(examples):
         h, w = mask.shape
         columns = 2 + len(maps)
         rows = -(-columns // 4)
-        fig = Figure(figsize=(16, rows * (16 / 4) * h / w + 0.9), layout="constrained")
+        fig = Figure(figsize=(16, rows * (16 / 4) * h / w + 1.2), layout="constrained")
+        title = f"anomaly scores of example {i} with unknown objects added"
+        fig.suptitle(f"{title}, {subject}" if subject else title, wrap=True)
         axes = np.atleast_1d(fig.subplots(rows, 4)).ravel()
         axes[0].imshow(image)
         axes[0].set_title("image")

@@ -70,7 +70,9 @@ def write_calibration(results: EvalResults) -> list[tuple[str, Job]]:
         print(calibration_line(rows))
     if "certificate" in extra:
         _write_certificate(results)
-    return [("calibration", job(calibration_figures, ece, _temperature_sweep(results)))]
+    return [
+        ("calibration", job(calibration_figures, ece, _temperature_sweep(results), results.subject))
+    ]
 
 
 def _temperature_sweep(results: EvalResults) -> list[Curves]:

@@ -11,9 +11,14 @@ from matplotlib.figure import Figure
 
 
 def plot_curves(
-    x: Sequence[float], series: Mapping[str, Sequence[float]], xlabel: str, title: str
+    x: Sequence[float],
+    series: Mapping[str, Sequence[float]],
+    xlabel: str,
+    title: str,
+    subject: str = "",
 ) -> Figure:
-    """One line per series over ``x``, values in [0, 1] (NaN points are left out by matplotlib).
+    """One line per series over ``x``, values in [0, 1] (NaN points are left out by matplotlib);
+    ``subject`` (the network and shift) under the title.
 
     >>> plot_curves([0, 1], {"recall": [0.5, 0.9]}, "α", "person").axes[0].get_xlabel()
     'α'
@@ -22,7 +27,8 @@ def plot_curves(
     ax = fig.add_subplot()
     for label, values in series.items():
         ax.plot(x, values, marker="o", label=label)
-    ax.set(xlabel=xlabel, ylabel="value", title=title, ylim=(0, 1.02))
+    ax.set(xlabel=xlabel, ylabel="value", ylim=(0, 1.02))
+    ax.set_title(f"{title}\n{subject}" if subject else title, wrap=True)
     ax.grid(alpha=0.3)
     ax.legend()
     return fig
@@ -32,26 +38,28 @@ Curves = tuple[str, Sequence[float], Mapping[str, Sequence[float]], str, str]
 """``(tag, x, series, xlabel, title)`` of one :func:`plot_curves` figure."""
 
 
-def curve_figures(curves: Sequence[Curves]) -> Iterator[tuple[str, Figure]]:
-    """``(tag, plot_curves(x, series, xlabel, title))`` of each of ``curves`` (a drawing job).
+def curve_figures(curves: Sequence[Curves], subject: str = "") -> Iterator[tuple[str, Figure]]:
+    """``(tag, plot_curves(x, series, xlabel, title, subject))`` of each of ``curves`` (a
+    drawing job).
 
     >>> [tag for tag, _ in curve_figures([("a", [0, 1], {"r": [0.5, 0.9]}, "α", "person")])]
     ['a']
     """
     for tag, x, series, xlabel, title in curves:
-        yield tag, plot_curves(x, series, xlabel, title)
+        yield tag, plot_curves(x, series, xlabel, title, subject)
 
 
 def calibration_figures(
-    ece: Mapping, temperatures: Sequence[Curves]
+    ece: Mapping, temperatures: Sequence[Curves], subject: str = ""
 ) -> Iterator[tuple[str, Figure]]:
-    """``reliability`` (where ``ece`` has bins) and the temperature sweep's curves (a job)."""
+    """``reliability`` (where ``ece`` has bins) and the temperature sweep's curves (a job),
+    titled with ``subject`` (the network and shift)."""
     if ece:
-        yield "reliability", plot_reliability(ece)
-    yield from curve_figures(temperatures)
+        yield "reliability", plot_reliability(ece, subject)
+    yield from curve_figures(temperatures, subject)
 
 
-def plot_reliability(bins: Mapping[str, Mapping]) -> Figure:
+def plot_reliability(bins: Mapping[str, Mapping], subject: str = "") -> Figure:
     """Accuracy against confidence per bin, one line per set of probabilities (raw, scaled).
 
     >>> bins = {"confidence": np.array([0.5, 0.9]), "accuracy": np.array([0.4, 1.0]), "ece": 0.05}
@@ -66,7 +74,8 @@ def plot_reliability(bins: Mapping[str, Mapping]) -> Figure:
         keep = np.isfinite(conf) & np.isfinite(acc)
         ax.plot(conf[keep], acc[keep], marker="o", label=f"{name} (ECE {float(b['ece']):.4f})")
     ax.set(xlabel="confidence", ylabel="accuracy", xlim=(0, 1), ylim=(0, 1))
-    ax.set_title("reliability (top label)")
+    title = "reliability (top label, all pixels)"
+    ax.set_title(f"{title}\n{subject}" if subject else title, wrap=True)
     ax.legend()
     return fig
 
@@ -77,7 +86,8 @@ risk–coverage figure."""
 
 
 def risk_coverage_figures(figures: Sequence[Sequence[Panel]], note: str) -> Iterator[tuple]:
-    """``risk_coverage_<class>`` of each figure's panels, side by side (a job).
+    """``risk_coverage_<class>`` of each figure's panels, side by side, under ``note`` (the
+    rules and defer costs, the network and shift) (a job).
 
     >>> panel = ("car", "car, RoI 0", [("ml", ([1.0, 0.5], [0.2, 0.1]))])
     >>> [tag for tag, _ in risk_coverage_figures([[panel]], "defer sweep")]
@@ -93,5 +103,5 @@ def risk_coverage_figures(figures: Sequence[Sequence[Panel]], note: str) -> Iter
             ax.set_title(title)
             ax.grid(alpha=0.3)
             ax.legend(fontsize=8)
-        fig.suptitle(f"risk–coverage: {note}", fontsize=9)
+        fig.suptitle(f"risk–coverage: {note}", fontsize=9, wrap=True)
         yield f"risk_coverage_{panels[0][0]}", fig

@@ -31,6 +31,8 @@ class EarlyFigures:
             rules of :func:`~costseg.rules.masked_groups` fill the mask figures).
         roi: (H, W) RoI map, or None.
         num_examples: images of the mask figures.
+        subject: the network and shift, for the figures' titles
+            (:func:`costseg.report.results.figure_subject`).
     """
 
     def __init__(
@@ -39,10 +41,11 @@ class EarlyFigures:
         groups: Sequence[RuleGroup],
         roi: torch.Tensor | None,
         num_examples: int,
+        subject: str = "",
     ) -> None:
         self.drawing = Drawing(output_dir / "figures", len(os.sched_getaffinity(0)))
         self.group, self.roi, self.num_examples = named_group(groups), roi, num_examples
-        self.mask_names = mask_names(groups)
+        self.mask_names, self.subject = mask_names(groups), subject
         self.plan_started = self.examples_started = False
 
     def after_batch(self, examples: list[Example]) -> None:
@@ -52,7 +55,9 @@ class EarlyFigures:
                 self.drawing.submit(prefix, plan_job)
             self.plan_started = True
         if not self.examples_started and len(examples) >= self.num_examples > 0:
-            self.drawing.submit("evaluation", example_figures(self.mask_names, examples))
+            self.drawing.submit(
+                "evaluation", example_figures(self.mask_names, examples, self.subject)
+            )
             self.examples_started = True
 
     def cancel(self) -> None:
@@ -77,9 +82,10 @@ def mask_names(groups: Sequence[RuleGroup]) -> list[str]:
     return [name for g in masked_groups(groups) for name in g.names]
 
 
-def example_figures(names: Sequence[str], examples: list[Example]) -> Job:
+def example_figures(names: Sequence[str], examples: list[Example], subject: str = "") -> Job:
     """The mask figure of each example: image, ground truth, each shown rule's labels and the
-    uncertainty maps, each titled with its scale (docs/definitions.md §13)."""
+    uncertainty maps, each titled with its scale (docs/definitions.md §13); ``subject`` (the
+    network and shift) above them."""
     from costseg.report.figures import example_mask_figures
 
     return job(
@@ -94,4 +100,5 @@ def example_figures(names: Sequence[str], examples: list[Example]) -> Job:
             )
             for ex in examples
         ],
+        subject,
     )

@@ -20,7 +20,7 @@ from costseg.report.figures import heatmap_grid_figures
 from costseg.report.files import write_csv, write_json, write_text
 from costseg.report.results import EvalResults, GroupResult
 from costseg.report.risk_coverage import risk_coverage_json, risk_coverage_table
-from costseg.report.segments import meta_json, meta_table, write_segments
+from costseg.report.segments import meta_console, meta_json, meta_table, write_segments
 from costseg.report.tables import (
     PAPER_COLUMNS,
     PAPER_ROIS,
@@ -65,6 +65,8 @@ def write_evaluation(results: EvalResults, early: EarlyFigures) -> None:
     deferral = DEFER_SUMMARY if named.group.defers else ()
     print(console_table(headline, (*SUMMARY_COLUMNS, *deferral, *instances)))
     print("mIoU: " + ", ".join(f"{n} {100 * v:.2f}" for n, v in _miou(named).items()))
+    if meta := meta_console(results.segments):
+        print(meta)
     tables = _tables(headline, named, _probability_note(results)) + _risk_coverage_table(results)
     if meta := meta_table(results.segments):
         tables += "\n\n" + meta + "\n"
@@ -94,9 +96,11 @@ def write_evaluation(results: EvalResults, early: EarlyFigures) -> None:
                 writer.add_image(f"evaluation/uncertainty/{i}", strip, dataformats="HWC")
         jobs = [] if early.plan_started else plan_figures(named.group, results.roi)
         if not early.examples_started:
-            jobs.append(("evaluation", example_figures(shown, results.examples)))
+            jobs.append(("evaluation", example_figures(shown, results.examples, results.subject)))
         jobs += write_sweeps(results) + _figures(results) + write_calibration(results)
-        jobs += write_segments(results, writer) + anomaly_jobs(results.extra.get("anomalies"))
+        jobs += write_segments(results, writer) + anomaly_jobs(
+            results.extra.get("anomalies"), results.subject
+        )
         _draw_and_log(writer, jobs, early.drawing)
     if results.options.get("explorer"):
         from costseg.report.explorer_points import write_evaluation_explorer
@@ -250,4 +254,4 @@ def _figures(results: EvalResults) -> list[tuple[str, Job]]:
             for c, cls in enumerate(instances["classes"].tolist())
         }
         grids.append(("missed_instances", maps, "missed instances"))
-    return [("evaluation", job(heatmap_grid_figures, grids))]
+    return [("evaluation", job(heatmap_grid_figures, grids, results.subject))]

@@ -102,10 +102,10 @@
       height: ex.height, width: ex.width, labels_sha256: sha256(ex.labels),
       deferred_pixels: ex.deferred })) };
     let pre = $("costseg-state");
-    if (!pre) {
+    if (!pre) {  // for scripts and tests, never shown
       pre = document.createElement("pre");
       pre.id = "costseg-state";
-      pre.className = "note";
+      pre.hidden = true;
       document.body.appendChild(pre);
     }
     pre.textContent = JSON.stringify(state);
@@ -214,17 +214,27 @@
     values.forEach((v, i) => { const o = document.createElement("option");
       o.value = v; o.textContent = labels ? labels[i] : v; select.appendChild(o); });
   }
+  function legend() {  // every class's colour, deferred pixels and the argmax's grey
+    const entry = (rgb, name) => `<span class="entry"><span class="swatch" `
+      + `style="background:rgb(${rgb})"></span>${name}</span>`;
+    $("legend").innerHTML = DATA.classes.map((name, c) => entry(PALETTE[c], name)).join("")
+      + entry(DATA.deferredColour, "deferred") + entry([200, 200, 200], "same as argmax");
+  }
   function setup() {
+    legend();
     if (sweep) {
       const metrics = Object.keys(sweep.metrics), classes = Object.keys(sweep.metrics[metrics[0]]);
       options($("metric"), metrics);
       options($("cls"), classes);
       const rois = Object.keys(sweep.metrics[metrics[0]][classes[0]]);
       options($("roi"), rois, rois.map((r) => `RoI ${r} (${DATA.roiNames[+r]})`));
-    } else {
+    } else if (examples.some((ex) => ex.truth)) {  // no heatmap: the class of the metrics
       $("metric").style.display = $("roi").style.display = "none";
+      $("choice-label").textContent = "precision and recall of:";
       options($("cls"), DATA.classes);
       $("cls").value = "person";
+    } else {  // nothing to choose: no heatmap, no metrics
+      $("choice").style.display = "none";
     }
     for (const id of ["metric", "cls", "roi"]) $(id).addEventListener("change", () => {
       drawHeat($("triangle").getContext("2d")); drawTriangle(W); showPoint(); });

@@ -13,6 +13,7 @@ measures every text, cost more than drawing. Draw each figure before taking the 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
@@ -143,9 +144,11 @@ def plot_masks(
 def mask_figures(
     examples: Iterable[tuple],
     class_names: Sequence[str] = CLASS_NAMES,
+    subject: str = "",
 ) -> Iterator[tuple[str, Figure]]:
     """:func:`plot_masks` of each ``(tag, image, target, preds[, extra])``, as ``(tag, figure)``;
-    ``extra``: title → (H, W, 3) uint8 panels drawn after the rules' (the uncertainty maps).
+    ``extra``: title → (H, W, 3) uint8 panels drawn after the rules' (the uncertainty maps);
+    ``subject`` (the network and shift) above the panels.
 
     Examples of one size, the same rules and a legend of as many rows share one figure, which
     is redrawn for each: draw it before taking the next.
@@ -167,7 +170,9 @@ def mask_figures(
             height, width = gt.shape
             lines = max(title.count("\n") for title in panels)  # two-line titles: higher
             size = (PANEL * len(panels), PANEL * height / width + 0.8 + 0.2 * lines)
-            fig = Figure(figsize=size, layout="constrained")
+            fig = Figure(figsize=(size[0], size[1] + 0.3 * bool(subject)), layout="constrained")
+            if subject:
+                fig.suptitle(subject, fontsize="medium", wrap=True)
             images = []
             for ax, (title, rgb) in zip(fig.subplots(1, len(panels)), panels.items(), strict=True):
                 images.append(ax.imshow(rgb, interpolation="nearest"))
@@ -185,11 +190,11 @@ def mask_figures(
 
 
 def example_mask_figures(
-    names: Sequence[str], examples: Iterable[tuple]
+    names: Sequence[str], examples: Iterable[tuple], subject: str = ""
 ) -> Iterator[tuple[str, Figure]]:
     """``masks_<i>`` of each ``(image (H, W, 3), labels, preds (K, H, W), uncertainty maps)``:
     the image, the ground truth, the labels of each of the rules ``names`` and the uncertainty
-    maps, each titled with its scale (docs/definitions.md §13).
+    maps, each titled with its scale (docs/definitions.md §13), under ``subject``.
 
     >>> ex = (np.zeros((4, 8, 3), np.uint8), np.zeros((4, 8), np.uint8), np.zeros((1, 4, 8)), {})
     >>> [tag for tag, _ in example_mask_figures(["ml"], [ex])]
@@ -197,7 +202,7 @@ def example_mask_figures(
     """
     from costseg.report.uncertainty import uncertainty_tiles
 
-    yield from mask_figures(
+    tagged = (
         (
             f"masks_{i}",
             image,
@@ -207,6 +212,7 @@ def example_mask_figures(
         )
         for i, (image, label, preds, maps) in enumerate(examples)
     )
+    yield from mask_figures(tagged, subject=subject)
 
 
 def _mask_legend(fig: Figure, handles: list[Patch], ncols: int) -> None:
@@ -239,16 +245,17 @@ def plot_heatmap_grid(maps: Mapping[tuple[str, str], ArrayLike], kind: str = "FP
 
 
 def heatmap_grid_figures(
-    grids: Iterable[tuple[str, Mapping[tuple[str, str], ArrayLike], str]],
+    grids: Iterable[tuple[str, Mapping[tuple[str, str], ArrayLike], str]], subject: str = ""
 ) -> Iterator[tuple[str, Figure]]:
-    """:func:`plot_heatmap_grid` of each ``(tag, maps, kind)``, as ``(tag, figure)``.
+    """:func:`plot_heatmap_grid` of each ``(tag, maps, kind)``, as ``(tag, figure)``, titled
+    with what they show and ``subject`` (the network and shift).
 
     Grids of the same (rule, class) panels and map size share one figure, redrawn for each:
     draw it before taking the next.
 
     >>> grids = [(kind, {("ml", "car"): np.eye(2)}, kind) for kind in ("FP", "FN")]
-    >>> [fig.get_suptitle() for _, fig in heatmap_grid_figures(grids)]
-    ['FP segments', 'FN segments']
+    >>> [fig.get_suptitle().splitlines() for _, fig in heatmap_grid_figures(grids, "net")][1]
+    ['FN segments per class and rule, whole image', 'net']
     """
     layout = grid = None
     for tag, maps, kind in grids:
@@ -259,27 +266,34 @@ def heatmap_grid_figures(
         vmax = max(float(np.nanmax(a, initial=0.0)) for a in arrays.values()) or 1.0
         shape = next(iter(arrays.values())).shape
         if layout != (tuple(arrays), shape):
-            layout, grid = (tuple(arrays), shape), _HeatmapGrid(arrays, vmax, kind)
+            layout, grid = (tuple(arrays), shape), _HeatmapGrid(arrays, vmax, kind, subject)
             freeze_layout(grid.fig)
         else:
-            grid.show(arrays, vmax, kind)
+            grid.show(arrays, vmax, kind, subject)
         yield tag, grid.fig
 
 
-def _what(kind: str) -> str:
-    """A heatmap grid's subject: ``FP`` / ``FN`` segments, or a phrase such as "missed
-    instances" as given."""
-    return kind if " " in kind else f"{kind} segments"
+def _what(kind: str, subject: str = "") -> str:
+    """A heatmap grid's title: ``FP`` / ``FN`` segments, or a phrase such as "missed
+    instances" as given, per class and rule; ``subject`` (network, shift) below it."""
+    what = kind if " " in kind else f"{kind} segments"
+    return f"{what} per class and rule, whole image" + (f"\n{subject}" if subject else "")
 
 
 class _HeatmapGrid:
     """A grid of heatmap panels (rows: classes, columns: rules) with one shared colour bar."""
 
-    def __init__(self, arrays: Mapping[tuple[str, str], np.ndarray], vmax: float, kind: str):
+    def __init__(
+        self, arrays: Mapping[tuple[str, str], np.ndarray], vmax: float, kind: str, subject: str
+    ):
         rules = list(dict.fromkeys(rule for rule, _ in arrays))
         classes = list(dict.fromkeys(cls for _, cls in arrays))
         height, width = next(iter(arrays.values())).shape
-        size = (PANEL * len(rules) + 1.0, PANEL * height / width * len(classes) + 0.6)
+        size = (PANEL * len(rules) + 1.0, 0.0)
+        # the panels at least 1.5 inches high: the colour bar's label fits beside one row;
+        # above them the title and the subject, wrapped at about 0.1 inches a character
+        lines = 1 + math.ceil(0.1 * len(subject) / size[0])
+        size = (size[0], max(1.5, PANEL * height / width * len(classes)) + 0.4 + 0.25 * lines)
         self.fig = Figure(figsize=size, layout="constrained")
         self.norm = Normalize(0, vmax)
         self.images = {}
@@ -297,14 +311,14 @@ class _HeatmapGrid:
                 ax.set_title(rule)
             if j == 0:
                 ax.set_ylabel(cls)
-        self.title = self.fig.suptitle(_what(kind))
-        label = f"{_what(kind)}: frequency"
-        self.bar = self.fig.colorbar(image, ax=axes, label=label, shrink=0.9)
+        self.title = self.fig.suptitle(_what(kind, subject), wrap=True)
+        self.bar = self.fig.colorbar(image, ax=axes, label="share of images", shrink=0.9)
 
-    def show(self, arrays: Mapping[tuple[str, str], np.ndarray], vmax: float, kind: str) -> None:
-        """The same panels with new maps, colour scale and kind."""
+    def show(
+        self, arrays: Mapping[tuple[str, str], np.ndarray], vmax: float, kind: str, subject: str
+    ) -> None:
+        """The same panels with new maps, colour scale and title."""
         self.norm.vmax = vmax
         for key, image in self.images.items():
             image.set_data(arrays[key])
-        self.title.set_text(_what(kind))
-        self.bar.set_label(f"{_what(kind)}: frequency")
+        self.title.set_text(_what(kind, subject))

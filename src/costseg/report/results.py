@@ -6,6 +6,7 @@ knows the model, the data loading or Lightning.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -143,10 +144,37 @@ class EvalResults:
         """The result of the named rules (``--cost``)."""
         return next(g for g in self.groups if g.group.is_named)
 
+    @property
+    def subject(self) -> str:
+        """What every figure of this evaluation shows, for its title (:func:`figure_subject`)."""
+        return figure_subject(self.source, self.options.get("shift") or [])
+
     def result_of(self, group: RuleGroup) -> GroupResult:
         """The result of ``group`` (the same family and rules)."""
         same = (group.family, group.names)
         return next(g for g in self.groups if (g.group.family, g.group.names) == same)
+
+
+def figure_subject(source: dict, shifts: Sequence[str]) -> str:
+    """The network (or the folder of saved probabilities) and the shifts the images were seen
+    through, for the titles of an evaluation's figures.
+
+    >>> checkpoint = "costseg:/x/runs/toy/version_0/checkpoints/last.ckpt"
+    >>> figure_subject({"network": checkpoint}, ["fog:3"])
+    'costseg:toy/version_0, images seen through fog:3'
+    """
+    source_name = str(source.get("network") or source.get("probs") or "")
+    names = re.sub(r"[^\s:?+]*/[^\s?+]*", lambda m: _short_path(m.group()), source_name)
+    return ", ".join([names] * bool(names) + [f"images seen through {s}" for s in shifts])
+
+
+def _short_path(path: str) -> str:
+    """A checkpoint ``.../<run>/version_<n>/checkpoints/<file>`` as ``<run>/version_<n>``,
+    any other path as its last part."""
+    parts = Path(path).parts
+    if len(parts) >= 4 and parts[-2] == "checkpoints":
+        return f"{parts[-4]}/{parts[-3]}"
+    return parts[-1] if parts else path
 
 
 def _cpu(value):

@@ -83,7 +83,8 @@ def write_risk_coverage(results: EvalResults, result: GroupResult) -> list[tuple
     record = {"note": group.note, "probabilities": results.probabilities, "rows": rows}
     write_json(out / f"{group.output}.json", record | {"risk_coverage_area": _areas(results)})
     panels = risk_coverage_panels(result, results.class_ids)
-    return [(group.output, job(risk_coverage_figures, panels, group.note))]
+    note = "; ".join(filter(None, (group.note, results.subject)))
+    return [(group.output, job(risk_coverage_figures, panels, note))]
 
 
 def _areas(results: EvalResults) -> dict:

@@ -21,7 +21,7 @@ from costseg.report.segment_figures import (
     segment_iou_figures,
     tradeoff_figures,
 )
-from costseg.report.tables import markdown_table
+from costseg.report.tables import console_table, markdown_table
 
 SCORES = ("auroc", "accuracy", "r2", "sigma", "segments")
 MODELS_FILE = "meta/models.joblib"
@@ -57,6 +57,32 @@ def meta_table(segments: SegmentResults | None) -> str:
         "reported ones: AUROC and accuracy of iou0 (false segment), R² and σ of the IoU.\n\n"
         + markdown_table(rows)
     )
+
+
+def meta_console(segments: SegmentResults | None) -> str:
+    """The terminal's summary of ``--meta`` (empty without it): per rule, each model's AUROC of
+    iou0 (a false segment) and R² of the IoU on the reported images.
+
+    >>> scores = {m: {"auroc": 0.8, "r2": 0.5} for m in MODELS}
+    >>> print(meta_console(SegmentResults({}, [], [], scores={"ml": scores})))
+    meta models, scored on the reported images' segments: AUROC of iou0, R² of the IoU
+    rule  AUROC logistic  AUROC boosting  AUROC entropy  R² logistic  R² boosting  R² entropy
+    ----  --------------  --------------  -------------  -----------  -----------  ----------
+    ml               0.8             0.8            0.8          0.5          0.5         0.5
+    """
+    if segments is None or not segments.scores:
+        return ""
+    scores = {"auroc": "AUROC", "r2": "R²"}
+    columns = [(s, m) for s in scores for m in MODELS]
+    rows = [
+        {"rule": rule} | {f"{s} {m}": by_model.get(m, {}).get(s) for s, m in columns}
+        for rule, by_model in segments.scores.items()
+    ]
+    names = [f"{s} {m}" for s, m in columns]
+    headers = ["rule", *(f"{scores[s]} {m.replace('gradient_', '')}" for s, m in columns)]
+    table = console_table(rows, ["rule", *names], headers, percent=())
+    what = "meta models, scored on the reported images' segments: AUROC of iou0, R² of the IoU"
+    return f"{what}\n{table}"
 
 
 def write_segments(results: EvalResults, writer: SummaryWriter) -> list[tuple[str, Job]]:
@@ -107,7 +133,9 @@ def _meta_jobs(results: EvalResults) -> list[tuple[str, Job]]:
             mine = table["image"] == i
             predicted = segments.predicted(rule, SHOWN_MODEL)["iou"][mine]
             tag = f"meta/segments_{i}_{rule}"
-            examples.append((tag, image, maps[rule], table["iou"][mine], predicted))
+            title = f"{rule}: segments of example {i}, IoU predicted by {SHOWN_MODEL}"
+            title += f"\n{results.subject}" if results.subject else ""
+            examples.append((tag, title, image, maps[rule], table["iou"][mine], predicted))
     if examples:
         jobs.append(("evaluation", job(segment_iou_figures, examples)))
     true = [segments.tables[r]["iou"] for r in rules]
@@ -116,9 +144,11 @@ def _meta_jobs(results: EvalResults) -> list[tuple[str, Job]]:
         for m in ("logistic", "gradient_boosting")
         if all(segments.predicted(r, m) for r in rules)
     }
-    jobs.append(("evaluation", job(iou_scatter_figures, rules, true, predicted)))
+    jobs.append(("evaluation", job(iou_scatter_figures, rules, true, predicted, results.subject)))
     importances = [segments.models[r].importances(SHOWN_MODEL) for r in rules]
-    jobs.append(("evaluation", job(importance_figures, rules, importances, SHOWN_MODEL)))
+    jobs.append(
+        ("evaluation", job(importance_figures, rules, importances, SHOWN_MODEL, results.subject))
+    )
     return jobs
 
 
@@ -149,7 +179,7 @@ def _fusion_jobs(results: EvalResults) -> list[tuple[str, Job]]:
                     fp = np.array([r["fp_segments"] for r in mine])
                     panels.append((title, fp, np.array([r[y] for r in mine]), marks))
         if panels:
-            args = (panels, list(decider.taus), y.replace("_", " "))
+            args = (panels, list(decider.taus), y.replace("_", " "), results.subject)
             jobs.append(("evaluation", job(tradeoff_figures, *args)))
     return jobs
 

@@ -1,7 +1,9 @@
 """The summary of an evaluation under several shifts (``evaluate.py --shift fog:3 night:2``):
-``shifts.md`` and ``shifts.json``, one line per shift and rule, read from each shift's own
-``results.json``: mIoU, the first ``--classes`` class in the street RoI (precision, recall,
-instance recall, missed instances) and the calibration of the probabilities decided on."""
+``shifts.md`` and ``shifts.json``, one line per shift (the clean images first) and rule, read
+from each evaluation's own ``results.json``: mIoU, the first ``--classes`` class in the street
+RoI (precision, recall, instance recall, missed instances) and the calibration of the
+probabilities decided on. Units as table.md's and the terminal's: mIoU, precision and recall in
+%, ECE and NLL as they are."""
 
 from __future__ import annotations
 
@@ -14,6 +16,7 @@ from costseg.report.files import write_json, write_text
 from costseg.report.tables import markdown_table
 
 COLUMNS = ("precision", "recall", "instance_recall", "missed_instances")
+CLEAN = "clean"  # the row and folder of the images without a shift
 
 
 def shift_rows(folders: dict[str, Path], class_name: str) -> list[dict]:
@@ -38,8 +41,12 @@ def write_shift_summary(out: Path, folders: dict[str, str], class_ids: Sequence[
     (shift → its folder in ``out``)."""
     class_name = CLASS_NAMES[class_ids[0]]
     rows = shift_rows({shift: out / f for shift, f in folders.items()}, class_name)
-    percent = ["miou", *(f"{class_name} {c}" for c in COLUMNS[:3]), "ece"]
-    title = f"# Under shift: {class_name} in the street RoI (RoI 1), per shift and rule"
+    percent = ["miou", *(f"{class_name} {c}" for c in COLUMNS[:3])]
+    title = (
+        f"# Under shift: {class_name} in the street RoI (RoI 1), per shift and rule\n\n"
+        "mIoU, precision, recall and instance recall in %; ECE (top label, 15 bins) and NLL of "
+        "the probabilities decided on, as fractions"
+    )
     write_text(out / "shifts.md", f"{title}\n\n{markdown_table(rows, percent=percent)}\n")
     write_json(out / "shifts.json", {"class": class_name, "rows": rows})
     print(f"summary over the shifts: {out / 'shifts.md'}")

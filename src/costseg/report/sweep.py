@@ -11,7 +11,7 @@ it over the first group of candidates.
 
 from __future__ import annotations
 
-from costseg.classes import CLASS_NAMES
+from costseg.classes import CLASS_NAMES, ROI_NAMES
 from costseg.costs import save_cost
 from costseg.metrics.names import PAPER_RATES, PIXEL_RATES, SEGMENT_RATES
 from costseg.metrics.selection import choose
@@ -46,7 +46,9 @@ def write_sweeps(results: EvalResults) -> list[tuple[str, Job]]:
         if group.weights is not None:
             batches += _triangle_figures(results, result)
         if group.line is not None:
-            batches.append((group.output, job(curve_figures, _line_curves(results, result))))
+            batches.append(
+                (group.output, job(curve_figures, _line_curves(results, result), results.subject))
+            )
     candidates = next((r for r in results.groups if r.group.candidates), None)
     if results.options.get("target") and candidates is not None:
         _write_choice(results, candidates)
@@ -64,14 +66,16 @@ def _triangle_figures(results: EvalResults, grid: GroupResult) -> list[tuple[str
                 values, title = pixels[metric][:, roi, cls], f"{metric} of {name}, RoI {roi}"
                 ternary.append((f"ternary_{name}_roi{roi}_{metric}", values, title, metric))
             precision, recall = (pixels[m][:, roi, cls] for m in PAPER_RATES)
-            edges.append((f"edges_{name}_roi{roi}", precision, recall))
+            title = f"precision and recall of {name} in RoI {roi} ({ROI_NAMES[roi]})"
+            edges.append((f"edges_{name}_roi{roi}", precision, recall, title))
         for metric in SEGMENT_RATES:
             title = f"{metric.replace('_', ' ')} of {name} segments"
             ternary.append((f"ternary_{name}_{metric}", segments[metric][:, c, 0], title, metric))
         ternary += _instance_ternaries(grid, cls)
+    note = "; ".join(filter(None, (group.note, results.subject)))
     return [
-        (group.output, job(ternary_figures, group.weights, ternary, labels, note=group.note)),
-        (group.output, job(edge_tradeoff_figures, group.weights, edges, labels, note=group.note)),
+        (group.output, job(ternary_figures, group.weights, ternary, labels, note=note)),
+        (group.output, job(edge_tradeoff_figures, group.weights, edges, labels, note=note)),
     ]
 
 

@@ -127,7 +127,7 @@ def ternary_figures(
             ax = fig.subplots()
             cells = _triangle(ax, w, v, vertex_labels, colormaps[cmap], Normalize(vmin, vmax))
             bar = fig.colorbar(cells, ax=ax, shrink=0.8)
-            fig.supxlabel(note, fontsize="small")
+            fig.supxlabel(note, fontsize="small", wrap=True)
         cells.set_array(v)
         ax.set_title(title, y=1.0)  # a fixed height: no tick lifts it (axes off)
         bar.set_label(cbar_label)
@@ -195,11 +195,12 @@ def plot_edge_tradeoffs(
 
 def edge_tradeoff_figures(
     weights: ArrayLike,
-    panels: Iterable[tuple[str, ArrayLike, ArrayLike]],
+    panels: Iterable[tuple],
     vertex_labels: Sequence[str] = LABELS,
     note: str = "",
 ) -> Iterator[tuple[str, Figure]]:
-    """:func:`plot_edge_tradeoffs` of each ``(tag, precision, recall)``, as ``(tag, figure)``.
+    """:func:`plot_edge_tradeoffs` of each ``(tag, precision, recall[, title])``, as
+    ``(tag, figure)``; ``title`` (the class and RoI) above the three edges.
 
     All share one figure, redrawn for each: draw it before taking the next.
 
@@ -212,7 +213,7 @@ def edge_tradeoff_figures(
     w = _weights(weights)
     edges = []  # (points on the edge in order of the weight of j, precision line, recall line)
     fig = None
-    for tag, precision, recall in panels:
+    for tag, precision, recall, *title in panels:
         metrics = {
             "precision": _values(precision, len(w), "precision"),
             "recall": _values(recall, len(w), "recall"),
@@ -232,9 +233,11 @@ def edge_tradeoff_figures(
                 _edge_axes(ax, i, j, vertex_labels, len(points) > 0)
             axes[0].set_ylabel("%")
             legend = axes[0].legend(loc="lower left")
-            fig.supxlabel(note, fontsize="small")
+            fig.supxlabel(note, fontsize="small", wrap=True)
+            suptitle = fig.suptitle(title[0] if title else "")
             lines = [line for _, pair in edges for line in pair]
-            redraw_only(freeze_layout(fig), [*lines, legend])  # the legend over the lines
+            redraw_only(freeze_layout(fig), [suptitle, *lines, legend])  # legend over lines
+        suptitle.set_text(title[0] if title else "")
         for points, lines in edges:
             for line, values in zip(lines, metrics.values(), strict=True):
                 line.set_ydata(100 * values[points])
