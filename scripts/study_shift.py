@@ -10,7 +10,7 @@ and egoistic rules and the robotistic rule with a defer row of cost 0.3: per shi
 mIoU, person precision, recall and missed pedestrians in the street RoI, ECE and NLL.
 
 Unknown objects: ``evaluate.py --anomalies`` on the first checkpoint, clean and through each
-corruption at severity 3: AUROC, AP, FPR95 and mean F1 of every anomaly score.
+corruption at severity 3: AUROC, AP, FPR95, sIoU, PPV and mean F1 of every anomaly score.
 
 The guarantee: ``check_guarantee.py`` on the first checkpoint certifies a point of the triangle
 (``--sweep 0.1``, person recall in the street RoI >= 0.9 at δ = 0.1, best precision) on clean
@@ -121,7 +121,7 @@ def rules_table(sources: dict[str, list[dict]], rates: dict[str, dict]) -> str:
 
 
 def anomaly_table(found: dict[str, dict]) -> str:
-    """A line per shift and score: AUROC, AP, FPR95, mean F1."""
+    """A line per shift and score: AUROC, AP, FPR95, sIoU, PPV, mean F1."""
     lines = ["| shift | score | AUROC | AP | FPR95 | sIoU | PPV | mean F1 |",
              "|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for shift, scores in found.items():

@@ -15,7 +15,7 @@ from costseg.cli import evaluate_main
 from costseg.data.from_config import data_settings
 from costseg.data.toy import StreetScenes
 from costseg.metrics.anomaly import AnomalyMetrics
-from costseg.metrics.functional.anomaly import BINS, TAUS, component_counts, component_metrics
+from costseg.metrics.functional.anomaly import BINS, component_counts, component_metrics
 from costseg.networks import load_costseg_checkpoint
 from costseg.networks.probs_files import find_probs_file, load_probs
 
@@ -87,10 +87,18 @@ def _components(binary: np.ndarray) -> list[set[tuple[int, int]]]:
     return out
 
 
-def _reference(prediction: np.ndarray, mask: np.ndarray) -> tuple[list[float], list[float]]:
-    """sIoU per ground-truth component and PPV per predicted one, from the definitions."""
+def _reference(
+    prediction: np.ndarray, mask: np.ndarray, min_pred: float = 0, min_gt: float = 0
+) -> tuple[list[float], list[float]]:
+    """sIoU per ground-truth component and PPV per predicted one, from the definitions of §17:
+    predicted components of fewer than ``min_pred`` non-void pixels dropped, ground-truth ones of
+    fewer than ``min_gt`` pixels made void, then every component restricted to the non-void."""
+    void = set(zip(*np.nonzero(mask == 255), strict=True))
     gts = _components(mask == 1)
-    preds = _components(prediction & (mask != 255))
+    void = void.union(*[g for g in gts if len(g) < min_gt])
+    gts = [g for g in gts if len(g) >= min_gt]
+    preds = [p - void for p in _components(prediction & (mask != 255)) if len(p) >= min_pred]
+    preds = [p for p in preds if p]
     siou = []
     for k in gts:
         hit = set().union(*[p for p in preds if p & k])
@@ -101,40 +109,106 @@ def _reference(prediction: np.ndarray, mask: np.ndarray) -> tuple[list[float], l
     return siou, ppv
 
 
-def test_components_on_hand_built_masks_with_known_answers():
-    mask = np.zeros((8, 12), np.int64)
-    mask[1:4, 1:4] = 1  # a 3 x 3 object ...
-    mask[1:4, 8:11] = 1  # ... and another
-    mask[6, :] = 255
-    prediction = np.zeros((8, 12), bool)
-    prediction[1:4, 1:3] = True  # 6 of the first object's 9 pixels
-    prediction[2, 7:10] = True  # touches the second object: 2 of its pixels, 1 outside
-    prediction[6:8, 5] = True  # a void pixel (removed) and one false pixel below it
-    counts = component_counts(prediction, mask)
-    siou, ppv = _reference(prediction, mask)
-    assert siou == pytest.approx([6 / 9, 2 / 10]) and sorted(ppv) == pytest.approx([0, 2 / 3, 1])
-    assert counts[-1].tolist() == pytest.approx([sum(siou), 2, sum(ppv), 3])
-    for t, tau in enumerate(TAUS):
-        tp = sum(v > tau for v in siou)
-        assert counts[t, :3].tolist() == [tp, 2 - tp, sum(v <= tau for v in ppv)]
+def _per_tau(siou: list[float], ppv: list[float]) -> list[list[int]]:
+    """(TP, FN, FP) at each τ: TP when sIoU ≥ τ, FN otherwise, FP when PPV < τ."""
+    taus = np.linspace(0.25, 0.75, 11)  # the benchmark's thresholds, floats as it makes them
+    return [[sum(v >= t for v in siou), sum(v < t for v in siou), sum(v < t for v in ppv)]
+            for t in taus]  # fmt: skip
 
 
-def test_split_and_merged_predictions_against_the_flood_fill():
+def _hand_built() -> tuple[np.ndarray, np.ndarray]:
+    """Objects A (9 px), B (2 px) and C (6 px); five predicted blobs (see the test)."""
+    mask = np.zeros((10, 14), np.int64)
+    mask[1:4, 1:4] = 1  # A
+    mask[1, 8:10] = 1  # B
+    mask[6:8, 8:11] = 1  # C
+    mask[9, :] = 255
+    prediction = np.zeros((10, 14), bool)
+    prediction[1:4, 1:3] = True  # P1: 6 of A's pixels
+    prediction[0:2, 8:10] = True  # P2: 4 pixels, 2 of them B's
+    prediction[5:8, 8:10] = True  # P3: 6 pixels, 4 of them C's
+    prediction[8:10, 0] = True  # P4: 1 pixel and 1 void one
+    prediction[5, 4:7] = True  # P5: 3 pixels
+    return prediction, mask
+
+
+@pytest.mark.parametrize(
+    ("min_sizes", "siou", "ppv"),
+    [
+        # sizes 4 and 3: B is void, P2 keeps its 4 pixels' size but only its 2 off B count;
+        # P4 (1 pixel without the void) and P5 are dropped; sIoU(C) = 4 / (6 + 6 - 4)
+        ((4, 3), [6 / 9, 4 / 8], [1, 0, 4 / 6]),
+        # no sizes: B is met by P2 alone, sIoU 2 / (2 + 4 - 2); P4 and P5 are false positives
+        ((0, 0), [6 / 9, 2 / 4, 4 / 8], [1, 2 / 4, 4 / 6, 0, 0]),
+    ],
+)
+def test_components_on_hand_built_masks_with_known_answers(min_sizes, siou, ppv):
+    prediction, mask = _hand_built()
+    got_siou, got_ppv = _reference(prediction, mask, *min_sizes)
+    assert sorted(got_siou) == pytest.approx(sorted(siou))
+    assert sorted(got_ppv) == pytest.approx(sorted(ppv))
+    counts = component_counts(prediction, mask, min_sizes)
+    assert counts[-1].tolist() == pytest.approx([sum(siou), len(siou), sum(ppv), len(ppv)])
+    assert counts[:-1, :3].tolist() == _per_tau(siou, ppv)
+    if min_sizes == (4, 3):  # sIoU 0.5 is a true positive at τ = 0.5 (≥), not at 0.55
+        assert counts[5, 0] == 2 and counts[6, 0] == 1
+        f1 = (6 * 4 / 5 + 3 * 2 / 4 + 2 * 0) / 11  # F1 4/5 up to τ = 0.5, 2/4 to 0.65, then 0
+        assert component_metrics(counts)["mean_f1"] == pytest.approx(f1)
+
+
+def _blobs(rng: np.random.Generator, shape: tuple[int, int], count: int) -> np.ndarray:
+    """A bool mask of ``count`` random rectangles and discs."""
+    ys, xs = np.mgrid[: shape[0], : shape[1]]
+    out = np.zeros(shape, bool)
+    for _ in range(count):
+        cy, cx = rng.integers(0, shape[0]), rng.integers(0, shape[1])
+        r = rng.uniform(0.5, 4)
+        if rng.random() < 0.5:
+            out |= (ys - cy) ** 2 + (xs - cx) ** 2 <= r * r
+        else:
+            out |= (abs(ys - cy) <= r) & (abs(xs - cx) <= rng.uniform(0.5, 4))
+    return out
+
+
+@pytest.mark.parametrize("min_sizes", [(0, 0), (6, 5), (12.5, 2.5)])
+def test_random_blob_scenes_against_the_flood_fill(min_sizes):
     rng = np.random.default_rng(3)
-    for _ in range(20):
-        mask = np.where(rng.random((12, 16)) < 0.25, 1, 0)
-        mask[rng.random((12, 16)) < 0.05] = 255
-        prediction = rng.random((12, 16)) < 0.3
-        counts = component_counts(prediction, mask)
-        siou, ppv = _reference(prediction, mask)
+    for _ in range(25):
+        mask = np.where(_blobs(rng, (20, 28), 5), 1, 0)
+        mask[_blobs(rng, (20, 28), 2) & (rng.random((20, 28)) < 0.7)] = 255
+        near = _blobs(rng, (20, 28), 4)  # predictions near the objects, and elsewhere
+        prediction = np.where(mask == 1, rng.random((20, 28)) < 0.8, near)
+        prediction |= rng.random((20, 28)) < 0.03
+        counts = component_counts(prediction, mask, min_sizes)
+        siou, ppv = _reference(prediction, mask, *min_sizes)
         assert counts[-1].tolist() == pytest.approx([sum(siou), len(siou), sum(ppv), len(ppv)])
-        metrics = component_metrics(counts)
-        f1 = []
-        for tau in TAUS:
-            tp, fn = sum(v > tau for v in siou), sum(v <= tau for v in siou)
-            fp = sum(v <= tau for v in ppv)
-            f1.append(2 * tp / (2 * tp + fn + fp) if 2 * tp + fn + fp else np.nan)
-        assert metrics["mean_f1"] == pytest.approx(np.mean(f1), nan_ok=True)
+        assert counts[:-1, :3].tolist() == _per_tau(siou, ppv)
+        f1 = [2 * tp / (2 * tp + fn + fp) if tp + fn + fp else np.nan
+              for tp, fn, fp in _per_tau(siou, ppv)]  # fmt: skip
+        got = component_metrics(counts)["mean_f1"]
+        assert got == pytest.approx(np.mean(f1), nan_ok=True)
+
+
+def test_the_track_sizes_scale_with_the_image_area():
+    """At 256 x 512 (1 / 16 of 1024 x 2048) the AnomalyTrack drops objects under 6.25 pixels and
+    predictions under 31.25, the ObstacleTrack under 0.625 and 3.125."""
+    mask = torch.zeros(1, 256, 512, dtype=torch.int64)
+    mask[0, 10:20, 10:20] = 1  # 100 pixels
+    mask[0, 100:102, 100:103] = 1  # 6 pixels: void for the AnomalyTrack
+    scores = torch.zeros(1, 1, 256, 512)
+    scores[0, 0, 10:20, 10:20] = 0.9
+    scores[0, 0, 200:205, 300:306] = 0.9  # 30 false pixels: dropped by the AnomalyTrack
+    found = {}
+    for track in ("anomaly", "obstacle"):
+        metric = AnomalyMetrics(["s"], num_rules=0, num_classes=3, track=track)
+        metric.update(scores, mask)
+        found[track] = metric.compute()["scores"]["s"]
+    assert (found["anomaly"]["siou"], found["anomaly"]["ppv"]) == (1, 1)
+    assert found["anomaly"]["mean_f1"] == 1
+    assert (found["obstacle"]["siou"], found["obstacle"]["ppv"]) == (0.5, 0.5)
+    assert found["obstacle"]["mean_f1"] == pytest.approx(2 / 4)  # TP, FN and FP 1 at every τ
+    with pytest.raises(ValueError, match="unknown track"):
+        AnomalyMetrics(["s"], num_rules=0, num_classes=3, track="road")
 
 
 def test_the_metric_adds_up_across_batches_and_counts_the_rules_decisions():

@@ -3,8 +3,9 @@ them (docs/definitions.md §17); the core is :mod:`costseg.metrics.functional.an
 
 States (summed across batches and processes): ``histograms`` (S, 2, BINS) of each score over
 known and anomaly pixels; ``components`` (S, len(DELTAS), len(TAUS) + 1, 4), SegmentMeIfYouCan's
-component counts of the prediction ``score >= δ`` at every δ of ``DELTAS``; ``decided``
-(R, N + 1), the anomaly pixels each rule labels as each class (the last column: deferred).
+component counts of the prediction ``score > δ`` at every δ of ``DELTAS``, with the least
+component sizes of the benchmark's ``track`` scaled to each image's area; ``decided`` (R, N + 1),
+the anomaly pixels each rule labels as each class (the last column: deferred).
 """
 
 from __future__ import annotations
@@ -21,12 +22,14 @@ from costseg.metrics.functional.anomaly import (
     BINS,
     DELTAS,
     TAUS,
+    TRACK,
     best_pixel_f1,
     component_counts,
     component_metrics,
     ground_truth_components,
     pixel_metrics,
     score_histograms,
+    size_thresholds,
 )
 
 
@@ -37,6 +40,7 @@ class AnomalyMetrics(Metric):
         scores: the names of the anomaly scores, in the order ``update`` gets them.
         num_rules: rules whose label maps ``update`` gets (0: none).
         num_classes: classes N of the label maps.
+        track: the SegmentMeIfYouCan track whose least component sizes apply (``TRACKS``).
 
     >>> metric = AnomalyMetrics(["max_softmax"], num_rules=1, num_classes=3)
     >>> mask, preds = torch.tensor([[[0, 1, 1, 255]]]), torch.tensor([[[[0, 2, 255, 1]]]])
@@ -48,9 +52,17 @@ class AnomalyMetrics(Metric):
 
     full_state_update = False
 
-    def __init__(self, scores: Sequence[str], num_rules: int, num_classes: int, **kwargs: Any):
+    def __init__(
+        self,
+        scores: Sequence[str],
+        num_rules: int,
+        num_classes: int,
+        track: str = TRACK,
+        **kwargs: Any,
+    ):
         super().__init__(**kwargs)
-        self.names, self.num_classes = list(scores), num_classes
+        size_thresholds(track, 1, 1)  # an unknown track fails here, not at the first batch
+        self.names, self.num_classes, self.track = list(scores), num_classes, track
         s = len(self.names)
         self.add_state("histograms", torch.zeros(s, 2, BINS, dtype=torch.int64), "sum")
         shape = (s, len(DELTAS), len(TAUS) + 1, 4)
@@ -62,11 +74,12 @@ class AnomalyMetrics(Metric):
         W) label maps (255: deferred) or None."""
         self.histograms += score_histograms(scores, mask)
         masks = mask.cpu().numpy()
-        objects = [ground_truth_components(m) for m in masks]  # once per image, not per δ
+        sizes = size_thresholds(self.track, *masks.shape[1:])
+        objects = [ground_truth_components(m, sizes[1]) for m in masks]  # once, not per δ
         for s, score in enumerate(scores.float().cpu().numpy()):
             for d, delta in enumerate(DELTAS):
                 for image, anomaly, gt in zip(score, masks, objects, strict=True):
-                    counts = component_counts(image >= delta, anomaly, gt)
+                    counts = component_counts(image > delta, anomaly, sizes, gt)
                     self.components[s, d] += torch.from_numpy(counts)
         if preds is not None and len(self.decided):
             on = mask == 1

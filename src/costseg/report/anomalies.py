@@ -63,7 +63,8 @@ def anomaly_table(found: dict[str, Any] | None) -> str:
         [
             "## Unknown objects (definitions §17)",
             "Pixel AUROC, AP and FPR at 95 % TPR; SegmentMeIfYouCan's sIoU, PPV and mean F1 of"
-            " the prediction score ≥ δ, δ the threshold of the best pixel F1:",
+            " the prediction score > δ, δ the threshold of the best pixel F1 (AnomalyTrack's"
+            " least component sizes, scaled to the image area):",
             scores,
             "What each rule labels the unknown objects' pixels (share of their pixels):",
             markdown_table(decided, percent=[]),
