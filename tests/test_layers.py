@@ -17,7 +17,8 @@ CHAIN = [
     {"cli", "api"},
 ]
 NO_LIGHTNING = {"costs", "decision", "rules", "calibration", "metrics", "networks", "meta",
-                "report", "evaluation", "prediction", "workers", "compile_kernels", "api"}  # fmt: skip
+                "report", "evaluation", "prediction", "workers", "compile_kernels",
+                "api"}  # fmt: skip
 NO_MODEL = {"costs", "decision", "rules", "calibration", "metrics", "meta", "report"}
 
 
