@@ -46,6 +46,7 @@ from costseg.classes import CLASS_NAMES
 from costseg.cli import build_parser as build_options_parser
 from costseg.cli import user_errors
 from costseg.data.prior_maps import PriorMaps
+from costseg.data.priors import read_priors_file
 from costseg.data.shift import Shift, ShiftedDataset, parse_shift
 from costseg.data.toy import StreetScenes
 from costseg.metrics.per_image import per_image_counts, per_image_loss
@@ -80,6 +81,7 @@ SHARED = {
     "guarantee_method": "bonferroni",
     "shift": [],
     "seed": 0,
+    "priors": None,
 }
 
 
@@ -149,6 +151,8 @@ def load_source(args: argparse.Namespace, paths: list[Path]) -> tuple[Any, Any, 
     if priors is None and paths:  # --network alone: the newest checkpoint's priors and size
         ckpt = load_costseg_checkpoint(paths[0])
         priors, config = ckpt.priors, (ckpt.data_config or {}).get("init_args", {})
+    if args.priors is not None:
+        priors = read_priors_file(args.priors, CLASS_NAMES)["priors"]
     size = tuple(args.size or config.get("size") or (128, 256))
     roi = None
     if priors is not None:

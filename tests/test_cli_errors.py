@@ -222,7 +222,8 @@ def test_an_error_of_a_data_loader_worker_is_one_line_without_its_class_name(
         evaluate_main(args)
     errors = [line for line in capsys.readouterr().err.splitlines() if "error" in line.lower()]
     assert exit_info.value.code == 2
-    assert errors == [f"error: cannot decode {image}: cannot identify image file '{image}'"]
+    why = f"cannot decode {image}: cannot identify image file '{image}'"
+    assert errors == [f"error: {why}; the partial outputs in {out} are marked INCOMPLETE"]
 
 
 def test_a_reraised_error_keeps_only_its_message(capsys):

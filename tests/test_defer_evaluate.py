@@ -122,7 +122,7 @@ def test_bad_defer_options_give_one_line(ckpt, tmp_path, capsys) -> None:
         _one_line(evaluate_main, [*run, "--defer", value], capsys, "--defer", repr(value))
     chow = tmp_path / "chow.yaml"
     save_cost(chow, with_defer(symmetric_cost(19), 0.5), "chow")
-    _one_line(evaluate_main, [*run, "--cost", str(chow), "--defer", "0.3"], capsys, "leave out")
+    _one_line(evaluate_main, [*run, "--cost", str(chow), "--defer", "0.3"], capsys, "leave it out")
     alpha = ["--alpha_sweep", "0.5", "--alpha_cost", str(chow)]
     _one_line(evaluate_main, [*run, *alpha], capsys, "--alpha_cost", "defer row")
     vertices = ["--sweep", "0.5", "--vertices", "robotistic", "altruistic", str(chow)]

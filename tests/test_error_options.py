@@ -93,12 +93,22 @@ def options(command: str) -> frozenset[str]:
     return frozenset(parser._option_string_actions)
 
 
+ADAPTED = ["--model.net", "costseg.models.adapter.NetworkAdapter", "--model.net.init_args.builder",
+           "torchvision.models.segmentation.lraspp_mobilenet_v3_large"]  # fmt: skip
+
+
 def _train_options() -> Iterator[str]:
-    """train.py's own flags and every key of the Cityscapes config LightningCLI parses."""
+    """train.py's own flags and every key of the Cityscapes config LightningCLI parses, with
+    costseg's network and with the adapter of another library's (docs/usage.md)."""
+    yield from ("--config", "--print_config", "--help_all", "--help")
+    for network in ([], ADAPTED):
+        yield from _config_keys(["--config", "cityscapes", *network, "--print_config"])
+
+
+def _config_keys(args: list[str]) -> Iterator[str]:
     out = io.StringIO()
     with contextlib.redirect_stdout(out), pytest.raises(SystemExit):
-        train_main(["--config", "cityscapes", "--print_config"])
-    yield from ("--config", "--print_config", "--help_all", "--help")
+        train_main(args)
     stack = [("--", yaml.safe_load(out.getvalue()))]
     while stack:
         prefix, config = stack.pop()

@@ -110,7 +110,7 @@ def evaluated_data(config: dict[str, Any] | None, root: str | Path | None) -> di
     """
     if root is None:
         if config is None:
-            raise ValueError("no dataset named: pass --data_root")
+            raise ValueError("no dataset named: neither a data configuration nor a root")
         return config
     cityscapes = "costseg.data.datamodule.CityscapesDataModule"
     return {"class_path": cityscapes, "init_args": {"root": str(Path(root).resolve())}}

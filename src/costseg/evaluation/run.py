@@ -273,7 +273,7 @@ def evaluate_plan(planned: EvalPlan) -> EvalResults:
         if isinstance(err, workers.Stalled):
             raise workers.Stalled(f"{err}; {partial}") from err
         if isinstance(err, ValueError):  # bad data met on the way (an unreadable file)
-            raise ValueError(f"{err}; {partial}") from err
+            raise ValueError(f"{str(err).strip()}; {partial}") from err
         # a full disk under TensorBoard's writer thread names no file: the folder it writes in
         raise OSError(f"{err.strerror or err}: {err.filename or out}; {partial}") from err
     except BaseException:
