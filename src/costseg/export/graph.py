@@ -1,0 +1,69 @@
+"""The exported graph (``docs/definitions.md §19``): a network, its softmax and the decision of
+§1 with the cost matrix, the priors and the temperature as inputs, as one ``nn.Module``.
+
+>>> from costseg.networks.base import ImageNetwork
+>>> graph = DecisionGraph(ImageNetwork(nn.Conv2d(3, 4, 1)))
+>>> image = torch.zeros(1, 3, 2, 2, dtype=torch.uint8)
+>>> labels, margin = graph(image, 1 - torch.eye(4), torch.ones(4, 1, 1), torch.tensor(1.0))
+>>> labels.dtype, tuple(margin.shape)
+(torch.uint8, (1, 2, 2))
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+from costseg.decision.label_maps import DEFERRED
+
+__all__ = ["INPUTS", "OUTPUTS", "DecisionGraph", "graph_decision"]
+
+INPUTS = ("image", "cost", "priors", "temperature")
+OUTPUTS = ("labels", "margin", "probabilities")
+
+
+def graph_decision(probs: Tensor, cost: Tensor, priors: Tensor) -> tuple[Tensor, Tensor]:
+    """The decision of §1 in float32 as the graph computes it: the column-shifted matrix
+    ``S = C − max_j C[j, ·]``, ``q = p / π``, the expected costs ``S q`` (one matrix product per
+    image), the argmin (ties to the lowest row; the defer row N gives 255) and the margin.
+
+    Args:
+        probs: (B, N, H, W) float32 probabilities.
+        cost: (N, N) or (N + 1, N) float32 matrix (rows: decisions, columns: true classes).
+        priors: (N, H, W) pixel-wise or (N, 1, 1) global priors (ones: no priors).
+
+    Returns:
+        (B, H, W) uint8 labels (255: deferred) and (B, H, W) float32 margins: the second
+        smallest minus the smallest expected cost.
+    """
+    b, n, h, w = probs.shape
+    shifted = cost - cost.amax(dim=0, keepdim=True)
+    q = (probs / priors).reshape(b, n, h * w)
+    costs = torch.matmul(shifted, q)  # (B, M, H·W)
+    best = costs.topk(2, dim=1, largest=False)  # sorted: the smallest first, ties keep order
+    rows = costs.argmin(dim=1)  # the first minimum: ties to the lowest row
+    labels = torch.where(rows >= n, torch.full_like(rows, DEFERRED), rows).to(torch.uint8)
+    margin = best.values[:, 1] - best.values[:, 0]
+    return labels.reshape(b, h, w), margin.reshape(b, h, w)
+
+
+class DecisionGraph(nn.Module):
+    """uint8 images, a cost matrix, priors and a temperature → labels, margins (and the
+    probabilities with ``probabilities``).
+
+    Args:
+        network: maps (B, 3, H, W) uint8 RGB to (B, N, H, W) logits (its normalisation inside).
+        probabilities: also return the (B, N, H, W) float32 probabilities.
+    """
+
+    def __init__(self, network: nn.Module, probabilities: bool = False) -> None:
+        super().__init__()
+        self.network, self.probabilities = network.eval(), probabilities
+
+    def forward(
+        self, image: Tensor, cost: Tensor, priors: Tensor, temperature: Tensor
+    ) -> tuple[Tensor, ...]:
+        """See :func:`graph_decision`; the probabilities are ``softmax(logits / temperature)``."""
+        probs = torch.softmax(self.network(image) / temperature, dim=1)
+        labels, margin = graph_decision(probs, cost, priors)
+        return (labels, margin, probs) if self.probabilities else (labels, margin)
