@@ -58,7 +58,8 @@ class DecisionGraph(nn.Module):
 
     def __init__(self, network: nn.Module, probabilities: bool = False) -> None:
         super().__init__()
-        self.network, self.probabilities = network.eval(), probabilities
+        self.network, self.probabilities = network, probabilities
+        self.eval()  # the exporter restores the mode it found: eval, for every layer
 
     def forward(
         self, image: Tensor, cost: Tensor, priors: Tensor, temperature: Tensor

@@ -25,7 +25,7 @@ from costseg.export.graph import INPUTS, OUTPUTS, DecisionGraph
 from costseg.export.parity import parity
 from costseg.networks.onnx import GRAPH_METADATA
 
-__all__ = ["ExportPlan", "export", "plan_export"]
+__all__ = ["ExportPlan", "export", "plan_export", "sample_inputs", "trace_graph"]
 
 TRACE_SIZE = (64, 96)
 """(H, W) of the images the graph is traced with."""
@@ -107,7 +107,7 @@ def export(plan: ExportPlan) -> Path:
     """
     network, priors, source = _load(plan)
     graph = DecisionGraph(network, probabilities=True)
-    model = _trace(graph)
+    model = trace_graph(graph)
     checked = _check(graph, model)
     if not plan.probabilities:  # the probabilities stay inside; only the output goes
         del model.graph.output[OUTPUTS.index("probabilities")]
@@ -150,7 +150,7 @@ def sample_inputs(size: tuple[int, int], batch: int = 2, seed: int = 0) -> tuple
     return image, cost, torch.ones(NUM_CLASSES, 1, 1), torch.tensor(1.0)
 
 
-def _trace(graph: DecisionGraph):
+def trace_graph(graph: DecisionGraph):
     """The graph as an ONNX model (in memory), every output dynamic in batch, height, width."""
     import io
 
@@ -186,23 +186,22 @@ def _trace(graph: DecisionGraph):
 
 
 def _check(graph: DecisionGraph, model) -> list[list[int]]:
-    """Run the graph at the traced and another size against PyTorch; ValueError if a label
+    """Run the graph at a size other than the traced one against PyTorch; ValueError if a label
     differs beyond the bound of docs/definitions.md §19. Returns the sizes checked."""
     from costseg.export.runtime import run_graph, session_of
 
+    image, cost, priors, temperature = sample_inputs(CHECK_SIZE, batch=1, seed=1)
     session = session_of(model.SerializeToString())
-    for size in (TRACE_SIZE, CHECK_SIZE):
-        image, cost, priors, temperature = sample_inputs(size, seed=1)
-        labels, _, probs = run_graph(session, image, cost, priors, temperature, probabilities=True)
-        with torch.no_grad():
-            reference = graph.network(image).softmax(1)
-        result = parity(reference, probs, labels, cost)
-        if result.outside:
-            raise ValueError(
-                f"the exported graph disagrees with PyTorch at {size[0]} x {size[1]} on "
-                f"{result.outside} pixels beyond float32 rounding: not written"
-            )
-    return [list(TRACE_SIZE), list(CHECK_SIZE)]
+    labels, _, probs = run_graph(session, image, cost, priors, temperature, probabilities=True)
+    with torch.no_grad():
+        reference = graph.network(image).softmax(1)
+    result = parity(reference, probs, labels, cost)
+    if result.outside:
+        raise ValueError(
+            f"the exported graph disagrees with PyTorch at {CHECK_SIZE[0]} x {CHECK_SIZE[1]} on "
+            f"{result.outside} pixels beyond float32 rounding: not written"
+        )
+    return [list(CHECK_SIZE)]
 
 
 def _sidecar(
@@ -218,8 +217,8 @@ def _sidecar(
             "inside the graph": True,
             "formula": "(image / divisor - mean) / std per RGB channel",
             "divisor": float(network.divisor),
-            "mean": network.mean.flatten().tolist(),
-            "std": network.std.flatten().tolist(),
+            "mean": [float(f"{v:.7g}") for v in network.mean.flatten().tolist()],
+            "std": [float(f"{v:.7g}") for v in network.std.flatten().tolist()],
         },
         "inputs": {
             "image": "(B, 3, H, W) uint8 RGB",
@@ -235,7 +234,8 @@ def _sidecar(
         },
         "sizes": {
             "height and width": "any the network accepts (dynamic), the labels at the input size",
-            "checked against PyTorch": checked,
+            "traced at": list(TRACE_SIZE),
+            "checked against PyTorch at": checked,
         },
         "rules": {
             **{name: {"cost": matrices[name], "priors": False} for name in PRESETS},

@@ -157,7 +157,8 @@ def load_onnx(
             "float or uint8"
         )
     output = session.get_outputs()[0]
-    if len(output.shape) != 4 or output.shape[1] not in (NUM_CLASSES, None, *_symbolic(output)):
+    classes = output.shape[1] if len(output.shape) == 4 else 0
+    if isinstance(classes, int) and classes != NUM_CLASSES:  # a name: checked when it runs
         raise ValueError(_classes_message(path, output.shape))
     net = _OnnxLogits(path, session, {}, output.name, probabilities)
     if image.type == "tensor(uint8)":
@@ -193,11 +194,6 @@ def _decision_graph(path: Path, session) -> _OnnxLogits:
         "temperature": np.ones((), np.float32),
     }
     return _OnnxLogits(path, session, feeds, "probabilities", probabilities=True)
-
-
-def _symbolic(output) -> tuple:
-    """The output's class dimension when it is a name (not fixed in the graph)."""
-    return () if isinstance(output.shape[1], int) else (output.shape[1],)
 
 
 def _classes_message(path: Path, shape) -> str:
