@@ -5,6 +5,7 @@ against the normalised float path, scripts/export.py's refusals."""
 from __future__ import annotations
 
 import importlib.util
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -110,8 +111,11 @@ def test_uint8_graph_equals_the_normalised_float_path(graph, tmp_path) -> None:
     network, _, session = graph
     path = tmp_path / "float.onnx"
     axes = {0: "batch", 2: "height", 3: "width"}
-    torch.onnx.export(network.net, (torch.zeros(1, 3, *SIZE),), path, dynamo=False,
-                      input_names=["x"], output_names=["y"], dynamic_axes={"x": axes, "y": axes})  # fmt: skip
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)  # the TorchScript-based exporter
+        torch.onnx.export(network.net, (torch.zeros(1, 3, *SIZE),), path, dynamo=False,
+                          input_names=["x"], output_names=["y"],
+                          dynamic_axes={"x": axes, "y": axes})  # fmt: skip
     mean, std = ",".join(map(str, IMAGENET_MEAN)), ",".join(map(str, IMAGENET_STD))
     floats = load_network(f"onnx:{path}?mean={mean}&std={std}")
     images = _images((34, 50), batch=3)

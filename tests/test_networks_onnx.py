@@ -13,7 +13,6 @@ import pytest
 import torch
 from PIL import Image
 from torch import nn
-from torch.nn import functional as F
 
 from costseg.classes import LABEL_ID_TO_TRAIN_ID
 from costseg.cli import evaluate_main, predict_main
