@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import torch
 from PIL import Image
+from test_networks import _randomise
 from torch import nn
 
 from costseg.classes import LABEL_ID_TO_TRAIN_ID
@@ -61,7 +62,7 @@ class _MobileNetAtStride16(nn.Module):
 
 @pytest.fixture(scope="module")
 def mobilenet(tmp_path_factory) -> tuple[nn.Module, Path]:
-    net = _MobileNetAtStride16().eval()
+    net = _randomise(_MobileNetAtStride16())  # torchvision's initial logits hardly vary
     return net, _export(net, tmp_path_factory.mktemp("onnx") / "mobilenet.onnx")
 
 
@@ -74,6 +75,30 @@ def test_torchvision_network_at_a_fraction_of_the_size(mobilenet) -> None:
         got = load_network(f"onnx:{path}")(images)
         assert net(_normalise(images)).shape[-2:] == (3, 5)  # the graph's own output: 1/16
     torch.testing.assert_close(got, expected, atol=1e-4, rtol=1e-4)
+
+
+def test_onnx_in_an_ensemble_and_a_sliding_window(mobilenet) -> None:
+    """Two onnx: members (another normalisation for the second): the mean of their softmaxes;
+    sliding windows reach the graph as smaller images, each resized to its window."""
+    from costseg.networks.ensemble import open_sources
+    from costseg.networks.protocols import Protocol
+
+    _, path = mobilenet
+    other = f"onnx:{path}?mean=0.5,0.5,0.5&std=0.25,0.25,0.25"
+    images = torch.randint(0, 256, (1, 3, 48, 80), dtype=torch.uint8)
+    cpu = torch.device("cpu")
+    source = open_sources(None, [f"onnx:{path}", other], None, cpu, Protocol(), None, 0)
+    with torch.no_grad():
+        members = [load_network(spec)(images).softmax(1) for spec in (f"onnx:{path}", other)]
+        torch.testing.assert_close(source.network(images), (members[0] + members[1]) / 2)
+        assert (members[0] - members[1]).abs().max() > 1e-3  # the normalisation matters
+        slide = Protocol(crop=(48, 48), stride=(48, 32))
+        windows = open_sources(None, [f"onnx:{path}"], None, cpu, slide, None, 0)
+        net = load_network(f"onnx:{path}")
+        left, right = net(images[..., :48]), net(images[..., 32:])
+        expected = torch.cat([left[..., :32], (left[..., 32:] + right[..., :16]) / 2,
+                              right[..., 16:]], dim=-1)  # fmt: skip
+        torch.testing.assert_close(windows.scores(images, ["a"]), expected)
 
 
 def test_evaluate_onnx_equals_the_pytorch_forward_as_probs(mobilenet, cityscapes_root, tmp_path):
