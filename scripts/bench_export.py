@@ -12,8 +12,7 @@ frames of a Cityscapes-layout tree (``scripts/toy_as_cityscapes.py ROOT --size 1
   onnxruntime label differs from :func:`decide_reference` on PyTorch's probabilities, and how
   many of those lie beyond the bound of docs/definitions.md §19 (and, apart, how many differ
   from the reference on the graph's own probabilities: float32 decisions alone); the largest
-  difference of the
-  log-probabilities (the logits' up to each pixel's softmax constant);
+  difference of the log-probabilities (the logits' up to each pixel's softmax constant);
 * speed: onnxruntime (CPU) per frame for the network and one rule's decision (egoistic: labels
   and margins) ÷ PyTorch eager (network, softmax, :func:`costseg.decision.decide`), the median
   of ``--repeats`` after a warm-up, both on every core;

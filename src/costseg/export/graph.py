@@ -24,8 +24,13 @@ OUTPUTS = ("labels", "margin", "probabilities")
 
 def graph_decision(probs: Tensor, cost: Tensor, priors: Tensor) -> tuple[Tensor, Tensor]:
     """The decision of §1 in float32 as the graph computes it: the column-shifted matrix
-    ``S = C − max_j C[j, ·]``, ``q = p / π``, the expected costs ``S q`` (one matrix product per
+    ``S = C − min_j C[j, ·]``, ``q = p / π``, the expected costs ``S q`` (one matrix product per
     image), the argmin (ties to the lowest row; the defer row N gives 255) and the margin.
+
+    A column constant changes every row's cost alike, so any shift decides as the reference
+    (which subtracts the largest entry); the smallest keeps every term >= 0, so each cost errs
+    by at most a relative float32 bound of itself, and the small costs of the rows that win
+    keep their precision (the reference's shift puts the egoistic rule's costs near −1000).
 
     Args:
         probs: (B, N, H, W) float32 probabilities.
@@ -37,7 +42,7 @@ def graph_decision(probs: Tensor, cost: Tensor, priors: Tensor) -> tuple[Tensor,
         smallest minus the smallest expected cost.
     """
     b, n, h, w = probs.shape
-    shifted = cost - cost.amax(dim=0, keepdim=True)
+    shifted = cost - cost.amin(dim=0, keepdim=True)
     q = (probs / priors).reshape(b, n, h * w)
     costs = torch.matmul(shifted, q)  # (B, M, H·W)
     best = costs.topk(2, dim=1, largest=False)  # sorted: the smallest first, ties keep order

@@ -1,10 +1,12 @@
 """The exported graph's labels against the reference decision (``docs/definitions.md §19``).
 
-The graph decides in float32 on its own probabilities; :func:`decide_reference` decides in
-float64 on PyTorch's. A pixel may differ only where the reference's costs of the two labels lie
-within the sum of the graph's cost errors: float32 rounding (the bound of
-:func:`costseg.decision.certificate.costs_gamma`, the matrix rounded twice: cast and shift), the
-difference of the two probability maps weighed by the matrix, and the reference's own rounding.
+The graph decides in float32 on its own probabilities, with the matrix shifted to entries >= 0
+(:func:`~costseg.export.graph.graph_decision`); :func:`decide_reference` decides in float64 on
+PyTorch's. A pixel may differ only where the reference's costs of the two labels lie within the
+sum of the graph's cost errors: float32 rounding (the bound of
+:func:`costseg.decision.certificate.costs_gamma` times the cost itself, the matrix rounded twice:
+cast and shift), the difference of the two probability maps weighed by the matrix, and the
+reference's own rounding.
 """
 
 from __future__ import annotations
@@ -69,11 +71,12 @@ def parity(
     q_graph = graph_probs.double().permute(0, 2, 3, 1)[where].cpu() / pi
     shifted = shift(cost.double().cpu())
     costs = q_ref @ shifted.T  # (count, M): the reference's costs
-    scale = q_ref @ shifted.abs().T
+    scale = (q_ref @ shifted.abs().T).amax(1, keepdim=True)  # the reference's T
+    graph = cost.double().cpu() - cost.double().cpu().amin(0)  # the graph's matrix, >= 0
     bound = (
-        costs_gamma(gamma(2), 0.0, n) * (q_graph @ shifted.abs().T)
-        + (q_graph - q_ref).abs() @ shifted.abs().T
-        + reference_eps(n, False) * scale.amax(1, keepdim=True)
+        costs_gamma(gamma(2), 0.0, n) * (q_graph @ graph.T)
+        + (q_graph - q_ref).abs() @ graph.T
+        + reference_eps(n, False) * scale
     )
     graph_rows = _rows(labels.long()[where].cpu(), n)
     reference_rows = _rows(reference[where].cpu(), n)
