@@ -24,8 +24,8 @@ OUTPUTS = ("labels", "margin", "probabilities")
 
 def graph_decision(probs: Tensor, cost: Tensor, priors: Tensor) -> tuple[Tensor, Tensor]:
     """The decision of §1 in float32 as the graph computes it: the column-shifted matrix
-    ``S = C − min_j C[j, ·]``, ``q = p / π``, the expected costs ``S q`` (one matrix product per
-    image), the argmin (ties to the lowest row; the defer row N gives 255) and the margin.
+    ``S = C − min_j C[j, ·]``, ``q = p / π``, the expected costs ``S q``, the argmin (ties to
+    the lowest row; the defer row N gives 255) and the margin.
 
     A column constant changes every row's cost alike, so any shift decides as the reference
     (which subtracts the largest entry); the smallest keeps every term >= 0, so each cost errs
@@ -33,23 +33,22 @@ def graph_decision(probs: Tensor, cost: Tensor, priors: Tensor) -> tuple[Tensor,
     keep their precision (the reference's shift puts the egoistic rule's costs near −1000).
 
     Args:
-        probs: (B, N, H, W) float32 probabilities.
+        probs: (B, H·W, N) float32 probabilities, classes last.
         cost: (N, N) or (N + 1, N) float32 matrix (rows: decisions, columns: true classes).
         priors: (N, H, W) pixel-wise or (N, 1, 1) global priors (ones: no priors).
 
     Returns:
-        (B, H, W) uint8 labels (255: deferred) and (B, H, W) float32 margins: the second
+        (B, H·W) uint8 labels (255: deferred) and (B, H·W) float32 margins: the second
         smallest minus the smallest expected cost.
     """
-    b, n, h, w = probs.shape
+    n = probs.shape[-1]
     shifted = cost - cost.amin(dim=0, keepdim=True)
-    q = (probs / priors).reshape(b, n, h * w)
-    costs = torch.matmul(shifted, q)  # (B, M, H·W)
-    best = costs.topk(2, dim=1, largest=False)  # sorted: the smallest first, ties keep order
-    rows = costs.argmin(dim=1)  # the first minimum: ties to the lowest row
+    q = probs / priors.permute(1, 2, 0).reshape(-1, n)  # (H·W or 1, N): broadcast over B
+    costs = torch.matmul(q, shifted.t())  # (B, H·W, M): classes last, as onnxruntime runs fastest
+    best = costs.topk(2, dim=-1, largest=False).values
+    rows = costs.argmin(dim=-1)  # the first minimum: ties to the lowest row
     labels = torch.where(rows >= n, torch.full_like(rows, DEFERRED), rows).to(torch.uint8)
-    margin = best.values[:, 1] - best.values[:, 0]
-    return labels.reshape(b, h, w), margin.reshape(b, h, w)
+    return labels, best[..., 1] - best[..., 0]
 
 
 class DecisionGraph(nn.Module):
@@ -70,6 +69,11 @@ class DecisionGraph(nn.Module):
         self, image: Tensor, cost: Tensor, priors: Tensor, temperature: Tensor
     ) -> tuple[Tensor, ...]:
         """See :func:`graph_decision`; the probabilities are ``softmax(logits / temperature)``."""
-        probs = torch.softmax(self.network(image) / temperature, dim=1)
+        logits = self.network(image) / temperature
+        b, n, h, w = logits.shape
+        probs = torch.softmax(logits.permute(0, 2, 3, 1).reshape(b, h * w, n), dim=-1)
         labels, margin = graph_decision(probs, cost, priors)
-        return (labels, margin, probs) if self.probabilities else (labels, margin)
+        labels, margin = labels.reshape(b, h, w), margin.reshape(b, h, w)
+        if not self.probabilities:
+            return labels, margin
+        return labels, margin, probs.reshape(b, h, w, n).permute(0, 3, 1, 2)
