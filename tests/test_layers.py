@@ -13,12 +13,12 @@ CHAIN = [
     {"rules", "calibration"},
     {"data", "metrics", "models", "networks", "meta"},
     {"report", "compile_kernels"},
-    {"evaluation", "prediction", "training"},
+    {"evaluation", "prediction", "training", "export"},
     {"cli", "api"},
 ]
 NO_LIGHTNING = {"costs", "decision", "rules", "calibration", "metrics", "networks", "meta",
-                "report", "evaluation", "prediction", "workers", "compile_kernels",
-                "api"}  # fmt: skip
+                "report", "evaluation", "prediction", "export", "workers",
+                "compile_kernels", "api"}  # fmt: skip
 NO_MODEL = {"costs", "decision", "rules", "calibration", "metrics", "meta", "report"}
 
 

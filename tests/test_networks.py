@@ -198,9 +198,9 @@ def test_vainf_errors(tmp_path: Path) -> None:
         load_network(f"vainf:{tmp_path / 'missing.pth'}")
 
 
-@pytest.mark.parametrize("spec", ["onnx:model.onnx", "model.ckpt", "vainf:", "hf"])
+@pytest.mark.parametrize("spec", ["tflite:model.tflite", "model.ckpt", "vainf:", "hf"])
 def test_unknown_spec_lists_the_valid_prefixes(spec: str) -> None:
-    with pytest.raises(ValueError, match=r"costseg:PATH, vainf:PATH.*hf:DIR, segformer:DIR$"):
+    with pytest.raises(ValueError, match=r"costseg:PATH, vainf:PATH.*segformer:DIR, onnx:FILE"):
         load_network(spec)
 
 

@@ -31,6 +31,7 @@ NETWORK_SPECS = {
     "vainf": "PATH[?os=8|16&backbone=resnet50|resnet101]",
     "hf": "DIR",
     "segformer": "DIR",
+    "onnx": "FILE[?mean=R,G,B&std=R,G,B&output=probs]",
 }
 """The ``--network`` sources, ``prefix: what follows it`` (read before torch is imported, for
 ``--help``); :data:`costseg.networks.LOADERS` holds each one's loader under the same prefix."""

@@ -56,7 +56,7 @@ class Source:
         checkpoint, else ``<elsewhere>/<the network's or folder's name>``."""
         if self.run_dir is not None:
             return self.run_dir / job
-        name = str(next(iter(self.description.values()))).split(":")[-1].rstrip("/")
+        name = str(next(iter(self.description.values()))).split(":")[-1].split("?")[0].rstrip("/")
         name = "ensemble" if "members" in self.description else Path(name).stem
         return Path(elsewhere) / (name or "network")
 
