@@ -16,10 +16,10 @@ from PIL import Image
 from costseg.checkpoints import find_checkpoint
 from costseg.classes import LABEL_ID_TO_TRAIN_ID, class_indices
 from costseg.cli import evaluate_main
-from costseg.data.cityscapes import INSTANCE_SUFFIX, LABEL_SUFFIX
+from costseg.data.cityscapes import INSTANCE_SUFFIX, LABEL_SUFFIX, CityscapesSegmentation
 from costseg.data.prior_maps import PriorMaps
+from costseg.data.priors import pixel_priors
 from costseg.data.toy.dataset import StreetScenes
-from costseg.networks import load_costseg_checkpoint
 
 ROOT = Path(__file__).resolve().parents[1]
 RULES = ("robotistic", "altruistic", "egoistic")
@@ -72,7 +72,10 @@ def _run(ckpt: Path, root: Path, out: Path, *extra: str) -> dict:
 def test_instance_rows_equal_the_brute_force_loop(tiny_run, tree, tmp_path) -> None:
     ckpt = find_checkpoint(None, runs_dir=tiny_run[2])
     results = _run(ckpt, tree, tmp_path / "eval", "--save-predictions")
-    _, roi = PriorMaps(load_costseg_checkpoint(ckpt).priors).at((64, 128))
+    # the tree's own priors, counted from its train labels (not the toy checkpoint's)
+    train = CityscapesSegmentation(tree, "train")
+    priors = pixel_priors(train.read_label(i) for i in range(len(train)))
+    _, roi = PriorMaps(priors).at((64, 128))
     classes = tuple(class_indices(["person", "car"]))
     gt, missed = {}, {}
     for path in sorted((tree / "gtFine" / "val" / "toy").glob(f"*{LABEL_SUFFIX}")):
