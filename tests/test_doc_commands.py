@@ -7,7 +7,7 @@ commands for real on a trained model."""
 from __future__ import annotations
 
 import argparse
-import re
+import importlib.util
 import runpy
 import shlex
 import sys
@@ -21,31 +21,17 @@ from costseg.options import EvalOptions
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
-BACKSLASH = "\\"
 PLACEHOLDERS = ("[--config", "toy]", "[--KEY", "VALUE", "...]")  # README's synopsis of train.py
-COMMAND = re.compile(r"^\s*(python3? (?:\S+/)?\S+\.py\b.*)$")
 
 
-def documented_commands(text: str) -> list[str]:
-    """The ``python X.py ...`` lines of a page (continuation lines joined, comments dropped).
+def _script(name: str):
+    spec = importlib.util.spec_from_file_location(name, ROOT / "scripts" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
-    >>> documented_commands("    python evaluate.py --sweep 0.1 \\\\\\n        --explorer  # see")
-    ['python evaluate.py --sweep 0.1 --explorer']
-    """
-    found, pending = [], None
-    for line in text.splitlines():
-        if pending is None:
-            match = COMMAND.match(line)
-            if not match:
-                continue
-            pending, line = "", match.group(1)
-        body = line.split(" # ", 1)[0].strip()
-        continued = body.endswith(BACKSLASH)
-        pending = " ".join(p for p in (pending, body.removesuffix(BACKSLASH).strip()) if p)
-        if not continued:
-            found.append(pending)
-            pending = None
-    return found
+
+documented_commands = _script("run_doc_commands").documented_commands
 
 
 COMMANDS = [

@@ -23,9 +23,13 @@ import yaml
 from costseg.cli import evaluate_parser, predict_parser, train_main
 
 ROOT = Path(__file__).resolve().parents[1]
-SOURCES = [*sorted((ROOT / "src" / "costseg").rglob("*.py")), ROOT / "scripts/check_guarantee.py"]
+SCRIPTS = {"check_guarantee.py": "build_parser", "export.py": "parser"}  # script: its parser
+SOURCES = [
+    *sorted((ROOT / "src" / "costseg").rglob("*.py")),
+    *(ROOT / "scripts" / name for name in SCRIPTS),
+]
 OPTION = re.compile(r"(?<![\w-])--[a-z][a-z0-9_.-]*[a-z0-9_]")
-COMMAND = re.compile(r"\b(evaluate|predict|train|check_guarantee)\.py\b")
+COMMAND = re.compile(r"\b(evaluate|predict|train|check_guarantee|export)\.py\b")
 CLAUSE = re.compile(r"[;,()]|: |\. ")
 SHOWN_BY = ("print", "fail", "warn", "warning", "error")
 
@@ -39,6 +43,8 @@ COMMANDS = {
     "src/costseg/calibration/": {"evaluate.py", "check_guarantee.py"},
     "src/costseg/data/shift.py": {"evaluate.py", "check_guarantee.py"},
     "src/costseg/training/": {"train.py"},
+    "src/costseg/export/": {"export.py"},
+    "scripts/export.py": {"export.py"},
     "src/costseg/cli.py": {"train.py"},  # the messages of train.py's --help and --config
     "scripts/check_guarantee.py": {"check_guarantee.py"},
     "src/costseg/checkpoints.py": {"evaluate.py", "predict.py", "train.py", "check_guarantee.py"},
@@ -83,11 +89,11 @@ def options(command: str) -> frozenset[str]:
     """Every option ``command`` parses."""
     if command == "train.py":
         return frozenset(_train_options())
-    if command == "check_guarantee.py":
-        spec = importlib.util.spec_from_file_location("check_guarantee", SOURCES[-1])
+    if command in SCRIPTS:
+        spec = importlib.util.spec_from_file_location(command, ROOT / "scripts" / command)
         module = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(module)
-        parser = module.build_parser()
+        parser = getattr(module, SCRIPTS[command])()
     else:
         parser = evaluate_parser() if command == "evaluate.py" else predict_parser()
     return frozenset(parser._option_string_actions)

@@ -184,8 +184,8 @@ def _decision_graph(path: Path, session) -> _OnnxLogits:
     """A costseg decision graph as a source: its probabilities under temperature 1."""
     if "probabilities" not in [o.name for o in session.get_outputs()]:
         raise ValueError(
-            f"{path} is a decision graph without probabilities: export it with --probabilities "
-            "to use it as a network"
+            f"{path} is a decision graph without probabilities: to use it as a network, export "
+            "it with export.py --probabilities"
         )
     n = NUM_CLASSES
     feeds = {

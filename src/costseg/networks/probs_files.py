@@ -218,7 +218,9 @@ def read_data_record(folder: str | Path) -> tuple[dict[str, Any] | None, Tensor 
     try:
         data = json.loads((folder / DATA_RECORD).read_text())["data"]
     except (ValueError, KeyError, TypeError):
-        raise ValueError(f"{folder / DATA_RECORD} is not a record of saved probabilities' data") from None
+        raise ValueError(
+            f"{folder / DATA_RECORD} is not a record of saved probabilities' data"
+        ) from None
     priors_file = folder / _PRIORS
     priors = read_priors_file(priors_file, CLASS_NAMES)["priors"] if priors_file.is_file() else None
     return data, priors
