@@ -49,8 +49,9 @@ def _program(args: list[str]) -> str:
 def test_documented_evaluate_commands_pass_every_option_check(
     args, cityscapes_root, tmp_path, monkeypatch
 ):
-    monkeypatch.chdir(tmp_path)  # the reader's own cost file
+    monkeypatch.chdir(tmp_path)  # the reader's own cost and priors files
     (tmp_path / "my_costs.yaml").write_text("off_diagonal: 1.0\n")
+    (tmp_path / "priors.pt").touch()  # only its existence is checked before the network loads
     args = [str(cityscapes_root) if previous == "--data_root" else a
             for previous, a in zip(["", *args[:-1]], args, strict=True)]  # fmt: skip
     opts = EvalOptions(**vars(evaluate_parser().parse_args(args[1:])))
