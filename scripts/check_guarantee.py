@@ -40,7 +40,11 @@ from torch.utils.data import DataLoader, Subset
 from tqdm import tqdm
 
 from costseg import workers
-from costseg.calibration.guarantee import learn_then_test_paths, tests_sharing_delta
+from costseg.calibration.guarantee import (
+    learn_then_test_paths,
+    minimum_images,
+    tests_sharing_delta,
+)
 from costseg.checkpoints import find_checkpoint
 from costseg.classes import CLASS_NAMES
 from costseg.cli import build_parser as build_options_parser
@@ -305,10 +309,8 @@ def rule_summary(
 def minimum_n(args: argparse.Namespace, candidates: int, paths: int = 0) -> int:
     """Fewest calibration images with which a zero empirical risk is certified (fixed-sequence
     testing along ``paths`` paths: δ / paths for each)."""
-    level = args.guarantee / tests_sharing_delta(args.guarantee_method, candidates, paths)
-    if args.bound == "hoeffding":  # p = exp(−2 n α²)
-        return math.ceil(-math.log(level) / (2 * args.alpha**2))
-    return math.ceil(math.log(level) / math.log1p(-args.alpha))  # p = (1 − α)ⁿ
+    tests = tests_sharing_delta(args.guarantee_method, candidates, paths)
+    return minimum_images(args.alpha, args.guarantee, tests, args.bound)
 
 
 def report(out: dict[str, Any]) -> None:

@@ -46,6 +46,8 @@ def _target(text):
     return ["--sweep", "0.5", "--target", text, "--maximize", "person:roi1:precision"]
 
 
+TESTS = Path(__file__).parent  # a folder that holds no record of scored images
+
 EVALUATE_CASES = {
     "unknown cost": (["--cost", "selfish"], ["unknown cost 'selfish'", "ml"]),
     "aggregate table as cost": (
@@ -116,7 +118,8 @@ EVALUATE_CASES = {
     ),
     "checkpoint option without a path": (["--ckpt_path"], ["--ckpt_path", "expected at least one"]),
     "network option without a spec": (["--network"], ["--network", "expected at least one"]),
-    "probs without data": (["--probs", "somewhere"], ["--probs needs --data_root"], False),
+    "probs folder missing": (["--probs", "somewhere"], ["--probs folder not found"], False),
+    "probs without data": (["--probs", str(TESTS)], ["--probs needs --data_root"], False),
     "missing data root": (["--data_root", "no/such/cityscapes"], ["no/such/cityscapes"]),
 }
 
@@ -254,3 +257,24 @@ def test_check_guarantee_bad_input(tmp_path, capsys):
         capsys,
         f"error: checkpoint not found: {missing}",
     )
+
+
+NEEDS_THE_DATA = {"too few calibration images": "the calibration split's size"}
+
+
+@pytest.mark.parametrize("case", sorted(set(EVALUATE_CASES) - set(NEEDS_THE_DATA)))
+def test_every_bad_option_is_refused_before_anything_heavy(case, ckpt, capsys, monkeypatch):
+    """The option checks run before the figure workers start, a network is opened or a dataset
+    is built: each of those fails the test if it is reached."""
+
+    def reached(*_, **__):
+        raise AssertionError("reached before the options were checked")
+
+    for name in ("costseg.workers.start", "costseg.evaluation.plan.open_sources",
+                 "costseg.evaluation.plan.build_dataset"):  # fmt: skip
+        monkeypatch.setattr(name, reached)
+    args, needles, *with_checkpoint = EVALUATE_CASES[case]
+    if case == "missing cuda" and torch.cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    source = ["--ckpt_path", ckpt] if with_checkpoint != [False] else []
+    _one_line(evaluate_main, [*source, *args, "--no-progress"], capsys, *needles)

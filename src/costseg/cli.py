@@ -292,6 +292,9 @@ def evaluate_main(args: Sequence[str] | None = None) -> Any:
     """``python evaluate.py --cost egoistic`` (see ``--help``); returns the results."""
     with user_errors():
         opts = EvalOptions(**vars(evaluate_parser().parse_args(args)))
+        from costseg.evaluation.checks import check_options
+
+        check_options(opts)  # every option, before the forkserver, a network or data is touched
         workers.start()  # the workers' forkserver imports its modules while this one does
         from costseg.evaluation.run import evaluate
 

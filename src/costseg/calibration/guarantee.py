@@ -14,6 +14,7 @@ Pure numpy / scipy / torch; nothing here knows of models or Lightning.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Literal
@@ -238,6 +239,22 @@ def learn_then_test_paths(
     if method == "fixed_sequence" and paths:
         return fixed_sequences(losses, alpha, delta, paths, bound)
     return learn_then_test(losses, alpha, delta, method, bound=bound)
+
+
+def minimum_images(
+    alpha: float, delta: float, tests: int = 1, bound: Bound = "hoeffding_bentkus"
+) -> int:
+    """Fewest calibration images with which even a zero empirical risk is certified at level
+    α when ``tests`` tests share δ: Hoeffding–Bentkus' p-value at risk 0 is (1 − α)ⁿ,
+    Hoeffding's exp(−2 n α²).
+
+    >>> minimum_images(0.05, 0.1), minimum_images(0.05, 0.1, bound="hoeffding")
+    (45, 461)
+    """
+    level = delta / tests
+    if bound == "hoeffding":
+        return math.ceil(-math.log(level) / (2 * alpha**2))
+    return math.ceil(math.log(level) / math.log1p(-alpha))
 
 
 def tests_sharing_delta(method: Method, candidates: int, paths: int = 0) -> int:

@@ -13,16 +13,15 @@ from pathlib import Path
 
 import torch
 
-from costseg.calibration.guarantee import tests_sharing_delta
+from costseg.calibration.guarantee import minimum_images, tests_sharing_delta
 from costseg.classes import CLASS_NAMES, INSTANCE_CLASSES, class_indices
 from costseg.data.from_config import same_data
-from costseg.data.priors import read_priors_file
-from costseg.evaluation.held_out import minimum_images
-from costseg.meta.fusion import fusion_group
 from costseg.metrics.selection import parse_metric, parse_target, risk_level
 from costseg.networks.probs_files import DATA_RECORD, records_its_data
 from costseg.networks.protocols import OPTIONS, Protocol
+from costseg.networks.sources import resolve_device
 from costseg.options import EvalOptions, candidate_flags, changed
+from costseg.report.outputs import check_free
 from costseg.rules import (
     TEMPERATURES,
     RuleGroup,
@@ -39,8 +38,11 @@ from costseg.rules import (
 def check_options(opts: EvalOptions) -> list[RuleGroup]:
     """Fail on malformed or contradictory options; returns the rule groups they ask for."""
     class_indices(opts.classes)
+    resolve_device(opts.device)
     if opts.probs is not None and (opts.ckpt_path is not None or opts.network is not None):
         raise ValueError("--probs replaces the network: give it without --ckpt_path and --network")
+    if opts.probs is not None and not Path(opts.probs).is_dir():
+        raise ValueError(f"--probs folder not found: {opts.probs}")
     if opts.probs is not None and opts.data_root is None and not records_its_data(opts.probs):
         raise ValueError(
             f"--probs needs --data_root: {opts.probs} does not say which images were scored "
@@ -72,6 +74,8 @@ def check_options(opts: EvalOptions) -> list[RuleGroup]:
     _check_selection(opts, groups)
     _check_calibration(opts)
     _check_priors(opts, groups)
+    if opts.output_dir is not None:
+        check_free(opts.output_dir, opts.overwrite)
     return groups
 
 
@@ -125,6 +129,8 @@ def _check_selection(opts: EvalOptions, groups: list[RuleGroup]) -> None:
 
 
 def _fusion_group(opts: EvalOptions) -> RuleGroup:
+    from costseg.meta.fusion import fusion_group  # numba's segment passes: only with --fuse
+
     base = parse_rules([opts.fuse_base])[0]
     fused = parse_rules(opts.fuse)
     if any(r.defers for r in (base, *fused)):
@@ -217,6 +223,8 @@ def source_priors(
     (next to the outputs). None only with ``--roi geometric`` and no train labels; never
     another dataset's priors."""
     if opts.priors is not None:
+        from costseg.data.priors import read_priors_file
+
         priors = read_priors_file(opts.priors, CLASS_NAMES)["priors"]
         print(f"priors read from {opts.priors}")
         source.description["priors"] = {"file": str(Path(opts.priors).resolve())}

@@ -7,7 +7,6 @@ of the network over the calibration images.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
@@ -55,16 +54,6 @@ class Certificate:
     target: str
     maximize: str
     num_images: int
-
-
-def minimum_images(alpha: float, delta: float, family: int) -> int:
-    """Calibration images needed before even a risk of 0 can be certified (Hoeffding–Bentkus
-    with Bonferroni: ``(1 - α)^n ≤ δ / family``).
-
-    >>> minimum_images(0.05, 0.1, 1)
-    45
-    """
-    return math.ceil(math.log(delta / family) / math.log(1 - alpha))
 
 
 def certify(

@@ -9,9 +9,21 @@ metrics are the same in one batch, many batches, across DDP processes and in a
 :mod:`costseg.metrics.names`.
 """
 
-from costseg.metrics.calibration import CalibrationError
-from costseg.metrics.instances import InstanceMisses
-from costseg.metrics.roi import RoIPrecisionRecall
-from costseg.metrics.segments import SegmentErrors
+import importlib
 
 __all__ = ["CalibrationError", "InstanceMisses", "RoIPrecisionRecall", "SegmentErrors"]
+
+_MODULES = {
+    "CalibrationError": "calibration",
+    "InstanceMisses": "instances",
+    "RoIPrecisionRecall": "roi",
+    "SegmentErrors": "segments",
+}
+
+
+def __getattr__(name: str):
+    """The Metric classes, imported on first use: torchmetrics is slow to import, and the option
+    checks read only :mod:`costseg.metrics.names` and :mod:`costseg.metrics.selection`."""
+    if name not in _MODULES:
+        raise AttributeError(f"module 'costseg.metrics' has no attribute {name!r}")
+    return getattr(importlib.import_module(f"costseg.metrics.{_MODULES[name]}"), name)

@@ -39,13 +39,7 @@ def claim_output_dir(output_dir: str | None, overwrite: bool, default_base: Path
     ...     [claim_output_dir(None, False, Path(d)).name for _ in range(2)]
     ['version_0', 'version_1']
     """
-    out = _next_version(default_base) if output_dir is None else _check_folder(Path(output_dir))
-    if out.is_dir() and any(out.iterdir()) and not overwrite:
-        held = "an unfinished run" if (out / INCOMPLETE).exists() else "results"
-        raise ValueError(
-            f"--output_dir {out} already holds {held}: pass --overwrite to replace them, "
-            "or choose another folder"
-        )
+    out = _next_version(default_base) if output_dir is None else check_free(output_dir, overwrite)
     _make_writable(out)
     write_text(out / INCOMPLETE, _MARKER_TEXT)
     return out
@@ -56,9 +50,19 @@ def mark_complete(folder: Path) -> None:
     (folder / INCOMPLETE).unlink(missing_ok=True)
 
 
-def _check_folder(out: Path) -> Path:
+def check_free(output_dir: str | Path, overwrite: bool) -> Path:
+    """``output_dir`` as a Path; ValueError when it is a file, or holds results (or an unfinished
+    run) and ``overwrite`` is not set. Nothing is created (the checks run it before anything
+    heavy; :func:`claim_output_dir` claims the folder)."""
+    out = Path(output_dir)
     if out.exists() and not out.is_dir():
         raise ValueError(f"--output_dir {out} is a file, not a folder")
+    if out.is_dir() and any(out.iterdir()) and not overwrite:
+        held = "an unfinished run" if (out / INCOMPLETE).exists() else "results"
+        raise ValueError(
+            f"--output_dir {out} already holds {held}: pass --overwrite to replace them, "
+            "or choose another folder"
+        )
     return out
 
 
