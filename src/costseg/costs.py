@@ -217,6 +217,27 @@ def symmetric_cost(
     return 1 - torch.eye(n, dtype=dtype, device=device)
 
 
+def off_diagonal(cost: torch.Tensor) -> torch.Tensor:
+    """The off-diagonal entries of (..., N, N) matrices, (..., N·(N − 1)) row by row; of a matrix
+    with a defer row, those of its square part.
+
+    >>> off_diagonal(torch.tensor([[0.0, 2], [3, 0], [0.5, 0.5]])).tolist()
+    [2.0, 3.0]
+    """
+    n = cost.shape[-1]
+    return cost[..., :n, :][..., ~torch.eye(n, dtype=torch.bool, device=cost.device)]
+
+
+def cost_or_symmetric(cost: torch.Tensor | None, n: int) -> torch.Tensor:
+    """``cost``, or the (N, N) symmetric matrix (argmax) for None: how a rule without a matrix
+    decides.
+
+    >>> cost_or_symmetric(None, 2).tolist()
+    [[0.0, 1.0], [1.0, 0.0]]
+    """
+    return symmetric_cost(n) if cost is None else cost
+
+
 def rescale(cost: torch.Tensor) -> torch.Tensor:
     """Scale ``cost`` to unit mean off-diagonal cost (same decisions, different mixtures); a
     defer row is scaled alike. The mean is correctly rounded (``math.fsum``), so the scaled
@@ -225,9 +246,7 @@ def rescale(cost: torch.Tensor) -> torch.Tensor:
     >>> rescale(4 * load_cost("robotistic")).max().item()
     1.0
     """
-    n = cost.shape[-1]
-    off = ~torch.eye(n, dtype=torch.bool, device=cost.device)
-    values = cost[..., :n, :][..., off].double()
+    values = off_diagonal(cost).double()
     means = [
         math.fsum(row) / values.shape[-1] for row in values.reshape(-1, values.shape[-1]).tolist()
     ]

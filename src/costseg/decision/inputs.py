@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import torch
 
-from costseg.costs import has_defer_row, symmetric_cost
+from costseg.costs import cost_or_symmetric, has_defer_row
 from costseg.decision.label_maps import DEFERRED
 
 
@@ -61,7 +61,7 @@ def check_probs(probs: torch.Tensor) -> int:
 def check_cost(cost: torch.Tensor | None, n: int) -> torch.Tensor:
     """(1, N, N) float64 on the CPU (small: prepared there), (1, N + 1, N) with a defer row; None:
     the symmetric matrix."""
-    cost = symmetric_cost(n) if cost is None else cost
+    cost = cost_or_symmetric(cost, n)
     if cost.shape not in ((n, n), (n + 1, n)):
         raise ValueError(
             f"cost matrix must be {n}x{n} for {n} classes, got {tuple(cost.shape)}; with a defer "

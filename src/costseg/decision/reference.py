@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import torch
 
-from costseg.costs import mix_costs, symmetric_cost
+from costseg.costs import cost_or_symmetric, mix_costs
 from costseg.decision.inputs import check_defer
 from costseg.decision.label_maps import labels_of
 
@@ -45,7 +45,7 @@ def decide_reference(
     >>> decide_reference(p, torch.cat([C, torch.full((1, 3), 0.4)])).item()  # 0.4 < 0.7
     255
     """
-    cost = symmetric_cost(probs.shape[1]) if cost is None else cost
+    cost = cost_or_symmetric(cost, probs.shape[1])
     check_defer(cost, probs.shape[1])
     return labels_of(reference_rows(probs, cost, priors), cost)
 

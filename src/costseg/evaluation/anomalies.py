@@ -16,7 +16,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from costseg.costs import symmetric_cost
+from costseg.costs import cost_or_symmetric, off_diagonal
 from costseg.meta.heat_maps import cost_margin, heat_maps
 from costseg.metrics.anomaly import AnomalyMetrics
 from costseg.rules import Rule
@@ -39,8 +39,7 @@ def anomaly_scores(
 def _max_over_min_cost(rule: Rule, n: int) -> float:
     """R is in units of the largest off-diagonal cost; this turns it into units of the
     smallest."""
-    cost = symmetric_cost(n) if rule.cost is None else rule.cost[:n]
-    off = cost[~torch.eye(n, dtype=torch.bool)]
+    off = off_diagonal(cost_or_symmetric(rule.cost, n))
     return float(off.max() / off.min())
 
 

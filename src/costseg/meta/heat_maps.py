@@ -23,7 +23,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from costseg.costs import symmetric_cost
+from costseg.costs import cost_or_symmetric, off_diagonal
 from costseg.networks.uncertainty import entropy
 from costseg.rules.base import Rule, adapted_priors
 
@@ -63,7 +63,7 @@ def cost_margin(probs: Tensor, rule: Rule, priors: Tensor | None = None) -> Tens
     a defer row last), with ``q = p / π_α`` for a rule with priors, else ``q = p``.
     """
     n = probs.shape[1]
-    cost = symmetric_cost(n) if rule.cost is None else rule.cost
+    cost = cost_or_symmetric(rule.cost, n)
     cost = cost.to(probs.device, torch.float64)
     q = probs.double()
     if rule.priors_alpha:
@@ -72,6 +72,4 @@ def cost_margin(probs: Tensor, rule: Rule, priors: Tensor | None = None) -> Tens
         q = q / adapted_priors(priors.to(q), rule.priors_alpha)
     expected = torch.einsum("jk,bkhw->bjhw", cost, q)
     low = expected.topk(2, dim=1, largest=False).values
-    square = cost[:n]
-    off_diagonal = square[~torch.eye(n, dtype=torch.bool, device=square.device)].max()
-    return ((low[:, 1] - low[:, 0]) / off_diagonal).float()
+    return ((low[:, 1] - low[:, 0]) / off_diagonal(cost).max()).float()

@@ -28,6 +28,7 @@ import torch
 from PIL import Image
 
 from costseg.classes import CLASS_NAMES, DEFERRED_COLOUR, PALETTE, ROI_NAMES
+from costseg.costs import off_diagonal
 from costseg.report.files import png_bytes, write_text
 
 MAX_EMBEDDED = (256, 512)  # (H, W): larger examples are embedded at a reduced resolution
@@ -151,8 +152,7 @@ def largest_off_diagonal(vertices: torch.Tensor) -> float:
     >>> largest_off_diagonal(torch.tensor([[[0.0, 2], [1, 5]], [[0, 3], [1, 0]]]))
     3.0
     """
-    off = ~torch.eye(vertices.shape[-1], dtype=torch.bool)
-    return float(vertices[:, off].max())
+    return float(off_diagonal(vertices).max())
 
 
 def page_data(

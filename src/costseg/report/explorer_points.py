@@ -9,7 +9,7 @@ import numpy as np
 import torch
 
 from costseg.classes import CLASS_NAMES
-from costseg.costs import rescale, symmetric_cost
+from costseg.costs import cost_or_symmetric, rescale
 from costseg.metrics.names import PAPER_RATES, SEGMENT_RATES
 from costseg.metrics.selection import choose
 from costseg.report.explorer import ExplorerExample, Marks, SweepData, embedded, write_explorer
@@ -36,7 +36,7 @@ def named_points(
     for rule in rules:
         if rule.priors_alpha:
             continue
-        cost = symmetric_cost(n) if rule.cost is None else rule.cost[:n]
+        cost = cost_or_symmetric(rule.cost, n)[:n]
         cost = rescale(cost) if scaling == "mean" else cost
         for v in range(len(vertices)):
             if torch.equal(cost.to(vertices), vertices[v]):

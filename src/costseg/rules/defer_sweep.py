@@ -22,9 +22,9 @@ import math
 from collections.abc import Sequence
 
 from costseg.classes import CLASS_NAMES
-from costseg.costs import with_defer
+from costseg.costs import cost_or_symmetric, with_defer
 from costseg.rules.base import Rule, RuleGroup
-from costseg.rules.named import NamedRules, cost_or_symmetric, parse_rules, rule_columns
+from costseg.rules.named import NamedRules, parse_rules, rule_columns
 
 DEFER_FAMILY = "defer"
 """The family label of the defer sweep (its own outputs: :mod:`costseg.report.risk_coverage`)."""

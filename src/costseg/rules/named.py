@@ -21,7 +21,7 @@ from pathlib import Path
 import torch
 
 from costseg.classes import CLASS_NAMES
-from costseg.costs import PRESETS, has_defer_row, load_cost, symmetric_cost, with_defer
+from costseg.costs import PRESETS, cost_or_symmetric, has_defer_row, load_cost, with_defer
 from costseg.decision import decide
 from costseg.decision.label_maps import empty_labels
 from costseg.rules.base import DEFER_COLUMN, Rule, RuleGroup, adapted_priors
@@ -96,11 +96,6 @@ def rule_columns(rule: Rule, defer: bool) -> dict[str, object]:
     """The columns that identify a named rule in result rows: its name and, with ``defer``
     (some rule of its group defers), its defer cost."""
     return {"matrix": rule.name} | ({DEFER_COLUMN: rule.defer_cost} if defer else {})
-
-
-def cost_or_symmetric(cost: torch.Tensor | None, n: int) -> torch.Tensor:
-    """``cost``, or the (N, N) symmetric matrix for None."""
-    return symmetric_cost(n) if cost is None else cost
 
 
 @dataclass(frozen=True)

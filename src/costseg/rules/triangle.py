@@ -14,10 +14,10 @@ from dataclasses import dataclass
 import torch
 
 from costseg.classes import CLASS_NAMES
-from costseg.costs import barycentric_grid, rescale
+from costseg.costs import barycentric_grid, cost_or_symmetric, rescale
 from costseg.decision import decide_mixtures
 from costseg.rules.base import RuleGroup
-from costseg.rules.named import cost_or_symmetric, parse_rules
+from costseg.rules.named import parse_rules
 
 WEIGHT_COLUMNS = ("alpha", "beta", "gamma")
 """The result columns of a grid point's barycentric weights."""
