@@ -52,6 +52,8 @@ def test_documented_evaluate_commands_pass_every_option_check(
     monkeypatch.chdir(tmp_path)  # the reader's own cost and priors files
     (tmp_path / "my_costs.yaml").write_text("off_diagonal: 1.0\n")
     (tmp_path / "priors.pt").touch()  # only its existence is checked before the network loads
+    if "--probs" in args:  # the reader's saved probabilities (with --data_root: any folder)
+        (tmp_path / args[args.index("--probs") + 1]).mkdir(parents=True)
     args = [str(cityscapes_root) if previous == "--data_root" else a
             for previous, a in zip(["", *args[:-1]], args, strict=True)]  # fmt: skip
     opts = EvalOptions(**vars(evaluate_parser().parse_args(args[1:])))

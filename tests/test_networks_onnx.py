@@ -170,10 +170,10 @@ def test_onnx_refusals_are_one_line(cityscapes_root, tmp_path, capsys) -> None:
         f"onnx:{seven}?scale=2": "bad option scale=2",
         "onnx:missing.onnx": "not found: missing.onnx",
     }
-    for spec, message in cases.items():
-        with pytest.raises(SystemExit) as exit_:
+    for i, (spec, message) in enumerate(cases.items()):  # a refusal met in the run leaves its
+        with pytest.raises(SystemExit) as exit_:  # folder marked INCOMPLETE: one folder each
             evaluate_main([*ARGS, "--data_root", str(cityscapes_root), "--network", spec,
-                           "--output_dir", str(tmp_path / "out")])  # fmt: skip
+                           "--output_dir", str(tmp_path / f"out{i}")])  # fmt: skip
         err = capsys.readouterr().err
         assert exit_.value.code == 2 and err.count("\n") == 1, err
         assert err.startswith(f"error: {message}"), err
