@@ -11,7 +11,7 @@ import torch
 from figure_text import InProcessDrawing, clipped_texts
 
 from costseg.classes import CLASS_NAMES
-from costseg.report.figures import plot_heatmap_grid
+from costseg.report.figures import heatmap_grid_figures, plot_heatmap_grid
 from costseg.report.files import render
 from costseg.report.priors import plot_priors, plot_roi_map
 
@@ -48,6 +48,19 @@ def test_a_tall_colour_bar_label_fits_one_row_of_panels():
     fig.colorbar(fig.axes[0].images[0], ax=fig.axes[:2], label="x" * 80)  # a label too long
     render(fig)
     assert any("x" * 80 in what for what in clipped_texts(fig))
+
+
+def test_a_grid_drawn_again_with_a_finer_colour_scale_keeps_its_label():
+    """FP and FN segments, then missed instances on the same grid: ticks of "0.175" after "0.5"
+    are wider, and the colour bar's label must still fit."""
+    rng = np.random.default_rng(0)
+    shares = {(r, c): rng.random((128, 256)) for r in ("robotistic", "egoistic") for c in
+              ("person", "car")}  # fmt: skip
+    grids = [(kind, {k: v * top for k, v in shares.items()}, kind)
+             for kind, top in (("FP", 0.5), ("FN", 0.5), ("missed instances", 0.21))]  # fmt: skip
+    for _, fig in heatmap_grid_figures(grids, "costseg:toy/version_0"):
+        render(fig)
+        assert clipped_texts(fig) == []
 
 
 def test_the_training_run_s_figures_show_all_their_text():

@@ -322,3 +322,5 @@ class _HeatmapGrid:
         for key, image in self.images.items():
             image.set_data(arrays[key])
         self.title.set_text(_what(kind, subject))
+        self.fig.set_layout_engine("constrained")  # the colour bar's new tick labels may be
+        freeze_layout(self.fig)  # wider ("0.175" after "0.5"): place its label again
