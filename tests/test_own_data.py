@@ -79,6 +79,11 @@ def test_half_size_images_are_scored_at_label_size(network, tmp_path, capsys):
             if y != 255:
                 expected[y, p] += 1
     assert np.array_equal(np.array(results["confusion_matrix"]["robotistic"]), expected)
+    saved, again = tmp_path / "saved", tmp_path / "again"  # saved at the labels' size, read
+    evaluate_main([*ARGS, "--network", network, "--data_root", str(root), "--save-probs",
+                   "--output_dir", str(saved)])  # fmt: skip
+    evaluate_main([*ARGS, "--probs", str(saved / "probs"), "--output_dir", str(again)])
+    assert _results(again)["confusion_matrix"] == _results(saved)["confusion_matrix"]
 
 
 def test_no_train_split_is_refused_in_one_line_naming_the_options(network, tmp_path, capsys):

@@ -86,13 +86,15 @@ class Source:
         probs = [load_probs(f, len(CLASS_NAMES), size=size) for f in files]
         return torch.stack(probs).to(images.device)
 
-    def scores_and_entropy(self, images: Tensor, stems: list[str]) -> tuple[Tensor, Tensor | None]:
-        """:meth:`scores`, and E_t H(p_t) (B, H, W) where the source averages several runs
-        (Monte-Carlo dropout's passes, an ensemble's members; ``docs/definitions.md §13``),
-        else None."""
+    def scores_and_entropy(
+        self, images: Tensor, stems: list[str], size: tuple[int, int] | None = None
+    ) -> tuple[Tensor, Tensor | None]:
+        """:meth:`scores` (``size`` as there), and E_t H(p_t) (B, H, W) where the source averages
+        several runs (Monte-Carlo dropout's passes, an ensemble's members;
+        ``docs/definitions.md §13``), else None."""
         average = getattr(self.network, "average", None)
         if average is None:
-            return self.scores(images, stems), None
+            return self.scores(images, stems, size), None
         runs = average(images, stems)
         return runs.mean.float(), runs.expected_entropy
 
@@ -251,7 +253,7 @@ def batches(
                 masks = None if masks is None else masks.to(device)
                 size = tuple(labels.shape[-2:])
                 if entropy_images is None or seen < entropy_images:
-                    scores, expected_entropy = source.scores_and_entropy(images, stems)
+                    scores, expected_entropy = source.scores_and_entropy(images, stems, size)
                 else:
                     scores, expected_entropy = source.scores(images, stems, size), None
                 scores, expected_entropy = source.at_label_size(scores, expected_entropy, size)
