@@ -38,8 +38,9 @@ from costseg.data.priors import resize_priors
 from costseg.decision import decide
 from costseg.export.job import export, plan_export
 from costseg.export.parity import parity
-from costseg.export.runtime import run_graph, session_of
+from costseg.export.runtime import run_graph
 from costseg.networks import load_costseg_checkpoint
+from costseg.networks.onnx import onnx_session
 
 SPEED_RULE = "egoistic"
 
@@ -149,7 +150,7 @@ def main() -> None:
     with user_errors():
         plan = plan_export([args.ckpt_path] if args.ckpt_path else None, None, None,
                            str(args.output_dir / "model.onnx"), True, overwrite=True)  # fmt: skip
-        session = session_of(export(plan))
+        session = onnx_session(export(plan))
         checkpoint = load_costseg_checkpoint(find_checkpoint(plan.ckpt_path))
         network, priors = checkpoint.network.eval(), checkpoint.priors
         sets = {

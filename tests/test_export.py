@@ -19,9 +19,10 @@ from costseg.decision.reference import shift
 from costseg.export.graph import DecisionGraph
 from costseg.export.job import trace_graph
 from costseg.export.parity import parity
-from costseg.export.runtime import run_graph, session_of
+from costseg.export.runtime import run_graph
 from costseg.networks import load_network
 from costseg.networks.base import IMAGENET_MEAN, IMAGENET_STD, ImageNetwork, normalised
+from costseg.networks.onnx import onnx_session
 
 pytest.importorskip("onnxruntime")
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "export.py"
@@ -42,7 +43,7 @@ def graph():
     """The network, its exported graph (with probabilities) and an onnxruntime session of it."""
     network = _network()
     model = trace_graph(DecisionGraph(network, probabilities=True))
-    return network, model, session_of(model.SerializeToString(), threads=1)
+    return network, model, onnx_session(model.SerializeToString(), threads=1)
 
 
 def _images(size=SIZE, batch: int = 2, seed: int = 3) -> torch.Tensor:
@@ -190,7 +191,7 @@ def test_exported_graph_of_a_costseg_checkpoint(tiny_run, tmp_path) -> None:
     assert sidecar["outputs"].keys() == {"labels", "margin", "probabilities"}
     images = _images(tuple(priors.shape[1:]), batch=1)
     cost = torch.tensor(sidecar["rules"]["egoistic"]["cost"])
-    labels, _, probs = run_graph(session_of(out), images, cost, priors, probabilities=True)
+    labels, _, probs = run_graph(onnx_session(out), images, cost, priors, probabilities=True)
     with torch.no_grad():
         torch_probs = checkpoint.network(images).softmax(1)
     assert parity(torch_probs, probs, labels, cost, priors).outside == 0

@@ -188,10 +188,11 @@ def trace_graph(graph: DecisionGraph):
 def _check(graph: DecisionGraph, model) -> list[list[int]]:
     """Run the graph at a size other than the traced one against PyTorch; ValueError if a label
     differs beyond the bound of docs/definitions.md §19. Returns the sizes checked."""
-    from costseg.export.runtime import run_graph, session_of
+    from costseg.export.runtime import run_graph
+    from costseg.networks.onnx import onnx_session
 
     image, cost, priors, temperature = sample_inputs(CHECK_SIZE, batch=1, seed=1)
-    session = session_of(model.SerializeToString())
+    session = onnx_session(model.SerializeToString())
     labels, _, probs = run_graph(session, image, cost, priors, temperature, probabilities=True)
     with torch.no_grad():
         reference = graph.network(image).softmax(1)

@@ -1,31 +1,15 @@
 """Running an exported decision graph with onnxruntime (what ``docs/deploy.md`` shows in NumPy).
 
-``onnxruntime`` is an optional extra (``pip install 'costseg[onnx]'``), imported only here.
+``onnxruntime`` is an optional extra (``pip install 'costseg[onnx]'``), imported only when a graph
+runs (:func:`costseg.networks.onnx.onnx_session`).
 """
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import torch
 from torch import Tensor
 
-__all__ = ["run_graph", "session_of"]
-
-
-def session_of(model: str | Path | bytes, threads: int = 0):
-    """An onnxruntime CPU session of a graph file or its bytes (``threads`` 0: onnxruntime's
-    default, one per core); ValueError when onnxruntime is missing."""
-    try:
-        import onnxruntime as ort
-    except ImportError:
-        message = "exported graphs run with onnxruntime: pip install 'costseg[onnx]'"
-        raise ValueError(message) from None
-    options = ort.SessionOptions()
-    options.intra_op_num_threads = threads
-    options.log_severity_level = 3  # errors only
-    source = model if isinstance(model, bytes) else str(model)
-    return ort.InferenceSession(source, options, providers=["CPUExecutionProvider"])
+__all__ = ["run_graph"]
 
 
 def run_graph(
@@ -39,7 +23,7 @@ def run_graph(
     """The graph's labels and margins (and probabilities) for uint8 ``image`` under ``cost``.
 
     Args:
-        session: from :func:`session_of`.
+        session: from :func:`costseg.networks.onnx.onnx_session`.
         image: (B, 3, H, W) uint8 RGB.
         cost: (N, N) or (N + 1, N) matrix.
         priors: None (no priors), (N,) global or (N, H, W) pixel-wise priors.

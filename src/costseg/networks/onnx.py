@@ -18,9 +18,10 @@ import torch
 from torch import Tensor, nn
 
 from costseg.classes import NUM_CLASSES
+from costseg.costs import symmetric_cost
 from costseg.networks.base import IMAGENET_MEAN, IMAGENET_STD, ImageNetwork
 
-__all__ = ["GRAPH_METADATA", "load_onnx", "onnx_options"]
+__all__ = ["GRAPH_METADATA", "load_onnx", "onnx_options", "onnx_session"]
 
 GRAPH_METADATA = "costseg_decision_graph"
 """The metadata key of a graph written by ``scripts/export.py`` (its value: the sidecar JSON)."""
@@ -141,7 +142,7 @@ def load_onnx(
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"ONNX file not found: {path}")
-    session = _session(path)
+    session = onnx_session(path)
     metadata = session.get_modelmeta().custom_metadata_map
     if GRAPH_METADATA in metadata:
         net = _decision_graph(path, session)
@@ -166,18 +167,23 @@ def load_onnx(
     return ImageNetwork(net, mean=mean, std=std)
 
 
-def _session(path: Path):
+def onnx_session(model: str | Path | bytes, threads: int = 0):
+    """An onnxruntime CPU session of an ONNX file or its bytes (``threads`` 0: onnxruntime's
+    default, one per core); ValueError when onnxruntime is missing or the model is unreadable."""
     try:
         import onnxruntime as ort
     except ImportError:
-        raise ValueError("onnx: networks need onnxruntime: pip install 'costseg[onnx]'") from None
+        raise ValueError("ONNX graphs run with onnxruntime: pip install 'costseg[onnx]'") from None
     options = ort.SessionOptions()
+    options.intra_op_num_threads = threads
     options.log_severity_level = 3  # errors only: onnxruntime's warnings are not the user's
+    source = model if isinstance(model, bytes) else str(model)
     try:
-        return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+        return ort.InferenceSession(source, options, providers=["CPUExecutionProvider"])
     except Exception as err:  # onnxruntime raises its own exception types
         first = (str(err).strip().splitlines() or [type(err).__name__])[0]
-        raise ValueError(f"{path} is not a readable ONNX model: {first}") from None
+        shown = "the graph" if isinstance(model, bytes) else model
+        raise ValueError(f"{shown} is not a readable ONNX model: {first}") from None
 
 
 def _decision_graph(path: Path, session) -> _OnnxLogits:
@@ -189,7 +195,7 @@ def _decision_graph(path: Path, session) -> _OnnxLogits:
         )
     n = NUM_CLASSES
     feeds = {
-        "cost": (1 - np.eye(n)).astype(np.float32),
+        "cost": symmetric_cost(n, torch.float32).numpy(),
         "priors": np.ones((n, 1, 1), np.float32),
         "temperature": np.ones((), np.float32),
     }
