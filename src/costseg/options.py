@@ -24,6 +24,7 @@ SOURCE = "probability source (default: newest runs/**/last.ckpt; several: their 
 CALIBRATION = "calibration and guarantees (fitted on held-out images)"
 PROTOCOL = "inference protocol (docs/definitions.md §13)"
 SEGMENTS = "segments: meta classification and fusion (docs/definitions.md §15)"
+CONFORMAL = "conformal prediction sets (docs/definitions.md §18)"
 RULES = ["robotistic", "altruistic", "egoistic"]
 
 NETWORK_SPECS = {
@@ -115,6 +116,19 @@ def number_above(
     return parse
 
 
+def fraction(text: str) -> float:
+    """Value type: a number in (0, 1).
+
+    >>> fraction("0.05")
+    0.05
+    """
+    value = number_above(0, False, "a number", "0.1")(text)
+    if value >= 1:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1) such as 0.1, got {text!r}")
+    return value
+
+
+fraction.__name__ = "number in (0, 1)"
 positive_number = number_above(0, False, "a number", "0.75")
 defer_cost = number_above(0, True, "a defer cost", "0.3")
 
@@ -374,6 +388,37 @@ class EvalOptions(SourceOptions):
         candidates=True,
     )
     fuse_classes: list[str] = option(["person"], "the classes --fuse fuses", group=SEGMENTS)
+
+    conformal: float | None = option(
+        help="prediction sets anchored on each --cost rule whose expected loss on the reported "
+        "images is at most ALPHA, λ chosen on held-out images (--calibration_split, or the "
+        "first half of --split)",
+        type=fraction,
+        metavar="ALPHA",
+        group=CONFORMAL,
+    )
+    conformal_sets: Literal["lac", "aps"] = option(
+        "lac",
+        "how a set grows with λ: lac (every class with p >= 1 - λ) or aps (classes by "
+        "decreasing p until their mass exceeds λ)",
+        group=CONFORMAL,
+    )
+    conformal_loss: Literal["uniform", "cost", "binary"] = option(
+        "uniform",
+        "the loss controlled: the share of labelled pixels whose class is not in the set "
+        "(uniform), each weighted by the anchor rule's mean cost of missing its class (cost), "
+        "or 1 when the covered share is below --conformal_tau (binary)",
+        group=CONFORMAL,
+    )
+    conformal_tau: float = option(
+        0.9, "the covered share of --conformal_loss binary", type=fraction, group=CONFORMAL
+    )
+    conformal_roi: int | None = option(
+        help="count only the pixels of this RoI (1 = street, 2 = sidewalk) in the loss",
+        type=whole_number(0),
+        metavar="R",
+        group=CONFORMAL,
+    )
 
 
 def candidate_flags() -> str:

@@ -1,114 +1,110 @@
-"""The held-out calibration images: fit a scaling (docs/definitions.md §6) and certify a value
-system (§7).
+"""The held-out images of an evaluation, through the network once, kept for every analysis
+that fits on them (the scaling, the meta models, the guarantee, conformal sets).
 
-Both run before the reported images are seen, on images disjoint from them, each in one pass
-of the network over the calibration images.
+Their batches are kept on the CPU as the source gave them (float32 scores, labels, instance ids,
+expected entropy) up to :data:`MEMORY_BYTES`; the scores beyond that go, rounded to float16, to
+a temporary folder inside the output folder, removed when the evaluation ends (docs/design.md).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import shutil
+import tempfile
+from collections.abc import Iterator
+from dataclasses import replace
+from pathlib import Path
 
+import numpy as np
 import torch
+from torch.utils.data import Dataset
 
-from costseg.calibration.guarantee import LTTResult, learn_then_test_paths
-from costseg.calibration.sample import PixelSampler
-from costseg.calibration.scaling import Scaling
-from costseg.classes import CLASS_NAMES, NUM_ROIS
-from costseg.metrics.names import INSTANCE_RATES, SEGMENT_RATES
-from costseg.metrics.per_image import per_image_counts, per_image_loss
-from costseg.metrics.scoring import GroupMetrics, score_batch
-from costseg.metrics.selection import metric_values, parse_metric, parse_target, risk_level
-from costseg.networks.sources import Source
-from costseg.rules import RuleGroup
+from costseg.networks.sources import Batch, batches
+from costseg.progress import progress
+
+MEMORY_BYTES = 4 * 2**30
+"""Scores of held-out images kept in memory (float32); those beyond go to disk as float16."""
 
 
-def fit_scaling(batches, kind: str, source: Source, pixels_per_image: int = 4096) -> Scaling:
-    """Fit ``kind`` ("temperature" or "vector") on a sample of pixels of every batch of
-    ``source``'s scores."""
-    sampler = PixelSampler(pixels_per_image)
-    for batch in batches:
-        sampler.update(source.logits_of(batch.scores).cpu(), batch.labels.cpu())
-    if sampler.num_images == 0:
-        raise ValueError("no calibration image to fit the scaling on")
-    return sampler.fit(kind)
-
-
-@dataclass
-class Certificate:
-    """The value system chosen with a guarantee (Learn-then-Test over a rule group).
-
-    Attributes:
-        group: the candidates (grid points, α values, or rules at defer costs).
-        ltt: the test's outcome (p-values, risks, images used and left out).
-        chosen: index of the certified candidate with the best ``maximize`` on the
-            calibration images, or None when nothing is certified.
-        objective: (K,) pooled value of ``maximize`` on the calibration images.
-        target, maximize: the texts asked; ``num_images``: calibration images.
-    """
-
-    group: RuleGroup
-    ltt: LTTResult
-    chosen: int | None
-    objective: torch.Tensor
-    target: str
-    maximize: str
-    num_images: int
-
-
-def certify(
-    batches,
-    group: RuleGroup,
-    probabilities,
-    priors_at,
-    target: str,
-    maximize: str,
-    delta: float,
-    method: str,
-    class_ids: list[int],
-) -> Certificate:
-    """Learn-then-Test on the calibration images: the certified rules of ``group`` whose risk
-    ``E[L_i]`` of the target's per-image loss is ≤ α, and the best of them by ``maximize``.
+class HeldOut:
+    """The batches of ``indices`` of ``dataset``, scored at the first :meth:`batches` call and
+    replayed from memory (or disk) at every later one.
 
     Args:
-        batches: the calibration batches (:class:`~costseg.networks.sources.Batch`).
-        group: the candidate rules.
-        probabilities: ``batch → (B, N, H, W)`` probabilities the rules see.
-        priors_at: ``(h, w) → (priors, roi)``.
-        target: e.g. ``person:roi1:recall>=0.95`` (α = 1 − 0.95 for recall and precision,
-            0.05 for the segment rates with ``<=``).
-        maximize: e.g. ``person:roi1:precision``.
-        delta: δ; method: ``bonferroni`` or ``fixed_sequence`` (along the group's order, or
-            along each of its ``paths`` at δ / len(paths)).
-        class_ids: classes of the segment metrics.
-
-    Among certified rules of the same best ``maximize``, the one of largest ``group.prefer``
-    (the defer sweep: the larger defer cost).
+        plan: the evaluation plan (source, device, batch size, loader workers, output folder).
+        dataset, indices: the held-out images.
+        entropy: whether each batch needs the expected entropy of a source of several runs
+            (the segments' features; costs a pass per run).
     """
-    t, goal = parse_target(target), parse_metric(maximize)
-    alpha = risk_level(t)
-    named = {t.cls} | ({goal.cls} if goal.metric in SEGMENT_RATES else set())
-    segments = sorted({*class_ids, *named} - {None})  # None: all classes (coverage)
-    wanted = {m.cls for m in (t, goal) if m.metric in INSTANCE_RATES}
-    metrics = GroupMetrics(
-        group, len(CLASS_NAMES), NUM_ROIS, segments, instance_classes=sorted(wanted)
-    )
-    counts, n = [], 0
-    for batch in batches:
-        priors, roi = priors_at(tuple(batch.labels.shape[-2:]))
-        metrics.to(batch.labels.device)  # a no-op after the first batch
-        probs, ids = probabilities(batch), batch.instances
-        preds = score_batch(group, metrics, probs, batch.labels, priors, roi, ids)
-        counts.append(
-            per_image_counts(preds, batch.labels, roi, t.cls, t.roi, t.metric, instances=ids).cpu()
+
+    def __init__(self, plan, dataset: Dataset, indices: list[int], entropy: bool) -> None:
+        self.plan, self.dataset, self.indices, self.entropy = plan, dataset, indices, entropy
+        self.kept: list[Batch] | None = None
+        self.spilled: Path | None = None
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    def batches(self, what: str) -> Iterator[Batch]:
+        """The held-out batches on the plan's device (a progress bar named ``what``)."""
+        desc = (
+            f"{what} ({len(self.indices)} held-out images)" if self.plan.options.progress else None
         )
-        n += len(batch.labels)
-    losses = per_image_loss(torch.cat(counts), t.metric).numpy()
-    ltt = learn_then_test_paths(losses, alpha, delta, method, group.paths)
-    pooled = metrics.compute()
-    objective = metric_values(
-        pooled["pixels"], pooled["segments"], goal, segments, pooled["instances"]
-    )
-    # None unless a certified λ has a finite value
-    chosen = ltt.best(objective.cpu().numpy(), prefer=group.prefer)
-    return Certificate(group, ltt, chosen, objective, target, maximize, n)
+        if self.kept is None:
+            yield from self._score(desc)
+            return
+        device = self.plan.device
+        for batch in progress(self.kept, desc):
+            yield _moved(self._scores_of(batch), device)
+
+    def close(self) -> None:
+        """Remove the scores kept on disk, if any."""
+        if self.spilled is not None:
+            shutil.rmtree(self.spilled, ignore_errors=True)
+            self.spilled = None
+
+    def _score(self, desc: str | None) -> Iterator[Batch]:
+        plan, kept, used = self.plan, [], 0
+        entropy = None if self.entropy else 0
+        with torch.inference_mode():
+            for batch in batches(
+                plan.source, self.dataset, self.indices, plan.batch_size, plan.device,
+                plan.num_workers, desc, entropy,
+            ):  # fmt: skip
+                yield batch
+                stored = _moved(batch, torch.device("cpu"))
+                size = stored.scores.numel() * stored.scores.element_size()
+                if used + size > MEMORY_BYTES:
+                    stored.scores = self._spill(stored.scores, len(kept))
+                else:
+                    used += size
+                kept.append(stored)
+        self.kept = kept
+
+    def _spill(self, scores: torch.Tensor, index: int) -> Path:
+        if self.spilled is None:
+            self.spilled = Path(tempfile.mkdtemp(prefix=".held_out-", dir=self.plan.output_dir))
+            print(
+                f"held-out images beyond {MEMORY_BYTES / 2**30:.0f} GiB of scores: kept as float16 "
+                f"in {self.spilled} until the evaluation ends"
+            )
+        path = self.spilled / f"{index}.npy"
+        np.save(path, scores.half().numpy())
+        return path
+
+    @staticmethod
+    def _scores_of(batch: Batch) -> Batch:
+        if isinstance(batch.scores, Path):
+            return replace(batch, scores=torch.from_numpy(np.load(batch.scores)).float())
+        return batch
+
+
+def _moved(batch: Batch, device: torch.device) -> Batch:
+    """``batch`` with every tensor on ``device``."""
+
+    def move(t):
+        return t.to(device) if isinstance(t, torch.Tensor) else t
+
+    return Batch(
+        move(batch.images), move(batch.labels), batch.stems, move(batch.scores),
+        move(batch.instances), move(batch.expected_entropy), move(batch.anomalies),
+    )  # fmt: skip

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import datetime
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -63,6 +63,7 @@ class EvalPlan:
     instance_classes: tuple[list[int], str]  # classes of the instance metrics; what the outputs say
     shifts: list[Shift]  # --shift: with several, evaluation/shifts.py runs one evaluation each
     data: dict | None  # the images' data configuration (None: a dataset given in Python)
+    held_out: dict = field(default_factory=dict)  # the held-out images, scored once (loop.py)
 
 
 @dataclass

@@ -98,6 +98,9 @@ class FusedRules:
         return torch.from_numpy(out).to(probs.device)
 
 
+FUSED_FAMILY = "fused"
+
+
 def fused_name(rule: str, tau: float) -> str:
     """``R+meta@τ``, the name of a fused rule.
 
@@ -122,7 +125,7 @@ def fusion_group(
                for r in fused for t in taus]  # fmt: skip
     one = len(fused) == 1 and len(taus) > 1
     return RuleGroup(
-        "fused",
+        FUSED_FAMILY,
         names,
         FusedRules(base, tuple(fused), taus, tuple(classes)),
         columns,

@@ -4,15 +4,15 @@ results.json, table.md and TensorBoard."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
-
-from torch.utils.tensorboard import SummaryWriter
 
 from costseg.classes import CLASS_NAMES
 from costseg.report.anomaly_figures import anomaly_map_figures
 from costseg.report.drawing import Job, job
+from costseg.report.results import EvalResults
+from costseg.report.sections import Result, Section
 from costseg.report.tables import markdown_table
-from costseg.report.tensorboard import log_scalars
 
 SCORE_COLUMNS = ("auroc", "ap", "fpr95", "delta", "pixel_f1", "siou", "ppv", "mean_f1")
 SHOWN_CLASSES = 4  # the classes a rule gives most anomaly pixels, in table.md
@@ -72,7 +72,26 @@ def anomaly_table(found: dict[str, Any] | None) -> str:
     )
 
 
-def log_anomalies(writer: SummaryWriter, found: dict[str, Any] | None) -> None:
-    """Every score's metrics as ``evaluation/anomaly/<metric>/<score>`` scalars."""
-    for name, values in (found or {}).get("scores", {}).items():
-        log_scalars(writer, {f"evaluation/anomaly/{k}/{name}": values[k] for k in SCORE_COLUMNS}, 0)
+@dataclass
+class AnomalyOutputs(Result):
+    """The anomaly metrics of ``--anomalies``: ``scores`` (name → metrics), ``decided``
+    (rule → (N + 1,) pixel counts) and the examples' score maps."""
+
+    scores: dict[str, dict[str, float]]
+    decided: dict[str, list[int]]
+    examples: list
+
+    def write(self, results: EvalResults) -> Section:
+        """results.json and table.md sections, scalars and the score maps' figures."""
+        found = {"scores": self.scores, "decided": self.decided, "examples": self.examples}
+        curves = [
+            (f"evaluation/anomaly/{k}/{name}", None, [0], [values[k]])
+            for name, values in self.scores.items()
+            for k in SCORE_COLUMNS
+        ]
+        return Section(
+            json={"anomalies": anomaly_json(found)},
+            table="\n\n" + anomaly_table(found) + "\n",
+            curves=curves,
+            jobs=anomaly_jobs(found, results.subject),
+        )

@@ -49,14 +49,11 @@ def curve_figures(curves: Sequence[Curves], subject: str = "") -> Iterator[tuple
         yield tag, plot_curves(x, series, xlabel, title, subject)
 
 
-def calibration_figures(
-    ece: Mapping, temperatures: Sequence[Curves], subject: str = ""
-) -> Iterator[tuple[str, Figure]]:
-    """``reliability`` (where ``ece`` has bins) and the temperature sweep's curves (a job),
-    titled with ``subject`` (the network and shift)."""
+def reliability_figures(ece: Mapping, subject: str = "") -> Iterator[tuple[str, Figure]]:
+    """``reliability`` (where ``ece`` has bins; a job), titled with ``subject`` (the network
+    and shift)."""
     if ece:
         yield "reliability", plot_reliability(ece, subject)
-    yield from curve_figures(temperatures, subject)
 
 
 def plot_reliability(bins: Mapping[str, Mapping], subject: str = "") -> Figure:

@@ -13,7 +13,9 @@ from costseg.costs import cost_or_symmetric, rescale
 from costseg.metrics.names import PAPER_RATES, SEGMENT_RATES
 from costseg.metrics.selection import choose
 from costseg.report.explorer import ExplorerExample, Marks, SweepData, embedded, write_explorer
+from costseg.report.guarantee import Certificate
 from costseg.report.results import EvalResults, GroupResult
+from costseg.report.sections import Result, Section
 from costseg.rules import Rule, vertex_matrices
 
 ROIS = (0, 1, 2, 3, 4)
@@ -70,7 +72,7 @@ def _marks(results: EvalResults, grid: GroupResult | None) -> Marks:
                         results.class_ids)  # fmt: skip
         weights = grid.group.weights.tolist()
         marks.targets = [(opts["target"], weights[k]) for k in choice.points]
-    cert = results.extra.get("certificate")
+    cert = results.find(Certificate)
     if cert is not None and cert.chosen is not None and cert.group.weights is not None:
         w = cert.group.weights[cert.chosen].tolist()
         marks.certified = [(f"certified ({cert.target})", w)]
@@ -106,8 +108,16 @@ def evaluation_examples(results: EvalResults) -> list[ExplorerExample]:
     return out
 
 
-def write_evaluation_explorer(results: EvalResults) -> None:
+class ExplorerPage(Result):
     """``explorer.html`` of an evaluation (``evaluate.py --explorer``)."""
+
+    def write(self, results: EvalResults) -> Section:
+        write_evaluation_explorer(results)
+        return Section(console=[f"explorer: {results.output_dir / 'explorer.html'}"])
+
+
+def write_evaluation_explorer(results: EvalResults) -> None:
+    """Write ``explorer.html`` of an evaluation."""
     opts = results.options
     grid = next((g for g in results.groups if g.group.weights is not None), None)
     if grid is not None:
@@ -137,4 +147,3 @@ def write_evaluation_explorer(results: EvalResults) -> None:
         notes=notes,
         defer=opts.get("defer"),
     )
-    print(f"explorer: {results.output_dir / 'explorer.html'}")

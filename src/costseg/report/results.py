@@ -10,11 +10,11 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TypeVar
 
 import torch
 
 from costseg.classes import CLASS_NAMES, ROI_NAMES
-from costseg.meta.collect import SegmentResults
 from costseg.metrics.names import (
     DEFER_RATES,
     DEFER_RULE_RATES,
@@ -41,6 +41,10 @@ class GroupResult:
     segments: dict[str, torch.Tensor]
     per_image: dict[str, torch.Tensor] = field(default_factory=dict)
     instances: dict[str, torch.Tensor] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:  # the metrics' sums may be on a GPU
+        self.pixels, self.segments = on_cpu(self.pixels), on_cpu(self.segments)
+        self.per_image, self.instances = on_cpu(self.per_image), on_cpu(self.instances)
 
     def rows(self, class_ids: Sequence[int], rois: Sequence[int] = ROIS) -> list[dict]:
         """One row per rule × class × RoI: the columns of
@@ -102,6 +106,25 @@ class Example:
 
 
 @dataclass
+class GroupResults:
+    """The metrics of every rule group (:class:`GroupResult`, in the plan's order) and the line
+    saying which classes' instances were measured."""
+
+    groups: list[GroupResult]
+    instances: str = ""
+
+
+@dataclass
+class Examples:
+    """The images of the mask figures and the explorer."""
+
+    examples: list[Example]
+
+
+R = TypeVar("R")
+
+
+@dataclass
 class EvalResults:
     """Everything the report needs about one evaluation, on the CPU (its figures are drawn in
     worker processes from NumPy copies; see :mod:`costseg.report.drawing`).
@@ -112,13 +135,11 @@ class EvalResults:
         source: what produced the probabilities (network, checkpoint or folder).
         probabilities: which probabilities were used (raw, or the scaling and its parameters).
         class_ids: classes of the segment metrics and tables.
-        groups: one result per rule group (:attr:`named` is the named rules').
-        examples: images for the mask figures.
         roi: (H, W) RoI map at label resolution, if priors exist.
         num_images: images evaluated.
-        extra: results of optional analyses (calibration, temperature sweep, guarantee).
-        segments: the segments of the named rules and their meta models' scores
-            (``--save-segments``, ``--meta``), or None.
+        analyses: the typed result of every analysis that ran, in the analyses' order
+            (:mod:`costseg.evaluation.analyses`); each writes its own outputs.
+        null_keys: the results.json keys of the analyses that did not run (written as null).
     """
 
     output_dir: Path
@@ -126,18 +147,25 @@ class EvalResults:
     source: dict
     probabilities: str
     class_ids: list[int]
-    groups: list[GroupResult]
-    examples: list[Example] = field(default_factory=list)
     roi: torch.Tensor | None = None
     num_images: int = 0
-    extra: dict = field(default_factory=dict)
-    segments: SegmentResults | None = None
+    analyses: list = field(default_factory=list)
+    null_keys: tuple[str, ...] = ()
 
-    def __post_init__(self) -> None:  # the metrics' sums may be on a GPU (examples, roi: CPU)
-        for result in self.groups:
-            result.pixels, result.segments = _cpu(result.pixels), _cpu(result.segments)
-            result.per_image, result.instances = _cpu(result.per_image), _cpu(result.instances)
-        self.extra = _cpu(self.extra)
+    def find(self, kind: type[R]) -> R | None:
+        """The result of type ``kind``, or None when that analysis did not run."""
+        return next((r for r in self.analyses if isinstance(r, kind)), None)
+
+    @property
+    def groups(self) -> list[GroupResult]:
+        """Every rule group's result."""
+        return self.find(GroupResults).groups
+
+    @property
+    def examples(self) -> list[Example]:
+        """The examples of the mask figures (none when no analysis kept any)."""
+        kept = self.find(Examples)
+        return kept.examples if kept else []
 
     @property
     def named(self) -> GroupResult:
@@ -177,12 +205,12 @@ def _short_path(path: str) -> str:
     return parts[-1] if parts else path
 
 
-def _cpu(value):
+def on_cpu(value):
     """``value`` with every tensor in it (in dicts and lists) on the CPU."""
     if isinstance(value, torch.Tensor):
         return value.cpu()
     if isinstance(value, dict):
-        return {k: _cpu(v) for k, v in value.items()}
+        return {k: on_cpu(v) for k, v in value.items()}
     if isinstance(value, list):
-        return [_cpu(v) for v in value]
+        return [on_cpu(v) for v in value]
     return value

@@ -15,11 +15,11 @@ from collections.abc import Iterator, Sequence
 from costseg.classes import CLASS_NAMES, ROI_NAMES
 from costseg.metrics.functional.deferral import risk_coverage_area, selective_error
 from costseg.report.curves import Panel, risk_coverage_figures
-from costseg.report.drawing import Job, job
+from costseg.report.drawing import job
 from costseg.report.files import write_csv, write_json
 from costseg.report.results import EvalResults, GroupResult
+from costseg.report.sections import Section
 from costseg.report.tables import PAPER_ROIS, format_value
-from costseg.rules import DEFER_FAMILY
 
 CURVE_ROIS = (0, *PAPER_ROIS)
 """The RoIs of the curves: the whole image and the paper's."""
@@ -28,11 +28,6 @@ ALL = "all"
 """The curve over all classes of a RoI (the class of ``all:roiN:coverage``)."""
 
 Curve = tuple[list[float], list[float]]  # coverage, risk along one rule's defer costs
-
-
-def defer_result(results: EvalResults) -> GroupResult | None:
-    """The defer sweep's result, if ``--defer_sweep`` was given."""
-    return next((g for g in results.groups if g.group.family == DEFER_FAMILY), None)
 
 
 def curve(result: GroupResult, path: Sequence[int], cls: int | str, roi: int) -> Curve:
@@ -74,39 +69,33 @@ def curve_rows(result: GroupResult, class_ids: Sequence[int]) -> list[dict]:
     return rows
 
 
-def write_risk_coverage(results: EvalResults, result: GroupResult) -> list[tuple[str, Job]]:
-    """``defer_sweep.csv`` / ``.json``; returns the figures, undrawn, as a job of
-    :mod:`costseg.report.drawing`."""
+def risk_coverage_outputs(results: EvalResults, mine: list[GroupResult]) -> Section:
+    """The defer sweep's outputs: ``defer_sweep.csv`` / ``.json``, the AURC in results.json
+    and table.md, the figures and the TensorBoard curves."""
+    (result,) = mine
     group, out = result.group, results.output_dir
     rows = curve_rows(result, results.class_ids)
     write_csv(out / f"{group.output}.csv", rows)
-    record = {"note": group.note, "probabilities": results.probabilities, "rows": rows}
-    write_json(out / f"{group.output}.json", record | {"risk_coverage_area": _areas(results)})
+    layout = "[rule][class, or all: over every class][RoI] area under coverage vs selective error"
+    record = {"risk_coverage_area": {"layout": layout, **areas(result, results.class_ids)}}
+    json = {"note": group.note, "probabilities": results.probabilities, "rows": rows}
+    write_json(out / f"{group.output}.json", json | record)
     panels = risk_coverage_panels(result, results.class_ids)
     note = "; ".join(filter(None, (group.note, results.subject)))
-    return [(group.output, job(risk_coverage_figures, panels, note))]
+    return Section(
+        json=record,
+        table=f"\n{_table(result, results.class_ids)}\n",
+        jobs=[(group.output, job(risk_coverage_figures, panels, note))],
+        curves=list(risk_coverage_curves(result, results.class_ids)),
+    )
 
 
-def _areas(results: EvalResults) -> dict:
-    result = defer_result(results)
-    layout = "[rule][class, or all: over every class][RoI] area under coverage vs selective error"
-    return {"layout": layout, **areas(result, results.class_ids)}
-
-
-def risk_coverage_json(results: EvalResults) -> dict:
-    """``{"risk_coverage_area": …}`` for results.json where a defer sweep ran, else {}."""
-    return {"risk_coverage_area": _areas(results)} if defer_result(results) else {}
-
-
-def risk_coverage_table(results: EvalResults) -> str:
-    """The AURC table of table.md ("" without a defer sweep)."""
-    result = defer_result(results)
-    if result is None:
-        return ""
+def _table(result: GroupResult, class_ids: Sequence[int]) -> str:
+    """The AURC table of table.md."""
     head = " | ".join(f"RoI {r} ({ROI_NAMES[r]})" for r in CURVE_ROIS)
     lines = [
         f"| {rule} | {key} | " + " | ".join(format_value(v) for v in by_roi.values()) + " |"
-        for rule, by_class in areas(result, results.class_ids).items()
+        for rule, by_class in areas(result, class_ids).items()
         for key, by_roi in by_class.items()
     ]
     return "\n".join(

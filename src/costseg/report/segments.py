@@ -6,21 +6,21 @@ table.md and TensorBoard, and their figures (:mod:`costseg.report.segment_figure
 from __future__ import annotations
 
 import numpy as np
-from torch.utils.tensorboard import SummaryWriter
 
 from costseg.classes import CLASS_NAMES
 from costseg.meta.collect import SegmentResults
-from costseg.meta.fusion import FusedRules
 from costseg.meta.models import MODELS, SHOWN_MODEL, save_models
 from costseg.report.drawing import Job, job
 from costseg.report.files import write_csv
-from costseg.report.results import EvalResults
+from costseg.report.results import EvalResults, GroupResult
+from costseg.report.sections import Result, Section
 from costseg.report.segment_figures import (
     importance_figures,
     iou_scatter_figures,
     segment_iou_figures,
     tradeoff_figures,
 )
+from costseg.report.sweep import sweep_outputs
 from costseg.report.tables import console_table, markdown_table
 
 SCORES = ("auroc", "accuracy", "r2", "sigma", "segments")
@@ -85,22 +85,38 @@ def meta_console(segments: SegmentResults | None) -> str:
     return f"{what}\n{table}"
 
 
-def write_segments(results: EvalResults, writer: SummaryWriter) -> list[tuple[str, Job]]:
-    """Write the CSV files and the models, log the scores; returns the figure jobs."""
-    segments, out = results.segments, results.output_dir
-    jobs = _fusion_jobs(results)
-    if segments is None:
-        return jobs
-    if results.options.get("save_segments"):
-        for rule, table in segments.tables.items():
-            write_csv(out / "segments" / f"{rule}.csv", _csv_rows(segments, rule, table))
-    if not segments.models:
-        return jobs
-    save_models(out / MODELS_FILE, segments.models)
-    for row in meta_rows(segments):
-        for score in SCORES[:-1]:
-            writer.add_scalar(f"meta/{row['matrix']}/{row['model']}/{score}", row[score])
-    return jobs + _meta_jobs(results)
+class SegmentOutputs(SegmentResults, Result):
+    """The segments of the reported images (``--save-segments``) and the meta models' scores on
+    them (``--meta``)."""
+
+    def write(self, results: EvalResults) -> Section:
+        """``segments/<rule>.csv``, ``meta/models.joblib``, the scores in results.json, table.md,
+        the terminal and TensorBoard, and the figures."""
+        out, section = results.output_dir, Section(json={"meta": meta_json(self)})
+        if results.options.get("save_segments"):
+            for rule, table in self.tables.items():
+                write_csv(out / "segments" / f"{rule}.csv", _csv_rows(self, rule, table))
+        if not self.models:
+            return section
+        save_models(out / MODELS_FILE, self.models)
+        if meta := meta_console(self):
+            section.console.append(meta)
+        if meta := meta_table(self):
+            section.table = "\n\n" + meta + "\n"
+        for row in meta_rows(self):
+            for score in SCORES[:-1]:
+                tag = f"meta/{row['matrix']}/{row['model']}/{score}"
+                section.curves.append((tag, None, [0], [row[score]]))
+        section.jobs += _meta_jobs(self, results)
+        return section
+
+
+def fusion_outputs(results: EvalResults, mine: list[GroupResult]) -> Section:
+    """The fused rules' rows and curves (:func:`~costseg.report.sweep.sweep_outputs`) and the
+    trade-off of each fused rule over τ."""
+    section = sweep_outputs(results, mine)
+    section.jobs += _fusion_jobs(results, mine[0])
+    return section
 
 
 def _csv_rows(segments: SegmentResults, rule: str, table: dict[str, np.ndarray]) -> list[dict]:
@@ -118,9 +134,8 @@ def _csv_rows(segments: SegmentResults, rule: str, table: dict[str, np.ndarray])
     ]
 
 
-def _meta_jobs(results: EvalResults) -> list[tuple[str, Job]]:
+def _meta_jobs(segments: SegmentResults, results: EvalResults) -> list[tuple[str, Job]]:
     """Per-image IoU maps, the IoU scatter and the importances."""
-    segments = results.segments
     rules = [r for r in segments.tables if segments.predicted(r, SHOWN_MODEL)]
     if not rules:
         return []
@@ -152,12 +167,11 @@ def _meta_jobs(results: EvalResults) -> list[tuple[str, Job]]:
     return jobs
 
 
-def _fusion_jobs(results: EvalResults) -> list[tuple[str, Job]]:
+def _fusion_jobs(results: EvalResults, fused: GroupResult) -> list[tuple[str, Job]]:
     """The trade-off of each fused rule over τ per fused class × RoI (RoI 1, the street, and
     the whole image): FP segments against missed instances (where measured) and FN segments,
     with the base and the unfused rule marked where they are named rules."""
-    fused = next((g for g in results.groups if isinstance(g.group.decide, FusedRules)), None)
-    if fused is None or len(fused.group.decide.taus) < 2 or not fused.segments:
+    if len(fused.group.decide.taus) < 2 or not fused.segments:
         return []
     decider = fused.group.decide
     rows = fused.rows(results.class_ids)

@@ -11,6 +11,8 @@ it over the first group of candidates.
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Sequence
+
 from costseg.classes import CLASS_NAMES, ROI_NAMES
 from costseg.costs import save_cost
 from costseg.metrics.names import PAPER_RATES, PIXEL_RATES, SEGMENT_RATES
@@ -19,40 +21,58 @@ from costseg.report.curves import Curves, curve_figures
 from costseg.report.drawing import Job, job
 from costseg.report.files import write_csv, write_json
 from costseg.report.results import EvalResults, GroupResult
-from costseg.report.risk_coverage import write_risk_coverage
+from costseg.report.sections import Curve, Section
 from costseg.report.tables import PAPER_ROIS
 from costseg.report.ternary import edge_tradeoff_figures, ternary_figures
-from costseg.rules import DEFER_FAMILY
 
 SWEEP_ROIS = (0, *PAPER_ROIS)
 """The RoIs of a sweep's rows: the whole image and the paper's."""
 
 
-def write_sweeps(results: EvalResults) -> list[tuple[str, Job]]:
-    """Files of every sweeping group and the ``--target`` answer; returns their figures,
-    undrawn, as ``(TensorBoard prefix, job)`` (:mod:`costseg.report.drawing`)."""
-    batches: list[tuple[str, Job]] = []
-    for result in results.groups:
+def sweep_outputs(results: EvalResults, mine: list[GroupResult]) -> Section:
+    """``<output>.csv`` / ``.json`` of each group of ``mine`` that has an output; its figures
+    (triangles or curves) and TensorBoard curves along its rules."""
+    section = Section()
+    for result in mine:
         group, out = result.group, results.output_dir
         if group.output is None:
-            continue
-        if group.family == DEFER_FAMILY:  # its curves run along coverage (risk–coverage)
-            batches += write_risk_coverage(results, result)
             continue
         rows = result.rows(results.class_ids, SWEEP_ROIS)
         write_csv(out / f"{group.output}.csv", rows)
         record = {"note": group.note, "probabilities": results.probabilities, "rows": rows}
         write_json(out / f"{group.output}.json", record)
         if group.weights is not None:
-            batches += _triangle_figures(results, result)
+            section.jobs += _triangle_figures(results, result)
         if group.line is not None:
-            batches.append(
-                (group.output, job(curve_figures, _line_curves(results, result), results.subject))
-            )
+            curves = _line_curves(results, result)
+            section.jobs.append((group.output, job(curve_figures, curves, results.subject)))
+        section.curves += list(_tensorboard_curves(result, results.class_ids))
+    return section
+
+
+def _tensorboard_curves(result: GroupResult, class_ids: Sequence[int]) -> Iterator[Curve]:
+    """mIoU, each pixel rate of each class in RoI 1 and 2, and the segment rates, along the
+    group's rules (step: the rule's index)."""
+    prefix, steps = result.group.output, list(range(len(result.group.names)))
+    yield f"{prefix}/miou", None, steps, result.pixels["miou"].tolist()
+    for cls in class_ids:
+        for roi in (1, 2):
+            for metric in PIXEL_RATES:
+                values = result.pixels[metric][:, roi, cls].tolist()
+                yield f"{prefix}/{metric}_roi{roi}", CLASS_NAMES[cls], steps, values
+    for c, cls in enumerate(class_ids):
+        for metric in SEGMENT_RATES:
+            if result.segments and metric in result.segments:
+                values = result.segments[metric][:, c, 0].tolist()
+                yield f"{prefix}/{metric}", CLASS_NAMES[cls], steps, values
+
+
+def write_choice(results: EvalResults) -> None:
+    """``best.json`` (and ``best_cost.yaml``): the answer to ``--target`` over the first group
+    of candidates, where asked."""
     candidates = next((r for r in results.groups if r.group.candidates), None)
     if results.options.get("target") and candidates is not None:
         _write_choice(results, candidates)
-    return batches
 
 
 def _triangle_figures(results: EvalResults, grid: GroupResult) -> list[tuple[str, Job]]:

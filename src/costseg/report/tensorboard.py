@@ -3,9 +3,9 @@
 Every helper takes a ``torch.utils.tensorboard.SummaryWriter``; under Lightning that is
 ``trainer.logger.experiment`` of a ``TensorBoardLogger``.
 
-An evaluation reads in TensorBoard as in its folder (:func:`log_evaluation`): its tables as
-text, its figures as images, and scalars only where a value changes along something: the
-sweeps, as curves over the grid index, α or T. One card per metric; the classes are runs
+An evaluation reads in TensorBoard as in its folder (:mod:`costseg.report.evaluation`): its
+tables as text, its figures as images, and scalars only where a value changes along something:
+the sweeps, as curves over the grid index, α or T. One card per metric; the classes are runs
 (``<output>/tensorboard/<class>``) overlaid in it, so the number of cards does not grow with
 ``--classes``.
 """
@@ -14,24 +14,18 @@ from __future__ import annotations
 
 import contextlib
 import math
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from matplotlib.figure import Figure
 
-from costseg.classes import CLASS_NAMES
-from costseg.metrics.names import DEFER_RATES, PIXEL_RATES, SEGMENT_RATES
 from costseg.report.figures import ArrayLike, masks_side_by_side
-from costseg.report.risk_coverage import risk_coverage_curves
-from costseg.report.tables import markdown_table
-from costseg.rules import DEFER_FAMILY
 from costseg.workers import within
 
 if TYPE_CHECKING:
     from torch.utils.tensorboard import SummaryWriter
 
-    from costseg.report.results import EvalResults, GroupResult
 
 STEPS = """Scalars are the sweeps' curves; the step is
 * `sweep/*`, `alpha_sweep/*`: the rule's index (the row order of `sweep.csv`,
@@ -137,35 +131,6 @@ def log_png(
     writer.file_writer.add_summary(Summary(value=[Summary.Value(tag=tag, image=image)]), step)
 
 
-def log_evaluation(writer: SummaryWriter, results: EvalResults, rows: Sequence[Mapping]) -> None:
-    """The named rules' ``rows`` as a text table, and the sweeps as curves (see the module).
-
-    Args:
-        writer: the evaluation's writer (its folder is ``results.output_dir``).
-        results: the evaluation.
-        rows: the named rules' result rows (those of ``results.csv``).
-    """
-    from torch.utils.tensorboard import SummaryWriter
-
-    log_table(writer, "evaluation/results", markdown_table(rows))
-    curves = list(_sweep_curves(results))
-    if not curves:
-        return
-    log_table(writer, "evaluation/steps", STEPS)
-    runs: dict[str, SummaryWriter] = {}
-    for tag, run, steps, values in curves:
-        if run is None:
-            target = writer
-        else:
-            if run not in runs:
-                runs[run] = SummaryWriter(str(Path(results.output_dir) / "tensorboard" / run))
-            target = runs[run]
-        for step, value in zip(steps, values, strict=True):
-            log_scalars(target, {tag: value}, step)
-    for run_writer in runs.values():
-        close_writer(run_writer)
-
-
 @contextlib.contextmanager
 def summary_writer(folder: Path) -> Iterator[SummaryWriter]:
     """A ``SummaryWriter`` of ``folder``, closed by :func:`close_writer` at the end."""
@@ -182,47 +147,3 @@ def close_writer(writer: SummaryWriter) -> None:
     """Close ``writer`` once its events are on disk, waiting a bounded time for its writer
     thread (a hung file system ends in one line, :class:`costseg.workers.Stalled`)."""
     within(writer.close, f"TensorBoard's writer of {writer.log_dir}")
-
-
-Curve = tuple[str, str | None, list[int], list[float]]  # tag, run (class or None), steps, values
-
-
-def _sweep_curves(results: EvalResults) -> Iterator[Curve]:
-    for result in results.groups:
-        if result.group.output is None:
-            continue
-        if result.group.family == DEFER_FAMILY:
-            yield from risk_coverage_curves(result, results.class_ids)
-            continue
-        prefix, steps = result.group.output, list(range(len(result.group.names)))
-        yield from _group_curves(prefix, result, results.class_ids, steps)
-        for c, cls in enumerate(results.class_ids):
-            for metric in SEGMENT_RATES:
-                if result.segments and metric in result.segments:
-                    values = result.segments[metric][:, c, 0].tolist()
-                    yield f"{prefix}/{metric}", CLASS_NAMES[cls], steps, values
-    tempered = sorted(
-        (g for g in results.groups if g.group.temperature), key=lambda g: g.group.temperature
-    )
-    steps = [round(100 * g.group.temperature) for g in tempered]
-    defers = bool(tempered) and tempered[0].group.defers
-    for k, rule in enumerate(tempered[0].group.names if tempered else []):
-        for cls in results.class_ids:
-            for metric in (*PIXEL_RATES, *(DEFER_RATES if defers else ())):
-                values = [g.pixels[metric][k, 1, cls].item() for g in tempered]
-                yield f"temperature_sweep/{rule}/{metric}_roi1", CLASS_NAMES[cls], steps, values
-        if defers:
-            values = [g.pixels["deferred_rate"][k, 0].item() for g in tempered]
-            yield f"temperature_sweep/{rule}/deferred_rate", None, steps, values
-
-
-def _group_curves(
-    prefix: str, result: GroupResult, class_ids: Sequence[int], steps: list[int]
-) -> Iterator[Curve]:
-    """mIoU, and each pixel rate of each class in RoI 1 and 2, along a group's rules."""
-    yield f"{prefix}/miou", None, steps, result.pixels["miou"].tolist()
-    for cls in class_ids:
-        for roi in (1, 2):
-            for metric in PIXEL_RATES:
-                values = result.pixels[metric][:, roi, cls].tolist()
-                yield f"{prefix}/{metric}_roi{roi}", CLASS_NAMES[cls], steps, values

@@ -21,7 +21,7 @@ from costseg.rules.base import (
 )
 from costseg.rules.defer_sweep import DEFER_FAMILY, defer_costs, defer_group
 from costseg.rules.named import RULE_NAMES, apply_rules, parse_rules, rules_group
-from costseg.rules.temperatures import TEMPERATURES, temperature_group
+from costseg.rules.temperatures import TEMPERATURE_FAMILY, TEMPERATURES, temperature_group
 from costseg.rules.triangle import grid_group, point_name, vertex_matrices
 
 __all__ = [
@@ -29,6 +29,7 @@ __all__ = [
     "DEFER_FAMILY",
     "RULE_NAMES",
     "TEMPERATURES",
+    "TEMPERATURE_FAMILY",
     "Rule",
     "RuleGroup",
     "adapted_priors",

@@ -15,6 +15,7 @@ from costseg.rules.base import Rule, RuleGroup
 from costseg.rules.named import rule_columns, rules_group
 
 TEMPERATURES = (0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0)
+TEMPERATURE_FAMILY = "temperature"
 
 
 def temperature_group(rules: Sequence[Rule], temperature: float) -> RuleGroup:
@@ -22,7 +23,7 @@ def temperature_group(rules: Sequence[Rule], temperature: float) -> RuleGroup:
     defer = any(r.defers for r in rules)
     return replace(
         rules_group(rules),
-        family="temperature",
+        family=TEMPERATURE_FAMILY,
         names=[f"{r.name}@T={temperature:.2f}" for r in rules],
         columns=[rule_columns(r, defer) | {"temperature": temperature} for r in rules],
         is_named=False,

@@ -1,0 +1,42 @@
+"""The first ``--num_examples`` reported images with every shown rule's label map and their
+uncertainty maps (docs/definitions.md §13): the mask figures, TensorBoard and the explorer
+(with ``--explorer``, their float16 probabilities too)."""
+
+from __future__ import annotations
+
+import torch
+
+from costseg.evaluation.analyses import Analysis, Seen
+from costseg.report.examples import ExampleOutputs
+from costseg.report.results import Example
+from costseg.rules import masked_groups
+
+
+class Examples(Analysis):
+    def start(self) -> None:
+        groups = self.context.plan.groups
+        self.shown = [groups.index(g) for g in masked_groups(groups)]
+        self.examples: list[Example] = []
+
+    def process(self, seen: Seen) -> None:
+        batch, limit = seen.batch, self.opts.num_examples
+        kept = range(min(len(batch.images), limit - len(self.examples)))
+        if kept:
+            preds = torch.cat([seen.preds[g] for g in self.shown], 1)
+            maps = seen.uncertainty
+        for i in kept:
+            probs = seen.probs[i].to("cpu", torch.float16) if self.opts.explorer else None
+            image, label = batch.images[i].cpu(), batch.labels[i].cpu()
+            uncertainty = {k: v[i].to("cpu", torch.float16) for k, v in maps.items()}
+            self.examples.append(
+                Example(image, label, preds[i].cpu(), batch.stems[i], probs, uncertainty)
+            )
+        if self.context.early is not None:
+            self.context.early.after_batch(self.examples)
+
+    def result(self) -> ExampleOutputs:
+        early = self.context.early
+        return ExampleOutputs(self.examples, drawn=early is not None and early.examples_started)
+
+
+ANALYSIS = Examples

@@ -1,0 +1,16 @@
+"""``--explorer``: ``explorer.html``, the examples' probabilities decided again in the browser
+under any mixture of the triangle's corners, next to the sweep's metrics (docs/definitions.md
+§11)."""
+
+from __future__ import annotations
+
+from costseg.evaluation.analyses import Analysis
+from costseg.report.explorer_points import ExplorerPage
+
+
+class Explorer(Analysis):
+    def result(self) -> ExplorerPage:
+        return ExplorerPage()
+
+
+ANALYSIS = Explorer

@@ -1,0 +1,67 @@
+"""``--guarantee``: Learn-then-Test on the held-out images (docs/definitions.md §7) chooses the
+candidate of the sweep whose risk of missing ``--target`` is at most α with probability
+1 − δ, the best of them by ``--maximize``."""
+
+from __future__ import annotations
+
+import torch
+
+from costseg.calibration.guarantee import learn_then_test_paths
+from costseg.classes import CLASS_NAMES, NUM_ROIS
+from costseg.evaluation.analyses import Analysis
+from costseg.metrics.names import INSTANCE_RATES, SEGMENT_RATES
+from costseg.metrics.per_image import per_image_counts, per_image_loss
+from costseg.metrics.scoring import GroupMetrics, score_batch
+from costseg.metrics.selection import metric_values, parse_metric, parse_target, risk_level
+from costseg.report.guarantee import Certificate
+
+
+class Guarantee(Analysis):
+    def fit(self) -> None:
+        self.certificate = certify(self.context, self.opts)
+
+    def result(self) -> Certificate:
+        return self.certificate
+
+
+def certify(context, opts) -> Certificate:
+    """Learn-then-Test on the calibration images: the certified rules of the candidates whose
+    risk ``E[L_i]`` of the target's per-image loss is ≤ α (``--target``: α = 1 − 0.95 for
+    ``recall>=0.95``; the segment rates' ``<=`` value as it is), and the best of them by
+    ``--maximize``; among certified rules of the same best value, the one of largest
+    ``group.prefer`` (the defer sweep: the larger defer cost)."""
+    plan = context.plan
+    group = next(g for g in plan.groups if g.candidates)
+    t, goal = parse_target(opts.target), parse_metric(opts.maximize)
+    named = {t.cls} | ({goal.cls} if goal.metric in SEGMENT_RATES else set())
+    segments = sorted({*plan.class_ids, *named} - {None})  # None: all classes (coverage)
+    wanted = {m.cls for m in (t, goal) if m.metric in INSTANCE_RATES}
+    metrics = GroupMetrics(
+        group, len(CLASS_NAMES), NUM_ROIS, segments, instance_classes=sorted(wanted)
+    )
+    counts, n = [], 0
+    with torch.inference_mode():
+        for batch in context.held_out.batches("certify"):
+            priors, roi = plan.priors.at(tuple(batch.labels.shape[-2:]))
+            metrics.to(batch.labels.device)  # a no-op after the first batch
+            probs, ids = context.probabilities(batch), batch.instances
+            preds = score_batch(group, metrics, probs, batch.labels, priors, roi, ids)
+            counts.append(
+                per_image_counts(
+                    preds, batch.labels, roi, t.cls, t.roi, t.metric, instances=ids
+                ).cpu()
+            )
+            n += len(batch.labels)
+    losses = per_image_loss(torch.cat(counts), t.metric).numpy()
+    alpha = risk_level(t)
+    ltt = learn_then_test_paths(losses, alpha, opts.guarantee, opts.guarantee_method, group.paths)
+    pooled = metrics.compute()
+    objective = metric_values(
+        pooled["pixels"], pooled["segments"], goal, segments, pooled["instances"]
+    )
+    # None unless a certified λ has a finite value
+    chosen = ltt.best(objective.cpu().numpy(), prefer=group.prefer)
+    return Certificate(group, ltt, chosen, objective, opts.target, opts.maximize, n)
+
+
+ANALYSIS = Guarantee

@@ -1,0 +1,104 @@
+"""Segments (docs/definitions.md §15): every segment of the named rules' label maps with its
+features (``--save-segments``), meta models fitted on the held-out images' segments and scored
+on the reported ones (``--meta``), and the fused rules' models (``--fuse``)."""
+
+from __future__ import annotations
+
+import torch
+
+from costseg.evaluation.analyses import Analysis, Seen
+from costseg.meta.collect import SegmentCollector
+from costseg.meta.fusion import FUSED_FAMILY
+from costseg.meta.models import MetaModels, fit_models
+from costseg.meta.models import scores as meta_scores
+from costseg.progress import progress
+from costseg.report.segments import SegmentOutputs
+from costseg.rules import Rule, RuleGroup, apply_rules, named_group
+
+
+class Segments(Analysis):
+    @property
+    def every_entropy(self) -> bool:  # the features' mutual information, on every image
+        return bool(self.opts.meta or self.opts.save_segments)
+
+    def fit(self) -> None:
+        self.models = _fit_meta(self.context) if self.context.plan.meta_images else None
+
+    def start(self) -> None:
+        self.collector = None
+        if self.every_entropy:
+            rules = named_group(self.context.plan.groups).rules
+            self.collector = SegmentCollector(rules, self.opts.num_examples)
+
+    def process(self, seen: Seen) -> None:
+        if self.collector is not None:
+            batch = seen.batch
+            self.collector.add(
+                seen.probs, seen.named, batch.labels, seen.priors, batch.expected_entropy,
+                batch.stems,
+            )  # fmt: skip
+
+    def result(self) -> SegmentOutputs | None:
+        collector = self.collector
+        if collector is None:
+            return None
+        models = self.models if self.opts.meta else None
+        tables = {r.name: collector.table(r.name) for r in collector.rules}
+        segments = SegmentOutputs(tables, collector.images, collector.maps, models)
+        if models is not None:
+            segments.scores = {r: meta_scores(models[r], tables[r]) for r in tables if tables[r]}
+            segments.fitted_on = {
+                "images": len(self.context.meta_held_out),
+                "segments": {r: m.num_segments for r, m in models.items()},
+            }
+        return segments
+
+
+def _fusion(groups: list[RuleGroup]) -> RuleGroup | None:
+    return next((g for g in groups if g.family == FUSED_FAMILY), None)
+
+
+def _meta_rules(context) -> list[Rule]:
+    """The rules whose segments the meta models judge: the named ones (``--meta``) and the
+    fused ones (``--fuse``)."""
+    groups = context.plan.groups
+    rules = list(named_group(groups).rules) if context.plan.options.meta else []
+    fusion = _fusion(groups)
+    if fusion is not None:
+        rules += [r for r in fusion.decide.fused if r.name not in {q.name for q in rules}]
+    return rules
+
+
+def _fit_meta(context) -> dict[str, MetaModels]:
+    """Fit the meta models of every rule of :func:`_meta_rules` on the segments of the held-out
+    images; hand the fused rules theirs (without MI: a rule decides from the probabilities)."""
+    plan, held = context.plan, context.meta_held_out
+    rules = _meta_rules(context)
+    collector = SegmentCollector(rules)
+    with torch.inference_mode():
+        for batch in held.batches("meta features"):
+            probs = context.probabilities(batch)
+            priors, _ = plan.priors.at(tuple(batch.labels.shape[-2:]))
+            preds = apply_rules(probs, rules, priors)
+            collector.add(probs, preds, batch.labels, priors, batch.expected_entropy, batch.stems)
+    fitting = "meta models, rule by rule" if plan.options.progress else None
+    models = {
+        r.name: fit_models(collector.table(r.name), collector.features(r.name), len(held))
+        for r in progress(rules, fitting)
+    }
+    fusion = _fusion(plan.groups)
+    if fusion is not None:
+        own = {}
+        for r in fusion.decide.fused:
+            features = [f for f in collector.features(r.name) if not f.startswith("MI")]
+            same = features == models[r.name].features
+            own[r.name] = (
+                models[r.name] if same else fit_models(collector.table(r.name), features, len(held))
+            )
+        fusion.decide.use(own)
+    fitted = {r: m.num_segments for r, m in models.items()}
+    print(f"meta models fitted on {len(held)} held-out images: segments {fitted}")
+    return models
+
+
+ANALYSIS = Segments
