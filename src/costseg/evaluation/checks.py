@@ -54,8 +54,7 @@ def check_options(opts: EvalOptions) -> list[RuleGroup]:
         raise ValueError(f"{OPTIONS} need a network: saved probabilities cannot be rerun")
     if opts.shift and opts.probs is not None:
         raise ValueError("--shift needs a network: saved probabilities cannot see other images")
-    if len(set(opts.shift)) < len(opts.shift):
-        raise ValueError(f"--shift names a shift twice: {' '.join(opts.shift)}")
+    check_shifts(opts.shift)
     if opts.save_probs and opts.probs is not None:
         raise ValueError("--save-probs writes a network's probabilities; with --probs they exist")
     rules = parse_rules(opts.cost, defer=opts.defer)  # the sweeps' rules never defer
@@ -71,7 +70,7 @@ def check_options(opts: EvalOptions) -> list[RuleGroup]:
     if opts.fuse:
         groups.append(_fusion_group(opts))
     _check_meta(opts)
-    _check_selection(opts, groups)
+    check_selection(opts, groups)
     _check_calibration(opts)
     _check_priors(opts, groups)
     if opts.output_dir is not None:
@@ -79,12 +78,23 @@ def check_options(opts: EvalOptions) -> list[RuleGroup]:
     return groups
 
 
+def check_shifts(shifts: list[str]) -> None:
+    """No ``--shift`` named twice (each is parsed with :func:`costseg.data.shift.parse_shift`)."""
+    if len(set(shifts)) < len(shifts):
+        raise ValueError(f"--shift names a shift twice: {' '.join(shifts)}")
+
+
+def check_priors_file(priors: str | None) -> None:
+    """A ``--priors`` file, when given, that exists."""
+    if priors is not None and not Path(priors).is_file():
+        raise ValueError(f"--priors file not found: {priors}")
+
+
 def _check_priors(opts: EvalOptions, groups: list[RuleGroup]) -> None:
     """A ``--priors`` file that exists; and, for a Cityscapes root without a train split to
     count priors from, ``--priors`` or ``--roi geometric`` (docs/definitions.md §3)."""
+    check_priors_file(opts.priors)
     if opts.priors is not None:
-        if not Path(opts.priors).is_file():
-            raise ValueError(f"--priors file not found: {opts.priors}")
         return
     if opts.data_root is None or (Path(opts.data_root) / "gtFine" / "train").is_dir():
         return
@@ -101,9 +111,10 @@ def no_priors(data: str, geometric: bool = True) -> str:
     )
 
 
-def _check_selection(opts: EvalOptions, groups: list[RuleGroup]) -> None:
+def check_selection(opts: EvalOptions, groups: list[RuleGroup]) -> None:
     """``--target`` and ``--guarantee`` choose among the rules of the one rule group that has
-    candidates (a sweep)."""
+    candidates (a sweep); δ and the target's risk level α lie in (0, 1). ``opts`` is any options
+    object with ``target``, ``maximize`` and ``guarantee`` (scripts/check_guarantee.py's too)."""
     if opts.guarantee is not None:
         if not 0 < opts.guarantee < 1:
             raise ValueError(f"--guarantee is δ and must lie in (0, 1), got {opts.guarantee}")
