@@ -52,10 +52,10 @@ from costseg.classes import CLASS_NAMES
 from costseg.cli import build_parser as build_options_parser
 from costseg.cli import user_errors
 from costseg.data.prior_maps import PriorMaps
-from costseg.data.priors import read_priors_file
+from costseg.data.priors import check_priors_file, read_priors_file
 from costseg.data.shift import Shift, ShiftedDataset, parse_shift
 from costseg.data.toy import StreetScenes
-from costseg.evaluation.checks import check_priors_file, check_selection, check_shifts
+from costseg.evaluation.checks import check_selection, check_shifts
 from costseg.metrics.per_image import per_image_counts, per_image_loss
 from costseg.metrics.selection import (
     Metric,

@@ -6,8 +6,6 @@ mistake is reported before a network is loaded.
 
 from __future__ import annotations
 
-import hashlib
-import json
 import re
 from pathlib import Path
 
@@ -16,6 +14,7 @@ import torch
 from costseg.calibration.guarantee import minimum_images, tests_sharing_delta
 from costseg.classes import CLASS_NAMES, INSTANCE_CLASSES, class_indices
 from costseg.data.from_config import same_data
+from costseg.data.priors import check_priors_file
 from costseg.metrics.selection import parse_metric, parse_target, risk_level
 from costseg.networks.probs_files import DATA_RECORD, records_its_data
 from costseg.networks.protocols import OPTIONS, Protocol
@@ -82,12 +81,6 @@ def check_shifts(shifts: list[str]) -> None:
     """No ``--shift`` named twice (each is parsed with :func:`costseg.data.shift.parse_shift`)."""
     if len(set(shifts)) < len(shifts):
         raise ValueError(f"--shift names a shift twice: {' '.join(shifts)}")
-
-
-def check_priors_file(priors: str | None) -> None:
-    """A ``--priors`` file, when given, that exists."""
-    if priors is not None and not Path(priors).is_file():
-        raise ValueError(f"--priors file not found: {priors}")
 
 
 def _check_priors(opts: EvalOptions, groups: list[RuleGroup]) -> None:
@@ -251,7 +244,7 @@ def _counted_priors(
     source, opts: EvalOptions, data: dict | None, cache_dir: Path
 ) -> torch.Tensor | None:
     from costseg.data.from_config import build_dataset, data_settings
-    from costseg.data.priors_cache import cached_priors
+    from costseg.data.priors_cache import settings_key, training_priors
 
     try:
         if data is None:
@@ -264,20 +257,12 @@ def _counted_priors(
             return None
         name = "the given dataset" if data is None else data_settings(data).root
         raise ValueError(no_priors(name)) from None
-    key = hashlib.sha1(json.dumps(data, sort_keys=True).encode()).hexdigest()[:12]
     read = getattr(train, "read_label", None) or (lambda i: train[i][1])
-    found = cached_priors(
+    found = training_priors(
         lambda: (read(i) for i in range(len(train))),
-        cache_dir / f"train_{key}.pt",
+        cache_dir / f"train_{settings_key(data)}.pt",
         {"data": data, "split": "train", "images": len(train)},
         progress=opts.progress,
     )
-    verb = "reused" if found.reused else "computed"
-    print(f"priors {verb} from {found.num_labels} training labels (σ = {found.sigma} px)")
-    source.description["priors"] = {
-        "labels": found.num_labels,
-        "sigma_px": found.sigma,
-        "data": data,
-        "split": "train",
-    }
+    source.description["priors"] = found.record | {"data": data, "split": "train"}
     return found.priors
