@@ -23,15 +23,16 @@ per-image loss on the test set (images with an undefined loss left out, counted)
 is ``R_test(λ̂) > α``. Writes ``guarantee_check.json`` and ``guarantee_check.png``.
 """
 
-from __future__ import annotations
-
+# No ``from __future__ import annotations``: GuaranteeOptions's annotations are evaluated at once,
+# so the dataclass also builds where the script is loaded by path, outside sys.modules (tests).
 import argparse
 import json
 import math
 import sys
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -41,6 +42,7 @@ from tqdm import tqdm
 
 from costseg import workers
 from costseg.calibration.guarantee import (
+    Bound,
     learn_then_test_paths,
     minimum_images,
     tests_sharing_delta,
@@ -50,82 +52,103 @@ from costseg.classes import CLASS_NAMES
 from costseg.cli import build_parser as build_options_parser
 from costseg.cli import user_errors
 from costseg.data.prior_maps import PriorMaps
-from costseg.data.priors import read_priors_file
+from costseg.data.priors import check_priors_file, read_priors_file
 from costseg.data.shift import Shift, ShiftedDataset, parse_shift
 from costseg.data.toy import StreetScenes
+from costseg.evaluation.checks import check_selection, check_shifts
 from costseg.metrics.per_image import per_image_counts, per_image_loss
-from costseg.metrics.selection import best_points, meets, parse_metric, parse_target, risk_level
+from costseg.metrics.selection import (
+    Metric,
+    Target,
+    best_points,
+    meets,
+    parse_metric,
+    parse_target,
+    risk_level,
+)
 from costseg.networks import load_costseg_checkpoint
 from costseg.networks.ensemble import member_specs, open_sources
 from costseg.networks.protocols import Protocol
 from costseg.networks.sources import resolve_device
-from costseg.options import RULES as DEFAULT_RULES
-from costseg.options import EvalOptions
+from costseg.options import EvalOptions, option, same_option, whole_number
 from costseg.report.files import save_figure, write_json
 from costseg.rules import RuleGroup, defer_costs, defer_group, grid_group, require_priors
 
 RULES = {"ltt": "Learn-then-Test", "naive": "naive --target"}
 
 
-# evaluate.py's options that mean the same here, with this script's defaults
-SHARED = {
-    "cost": DEFAULT_RULES,
-    "ckpt_path": None,
-    "network": None,
-    "device": "auto",
-    "output_dir": "runs/guarantee_check",
-    "vertices": ["robotistic", "altruistic", "egoistic"],
-    "vertex_scaling": "none",
-    "batch_size": 16,
-    "sweep": 0.1,
-    "defer_sweep": None,
-    "target": "person:roi1:recall>=0.95",
-    "maximize": "person:roi1:precision",
-    "guarantee": 0.1,
-    "guarantee_method": "bonferroni",
-    "shift": [],
-    "seed": 0,
-    "priors": None,
-}
+@dataclass
+class GuaranteeOptions:
+    """The check's options: evaluate.py's where they mean the same (``--sweep`` is the grid's
+    step, ``--guarantee`` is δ; ``--defer_sweep`` replaces the grid), with the check's defaults,
+    then its own; the values derived from them last."""
+
+    cost: list[str] = same_option(EvalOptions, "cost")
+    ckpt_path: list[str] | None = same_option(EvalOptions, "ckpt_path")
+    network: list[str] | None = same_option(EvalOptions, "network")
+    seed: int = same_option(EvalOptions, "seed")
+    priors: str | None = same_option(EvalOptions, "priors")
+    output_dir: Path = same_option(
+        EvalOptions, "output_dir", "runs/guarantee_check", help="the check's folder"
+    )
+    device: str = same_option(EvalOptions, "device")
+    vertices: list[str] = same_option(EvalOptions, "vertices")
+    vertex_scaling: Literal["none", "mean"] = same_option(EvalOptions, "vertex_scaling")
+    batch_size: int = same_option(EvalOptions, "batch_size", 16)
+    shift: list[str] = same_option(EvalOptions, "shift")
+    sweep: float = same_option(EvalOptions, "sweep", 0.1)
+    defer_sweep: list[float] | None = same_option(EvalOptions, "defer_sweep")
+    target: str = same_option(EvalOptions, "target", "person:roi1:recall>=0.95")
+    maximize: str = same_option(EvalOptions, "maximize", "person:roi1:precision")
+    guarantee: float = same_option(EvalOptions, "guarantee", 0.1)
+    guarantee_method: Literal["bonferroni", "fixed_sequence"] = same_option(
+        EvalOptions, "guarantee_method"
+    )
+    bound: Bound = option("hoeffding_bentkus", "the p-values' concentration bound")
+    n: int = option(50, "images per calibration set", type=whole_number(1))
+    trials: int = option(200, "calibration sets drawn", type=whole_number(1))
+    test: int = option(1000, "images of the fresh test set", type=whole_number(1))
+    cal_pool: int | None = option(
+        help="default --trials × --n; smaller: sets overlap", type=whole_number(1)
+    )
+    scene_seed: int = option(1000, "scene seed (training uses 0)", type=whole_number(0))
+    draw_seed: int = option(0, "seed of the calibration-set draws", type=whole_number(0))
+    size: list[int] | None = option(
+        help="default: the checkpoint's", type=whole_number(1), nargs=2, metavar=("H", "W")
+    )
+    target_spec: Target = field(init=False)
+    max_spec: Metric = field(init=False)
+    alpha: float = field(init=False)
+    """The target's risk level α."""
+    shifts: list[Shift] = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.output_dir = Path(self.output_dir)
+        self.target_spec, self.max_spec = parse_target(self.target), parse_metric(self.maximize)
+        self.alpha = risk_level(self.target_spec)
+        self.cal_pool = self.trials * self.n if self.cal_pool is None else self.cal_pool
+        self.shifts = [parse_shift(text) for text in self.shift]
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The command line: evaluate.py's declarations of the options in :data:`SHARED` (``--sweep``
-    is the grid's step, ``--guarantee`` is δ; ``--defer_sweep`` replaces the grid), then the
-    check's own."""
-    p = build_options_parser(
-        EvalOptions, "check_guarantee.py", __doc__.splitlines()[0], SHARED, SHARED
-    )
-    add = p.add_argument
-    add("--bound", default="hoeffding_bentkus", choices=("hoeffding_bentkus", "hoeffding"))
-    add("--n", type=int, default=50, help="images per calibration set")
-    add("--trials", type=int, default=200, help="calibration sets drawn")
-    add("--test", type=int, default=1000, help="images of the fresh test set")
-    add("--cal_pool", type=int, help="default --trials × --n; smaller: sets overlap")
-    add("--scene_seed", type=int, default=1000, help="scene seed (training uses 0)")
-    add("--draw_seed", type=int, default=0, help="seed of the calibration-set draws")
-    add("--size", type=int, nargs=2, metavar=("H", "W"), help="default: the checkpoint's")
-    return p
+    """The command line: the fields of :class:`GuaranteeOptions`."""
+    return build_options_parser(GuaranteeOptions, "check_guarantee.py", __doc__.splitlines()[0])
 
 
-def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    """Parsed and checked options; ValueError for a bad target or sizes."""
-    args = build_parser().parse_args(argv)
-    args.output_dir = Path(args.output_dir)
-    args.target_spec, args.max_spec = parse_target(args.target), parse_metric(args.maximize)
-    args.alpha = risk_level(args.target_spec)
-    args.cal_pool = args.trials * args.n if args.cal_pool is None else args.cal_pool
-    if not 0 < args.alpha < 1 or not 0 < args.guarantee < 1:
-        raise ValueError(f"need α = {args.alpha:g} and δ = {args.guarantee:g} in (0, 1)")
-    if min(args.n, args.trials, args.test) < 1 or args.n > args.cal_pool:
-        raise ValueError(f"need n, trials, test >= 1 and n <= cal_pool = {args.cal_pool}")
+def parse_args(argv: list[str] | None = None) -> GuaranteeOptions:
+    """Parsed and checked options (evaluate.py's checks where they overlap); ValueError for a
+    bad option."""
+    args = GuaranteeOptions(**vars(build_parser().parse_args(argv)))
     resolve_device(args.device)
-    candidates(args)  # a bad --defer_sweep or --cost: ValueError before any image
-    args.shifts = [parse_shift(text) for text in args.shift]
+    check_selection(args, [candidates(args)])  # a bad --defer_sweep or --cost; α, δ in (0, 1)
+    check_shifts(args.shift)
+    check_priors_file(args.priors)
+    if args.n > args.cal_pool:
+        raise ValueError(f"need --n <= --cal_pool = {args.cal_pool}")
     return args
 
 
-def candidates(args: argparse.Namespace) -> RuleGroup:
+def candidates(args: GuaranteeOptions) -> RuleGroup:
     """The λ: the grid of --sweep over --vertices, or with --defer_sweep every --cost rule at
     every defer cost (one fixed-sequence path per rule)."""
     if args.defer_sweep is not None:
@@ -133,7 +156,7 @@ def candidates(args: argparse.Namespace) -> RuleGroup:
     return grid_group(args.vertices, args.sweep, args.vertex_scaling)
 
 
-def checkpoints(args: argparse.Namespace) -> list[Path]:
+def checkpoints(args: GuaranteeOptions) -> list[Path]:
     """The checkpoints in use: --ckpt_path (default the newest), or with --network alone the
     newest if there is one (for its priors, RoI map and image size)."""
     if args.network is None or args.ckpt_path is not None:
@@ -144,7 +167,7 @@ def checkpoints(args: argparse.Namespace) -> list[Path]:
         return []
 
 
-def load_source(args: argparse.Namespace, paths: list[Path]) -> tuple[Any, Any, tuple[int, int]]:
+def load_source(args: GuaranteeOptions, paths: list[Path]) -> tuple[Any, Any, tuple[int, int]]:
     """(source, (priors, RoI map) or Nones, image size) of the checkpoints and --network: one
     network or their ensemble, as evaluate.py builds it."""
     device = resolve_device(args.device)
@@ -168,7 +191,7 @@ def load_source(args: argparse.Namespace, paths: list[Path]) -> tuple[Any, Any, 
 
 
 def compute_counts(
-    args: argparse.Namespace, source: tuple, indices: range, shift: Shift | None = None
+    args: GuaranteeOptions, source: tuple, indices: range, shift: Shift | None = None
 ) -> dict[str, Any]:
     """(len(indices), K, 2) per-image counts of the target ("target") and of --maximize, with
     ``source`` = (network, (priors, RoI map), size) from :func:`load_source`, the images seen
@@ -193,7 +216,7 @@ def compute_counts(
 
 
 def cached_counts(
-    args: argparse.Namespace, shift: Shift | None = None
+    args: GuaranteeOptions, shift: Shift | None = None
 ) -> tuple[dict[str, np.ndarray], str, float]:
     """(counts of the pool's images, network name, seconds spent); ``counts.npz`` in --output_dir
     keeps those of earlier runs with the same settings, so only new images are counted. With
@@ -231,7 +254,7 @@ def pooled(counts: np.ndarray) -> np.ndarray:
         return np.where(whole > 0, part / whole, np.nan)
 
 
-def draw_sets(args: argparse.Namespace) -> tuple[np.ndarray, bool]:
+def draw_sets(args: GuaranteeOptions) -> tuple[np.ndarray, bool]:
     """(trials, n) pool indices of the calibration sets, and whether they are disjoint."""
     rng = np.random.default_rng(args.draw_seed)
     calib = np.arange(args.test, args.test + args.cal_pool)
@@ -241,7 +264,7 @@ def draw_sets(args: argparse.Namespace) -> tuple[np.ndarray, bool]:
 
 
 def choose(
-    args: argparse.Namespace, group: RuleGroup, target: np.ndarray, goal: np.ndarray
+    args: GuaranteeOptions, group: RuleGroup, target: np.ndarray, goal: np.ndarray
 ) -> dict[str, Any]:
     """LTT's and the naive rule's choice on one calibration set's (n, K, 2) counts."""
     losses = per_image_loss(target, args.target_spec.metric).numpy()
@@ -257,7 +280,7 @@ def choose(
 
 
 def summarise(
-    args: argparse.Namespace,
+    args: GuaranteeOptions,
     counts: dict[str, np.ndarray],
     test_counts: dict[str, np.ndarray] | None = None,
 ) -> dict[str, Any]:
@@ -291,7 +314,7 @@ def summarise(
 
 
 def rule_summary(
-    args: argparse.Namespace, chosen: list[int | None], test: dict[str, Any], pooled_ok: np.ndarray
+    args: GuaranteeOptions, chosen: list[int | None], test: dict[str, Any], pooled_ok: np.ndarray
 ) -> dict[str, Any]:
     """Violations and achieved test values of one rule's choices over the trials."""
     picked = np.array([c for c in chosen if c is not None], dtype=np.int64)
@@ -306,7 +329,7 @@ def rule_summary(
             "mean_test_maximize": float(np.nanmean(values)) if len(values) else None}  # fmt: skip
 
 
-def minimum_n(args: argparse.Namespace, candidates: int, paths: int = 0) -> int:
+def minimum_n(args: GuaranteeOptions, candidates: int, paths: int = 0) -> int:
     """Fewest calibration images with which a zero empirical risk is certified (fixed-sequence
     testing along ``paths`` paths: δ / paths for each)."""
     tests = tests_sharing_delta(args.guarantee_method, candidates, paths)

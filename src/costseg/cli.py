@@ -221,19 +221,13 @@ class OneLineParser(argparse.ArgumentParser):
         fail(f"{self.prog}: {message}")
 
 
-def build_parser(
-    options: type,
-    prog: str,
-    description: str,
-    fields: Sequence[str] | None = None,
-    defaults: dict[str, Any] | None = None,
-) -> argparse.ArgumentParser:
+def build_parser(options: type, prog: str, description: str) -> argparse.ArgumentParser:
     """The parser of an options dataclass (:mod:`costseg.options`): one argument per field.
 
     A field's type says the rest: ``bool`` is a flag (``--no-x`` when it defaults to True),
-    ``list[...]`` takes several values, ``Literal[...]`` lists the choices. A script that shares
-    some of a job's options takes only ``fields`` (in their declared order), with its own
-    ``defaults``, and adds its own arguments to the parser.
+    ``list[...]`` takes several values, ``Literal[...]`` lists the choices; a field with
+    ``init=False`` is no option. A script that shares some of a job's options declares them with
+    :func:`costseg.options.same_option`.
 
     >>> from costseg.options import EvalOptions, PredictOptions
     >>> p = build_parser(EvalOptions, "evaluate.py", "")
@@ -244,7 +238,7 @@ def build_parser(
     groups: dict[str | None, Any] = {None: parser}
     hints = typing.get_type_hints(options)
     for f in dataclasses.fields(options):
-        if fields is not None and f.name not in fields:
+        if not f.init:  # a value derived from the options, not one
             continue
         meta = dict(f.metadata)
         title = meta.pop("group", None)
@@ -252,8 +246,9 @@ def build_parser(
         if title not in groups:
             groups[title] = parser.add_argument_group(title)
         flag = meta.pop("flag", f"--{f.name}")
-        default = (defaults or {}).get(f.name, field_default(f))
-        groups[title].add_argument(flag, dest=f.name, **_argument(default, hints[f.name], meta))
+        groups[title].add_argument(
+            flag, dest=f.name, **_argument(field_default(f), hints[f.name], meta)
+        )
     return parser
 
 

@@ -150,6 +150,23 @@ def option(default: Any = None, help: str | None = None, **metadata: Any) -> Any
     return dataclasses.field(default=default, metadata=metadata)
 
 
+def same_option(
+    options: type, name: str, default: Any = dataclasses.MISSING, **metadata: Any
+) -> Any:
+    """Another command's option: the field ``name`` of the dataclass ``options`` (its help, flag,
+    value type and check), with this command's own ``default`` and ``metadata`` where given.
+
+    >>> @dataclass
+    ... class Check:
+    ...     batch_size: int = same_option(SourceOptions, "batch_size", 16)
+    >>> Check().batch_size, dataclasses.fields(Check)[0].metadata["help"]
+    (16, 'images per batch')
+    """
+    field = next(f for f in dataclasses.fields(options) if f.name == name)
+    kept = field_default(field) if default is dataclasses.MISSING else default
+    return option(kept, **{**field.metadata, **metadata})
+
+
 def field_default(f: dataclasses.Field) -> Any:
     """The default of an options field."""
     return f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default

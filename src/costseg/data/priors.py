@@ -250,6 +250,15 @@ def save_priors(
         torch.save(payload, tmp)
 
 
+def check_priors_file(priors: str | None) -> None:
+    """A ``--priors`` file, when given, that exists (checked before anything heavy).
+
+    >>> check_priors_file(None)
+    """
+    if priors is not None and not Path(priors).is_file():
+        raise ValueError(f"--priors file not found: {priors}")
+
+
 def read_priors_file(path: str | Path, class_names: Sequence[str]) -> dict[str, Any]:
     """The checked payload of a file written by :func:`save_priors`: ``"priors"`` (N, H, W)
     float32, ``"class_names"``, ``"settings"``.

@@ -1,8 +1,10 @@
-"""Priors computed once and cached, for networks costseg did not train (docs/definitions.md §3,
-§8)."""
+"""Priors computed once and cached (docs/definitions.md §3, §8): by train.py in the run's logger
+folder, by evaluate.py for networks costseg did not train or other data, next to its outputs."""
 
 from __future__ import annotations
 
+import hashlib
+import json
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -29,6 +31,43 @@ class CachedPriors(NamedTuple):
     """Smoothing σ in pixels actually used."""
     reused: bool
     """True when read from the cache file, False when computed now."""
+
+    @property
+    def record(self) -> dict[str, Any]:
+        """How they were counted, for the outputs' description of the priors."""
+        return {"labels": self.num_labels, "sigma_px": self.sigma}
+
+
+def settings_key(settings: Any) -> str:
+    """A cache file's name for JSON-like ``settings``: 12 hex digits of their SHA-1 (keys
+    sorted; objects JSON does not know by ``str``).
+
+    >>> settings_key({"b": 1, "a": [2]}) == settings_key({"a": [2], "b": 1})
+    True
+    """
+    text = json.dumps(settings, sort_keys=True, default=str)
+    return hashlib.sha1(text.encode()).hexdigest()[:12]
+
+
+def training_priors(
+    labels: Callable[[], Iterable[Tensor]],
+    cache_file: str | Path,
+    settings: Mapping[str, Any],
+    **counting: Any,
+) -> CachedPriors:
+    """The priors of a dataset's training labels, the one way train.py and evaluate.py obtain
+    them: :func:`cached_priors` in ``cache_file`` (name it with :func:`settings_key`), and one
+    line saying whether they were reused or counted now.
+
+    Args:
+        labels, cache_file, settings: As for :func:`cached_priors`.
+        **counting: ``num_classes``, ``sigma``, ``class_names``, ``progress`` ... of
+            :func:`cached_priors`.
+    """
+    found = cached_priors(labels, cache_file, settings, **counting)
+    verb = "reused" if found.reused else "computed"
+    print(f"priors {verb} from {found.num_labels} training labels (σ = {found.sigma:g} px)")
+    return found
 
 
 def cached_priors(

@@ -6,8 +6,6 @@ mistake is reported before a network is loaded.
 
 from __future__ import annotations
 
-import hashlib
-import json
 import re
 from pathlib import Path
 
@@ -16,6 +14,7 @@ import torch
 from costseg.calibration.guarantee import minimum_images, tests_sharing_delta
 from costseg.classes import CLASS_NAMES, INSTANCE_CLASSES, class_indices
 from costseg.data.from_config import same_data
+from costseg.data.priors import check_priors_file
 from costseg.metrics.selection import parse_metric, parse_target, risk_level
 from costseg.networks.probs_files import DATA_RECORD, records_its_data
 from costseg.networks.protocols import OPTIONS, Protocol
@@ -54,8 +53,7 @@ def check_options(opts: EvalOptions) -> list[RuleGroup]:
         raise ValueError(f"{OPTIONS} need a network: saved probabilities cannot be rerun")
     if opts.shift and opts.probs is not None:
         raise ValueError("--shift needs a network: saved probabilities cannot see other images")
-    if len(set(opts.shift)) < len(opts.shift):
-        raise ValueError(f"--shift names a shift twice: {' '.join(opts.shift)}")
+    check_shifts(opts.shift)
     if opts.save_probs and opts.probs is not None:
         raise ValueError("--save-probs writes a network's probabilities; with --probs they exist")
     rules = parse_rules(opts.cost, defer=opts.defer)  # the sweeps' rules never defer
@@ -71,7 +69,7 @@ def check_options(opts: EvalOptions) -> list[RuleGroup]:
     if opts.fuse:
         groups.append(_fusion_group(opts))
     _check_meta(opts)
-    _check_selection(opts, groups)
+    check_selection(opts, groups)
     _check_calibration(opts)
     _check_priors(opts, groups)
     if opts.output_dir is not None:
@@ -79,12 +77,17 @@ def check_options(opts: EvalOptions) -> list[RuleGroup]:
     return groups
 
 
+def check_shifts(shifts: list[str]) -> None:
+    """No ``--shift`` named twice (each is parsed with :func:`costseg.data.shift.parse_shift`)."""
+    if len(set(shifts)) < len(shifts):
+        raise ValueError(f"--shift names a shift twice: {' '.join(shifts)}")
+
+
 def _check_priors(opts: EvalOptions, groups: list[RuleGroup]) -> None:
     """A ``--priors`` file that exists; and, for a Cityscapes root without a train split to
     count priors from, ``--priors`` or ``--roi geometric`` (docs/definitions.md §3)."""
+    check_priors_file(opts.priors)
     if opts.priors is not None:
-        if not Path(opts.priors).is_file():
-            raise ValueError(f"--priors file not found: {opts.priors}")
         return
     if opts.data_root is None or (Path(opts.data_root) / "gtFine" / "train").is_dir():
         return
@@ -101,9 +104,10 @@ def no_priors(data: str, geometric: bool = True) -> str:
     )
 
 
-def _check_selection(opts: EvalOptions, groups: list[RuleGroup]) -> None:
+def check_selection(opts: EvalOptions, groups: list[RuleGroup]) -> None:
     """``--target`` and ``--guarantee`` choose among the rules of the one rule group that has
-    candidates (a sweep)."""
+    candidates (a sweep); δ and the target's risk level α lie in (0, 1). ``opts`` is any options
+    object with ``target``, ``maximize`` and ``guarantee`` (scripts/check_guarantee.py's too)."""
     if opts.guarantee is not None:
         if not 0 < opts.guarantee < 1:
             raise ValueError(f"--guarantee is δ and must lie in (0, 1), got {opts.guarantee}")
@@ -240,7 +244,7 @@ def _counted_priors(
     source, opts: EvalOptions, data: dict | None, cache_dir: Path
 ) -> torch.Tensor | None:
     from costseg.data.from_config import build_dataset, data_settings
-    from costseg.data.priors_cache import cached_priors
+    from costseg.data.priors_cache import settings_key, training_priors
 
     try:
         if data is None:
@@ -253,20 +257,12 @@ def _counted_priors(
             return None
         name = "the given dataset" if data is None else data_settings(data).root
         raise ValueError(no_priors(name)) from None
-    key = hashlib.sha1(json.dumps(data, sort_keys=True).encode()).hexdigest()[:12]
     read = getattr(train, "read_label", None) or (lambda i: train[i][1])
-    found = cached_priors(
+    found = training_priors(
         lambda: (read(i) for i in range(len(train))),
-        cache_dir / f"train_{key}.pt",
+        cache_dir / f"train_{settings_key(data)}.pt",
         {"data": data, "split": "train", "images": len(train)},
         progress=opts.progress,
     )
-    verb = "reused" if found.reused else "computed"
-    print(f"priors {verb} from {found.num_labels} training labels (σ = {found.sigma} px)")
-    source.description["priors"] = {
-        "labels": found.num_labels,
-        "sigma_px": found.sigma,
-        "data": data,
-        "split": "train",
-    }
+    source.description["priors"] = found.record | {"data": data, "split": "train"}
     return found.priors

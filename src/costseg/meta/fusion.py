@@ -21,7 +21,7 @@ import torch
 
 from costseg.meta.collect import rule_segments
 from costseg.meta.models import MetaModels
-from costseg.rules.base import Rule, RuleGroup
+from costseg.rules.base import Rule, RuleGroup, needs_priors
 from costseg.rules.named import apply_rules
 
 FUSION_MODEL = "gradient_boosting"  # MetaFusion's
@@ -131,7 +131,7 @@ def fusion_group(
         columns,
         masks=len(names) <= MASKED,
         heatmaps=True,
-        needs_priors=any(r.priors_alpha for r in (base, *fused)),
+        needs_priors=needs_priors((base, *fused)),
         candidates=len(names) > 1,
         output="fusion",
         line=taus if one else None,

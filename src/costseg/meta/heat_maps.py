@@ -25,7 +25,7 @@ from torch import Tensor
 
 from costseg.costs import cost_or_symmetric, off_diagonal
 from costseg.networks.uncertainty import entropy
-from costseg.rules.base import Rule, adapted_priors
+from costseg.rules.base import Rule, adapted_priors, given_priors
 
 EPSILON = float(np.finfo(np.float32).eps)
 
@@ -67,9 +67,8 @@ def cost_margin(probs: Tensor, rule: Rule, priors: Tensor | None = None) -> Tens
     cost = cost.to(probs.device, torch.float64)
     q = probs.double()
     if rule.priors_alpha:
-        if priors is None:
-            raise ValueError(f"the rule {rule.name} needs pixel-wise priors")
-        q = q / adapted_priors(priors.to(q), rule.priors_alpha)
+        pi = given_priors(priors, f"the rule {rule.name}")
+        q = q / adapted_priors(pi.to(q), rule.priors_alpha)
     expected = torch.einsum("jk,bkhw->bjhw", cost, q)
     low = expected.topk(2, dim=1, largest=False).values
     return ((low[:, 1] - low[:, 0]) / off_diagonal(cost).max()).float()

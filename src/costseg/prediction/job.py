@@ -12,7 +12,7 @@ import torch
 
 from costseg.classes import CLASS_NAMES
 from costseg.data.prior_maps import PriorMaps
-from costseg.data.priors import read_priors_file
+from costseg.data.priors import check_priors_file, read_priors_file
 from costseg.meta.collect import rule_segments
 from costseg.meta.features import painted
 from costseg.meta.models import SHOWN_MODEL, MetaModels, load_models
@@ -63,8 +63,7 @@ def plan(opts: PredictOptions, source: Source | None = None) -> PredictPlan:
     if opts.explorer:
         vertex_matrices(opts.vertices, opts.vertex_scaling)
     inputs = find_inputs(opts.input)
-    if opts.priors is not None and not Path(opts.priors).is_file():
-        raise ValueError(f"--priors file not found: {opts.priors}")
+    check_priors_file(opts.priors)
     meta_models = _meta_models(opts.meta_models, rules) if opts.meta_models else None
     protocol = Protocol.from_options(opts)
     device = resolve_device(opts.device)

@@ -16,11 +16,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from costseg.classes import CLASS_NAMES, ROI_NAMES, colorize, label_ids
+from costseg.classes import CLASS_NAMES, ROI_NAMES, colorize
 from costseg.prediction.counts import deferred_pixels, label_counts
 from costseg.prediction.panels import overlay, panel
 from costseg.prediction.video import VideoWriter
 from costseg.report.files import write_csv, write_json, write_png
+from costseg.report.outputs import ImageFiles
 from costseg.rules import Rule
 
 COUNT_COLUMNS = ("image", "rule", "class", "roi", "pixels", "segments", "deferred")
@@ -49,6 +50,7 @@ class PredictionWriter:
     def __init__(self, output_dir: Path, rules: Sequence[Rule], save_probs: bool) -> None:
         self.output_dir, self.save_probs = output_dir, save_probs
         self.rule_names = [r.name for r in rules]
+        self.files = ImageFiles(output_dir, self.rule_names, "labels")
         self.defer_costs = [r.defer_cost for r in rules]
         self.defer_texts = [defer_text(c) for c in self.defer_costs]
         self.counts: dict[str, np.ndarray] = {}  # stem → (K, 2, N, R) pixels and segments
@@ -70,8 +72,8 @@ class PredictionWriter:
         ``roi`` (H, W) or None, ``probs`` (N, H, W) tensor, ``uncertainty`` (name → (H, W)
         tensor; saved with ``save_probs``) and per rule its segments' predicted IoU (or None)."""
         out = self.output_dir
+        self.files.label_maps(stem, maps)
         for name, labels in zip(self.rule_names, maps, strict=True):
-            write_png(out / "labels" / name / f"{stem}.png", label_ids(labels))
             write_png(out / "color" / name / f"{stem}.png", colorize(labels, deferred=True))
         shown = self.panel(image, maps, argmax, uncertainty, segment_iou)
         write_png(out / "panels" / f"{stem}.png", shown)
@@ -92,9 +94,7 @@ class PredictionWriter:
         self.counts[stem] = np.stack([np.stack(label_counts(m, roi)) for m in maps])
         self.deferred[stem] = np.stack([deferred_pixels(m, roi) for m in maps])
         if self.save_probs:
-            from costseg.networks.probs_files import save_probs
-
-            save_probs(self.output_dir / "probs" / f"{stem}.npz", probs, maps=uncertainty)
+            self.files.probabilities(stem, probs, uncertainty)
 
     def open_video(self, stem: str, rate: Fraction) -> None:
         """Start ``<stem>_panels.mp4`` and ``<stem>_<rule>.mp4``."""

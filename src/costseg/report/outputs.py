@@ -9,8 +9,10 @@ says ``--overwrite``. A claimed folder holds the marker file ``INCOMPLETE`` unti
 from __future__ import annotations
 
 import tempfile
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from costseg.classes import label_ids
@@ -87,36 +89,67 @@ def _make_writable(folder: Path) -> None:
         raise ValueError(f"cannot write into {folder}: {err.strerror or err}") from None
 
 
-class BatchWriter:
-    """Writes per-image outputs during the loop: label-id PNGs per named rule, probabilities.
+class ImageFiles:
+    """The per-image files evaluate.py and predict.py write alike: each rule's Cityscapes label
+    ids (``<labels>/<rule>/<stem>.png``, 255 where the rule deferred, docs/definitions.md §14) and
+    the probabilities (``probs/<stem>.npz``, float16, §8, with the uncertainty maps beside them,
+    §13).
+
+    Args:
+        output_dir: the job's folder.
+        rule_names: the K rules, in the order of their label maps.
+        labels: the folder of the label-id PNGs (``predictions``: evaluate.py, ``labels``:
+            predict.py).
+
+    >>> import numpy as np
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     ImageFiles(Path(d), ["a"], "labels").label_maps("x", np.zeros((1, 2, 2), np.uint8))
+    ...     [p.relative_to(d).as_posix() for p in Path(d).rglob("*.png")]
+    ['labels/a/x.png']
+    """
+
+    def __init__(self, output_dir: Path, rule_names: Sequence[str], labels: str) -> None:
+        self.output_dir, self.rule_names, self.labels = output_dir, list(rule_names), labels
+
+    def label_maps(self, stem: str, maps: np.ndarray) -> None:
+        """(K, H, W) train-id maps of the rules (255: deferred) → one label-id PNG per rule."""
+        for name, labels in zip(self.rule_names, maps, strict=True):
+            write_png(self.output_dir / self.labels / name / f"{stem}.png", label_ids(labels))
+
+    def probabilities(
+        self, stem: str, probs: torch.Tensor, uncertainty: Mapping[str, torch.Tensor] | None
+    ) -> None:
+        """(N, H, W) probabilities and the (H, W) uncertainty maps → ``probs/<stem>.npz``."""
+        from costseg.networks.probs_files import save_probs
+
+        save_probs(self.output_dir / "probs" / f"{stem}.npz", probs, maps=uncertainty)
+
+
+class BatchWriter(ImageFiles):
+    """:class:`ImageFiles` of evaluate.py, a batch at a time.
 
     Args:
         output_dir: the evaluation folder.
         rule_names: names of the named rules, in the order of their label maps.
-        predictions: write ``predictions/<rule>/<image>.png`` (Cityscapes label ids; 255 where
-            the rule deferred, docs/definitions.md §14).
+        predictions: write ``predictions/<rule>/<image>.png``.
     """
 
     def __init__(self, output_dir: Path, rule_names: list[str], predictions: bool) -> None:
-        self.output_dir, self.rule_names, self.predictions = output_dir, rule_names, predictions
+        super().__init__(output_dir, rule_names, "predictions")
+        self.predictions = predictions
 
     def save_predictions(self, stems: list[str], preds: torch.Tensor) -> None:
         """(B, K, H, W) train-id maps of the named rules (255: deferred) → one PNG per image
         and rule."""
         if not self.predictions:
             return
-        for k, name in enumerate(self.rule_names):
-            folder = self.output_dir / "predictions" / name
-            for stem, pred in zip(stems, preds[:, k].cpu().numpy(), strict=True):
-                write_png(folder / f"{stem}.png", label_ids(pred))
+        for stem, maps in zip(stems, preds.cpu().numpy(), strict=True):
+            self.label_maps(stem, maps)
 
     def save_probs(
         self, stems: list[str], probs: torch.Tensor, uncertainty: dict | None = None
     ) -> None:
-        """(B, N, H, W) probabilities → ``probs/<image>.npz`` (float16, docs/definitions.md §8),
-        with the (B, H, W) uncertainty maps beside them (§13)."""
-        from costseg.networks.probs_files import save_probs
-
+        """(B, N, H, W) probabilities → ``probs/<image>.npz``, with the (B, H, W) uncertainty
+        maps beside them."""
         for i, (stem, p) in enumerate(zip(stems, probs, strict=True)):
-            maps = {k: v[i] for k, v in (uncertainty or {}).items()}
-            save_probs(self.output_dir / "probs" / f"{stem}.npz", p, maps=maps)
+            self.probabilities(stem, p, {k: v[i] for k, v in (uncertainty or {}).items()})

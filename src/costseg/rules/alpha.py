@@ -15,7 +15,7 @@ import torch
 from costseg.classes import CLASS_NAMES
 from costseg.decision import decide
 from costseg.options import steps_per_unit
-from costseg.rules.base import RuleGroup, adapted_priors
+from costseg.rules.base import RuleGroup, adapted_priors, given_priors
 from costseg.rules.named import parse_rules
 
 
@@ -27,8 +27,7 @@ class PriorAdapted:
     alphas: tuple[float, ...]
 
     def __call__(self, probs: torch.Tensor, priors: torch.Tensor | None) -> torch.Tensor:
-        if priors is None:
-            raise ValueError("the α sweep needs pixel-wise priors")
+        priors = given_priors(priors, "the α sweep")
         return torch.stack(
             [decide(probs, self.cost, adapted_priors(priors, a)) for a in self.alphas], 1
         )

@@ -8,7 +8,7 @@ each rule's cost matrix), so any group is evaluated and written without special 
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 
 import torch
@@ -56,6 +56,23 @@ class Rule:
             return None
         row = self.cost[-1].tolist()
         return row[0] if len(set(row)) == 1 else row
+
+
+def needs_priors(rules: Iterable[Rule]) -> bool:
+    """Whether one of ``rules`` divides by the pixel-wise priors (``ml``, a prior-adapted rule).
+
+    >>> needs_priors([Rule("a", None), Rule("ml", None, 1.0)]), needs_priors([Rule("a", None)])
+    (True, False)
+    """
+    return any(r.priors_alpha for r in rules)
+
+
+def given_priors(priors: torch.Tensor | None, what: str) -> torch.Tensor:
+    """``priors``, which ``what`` (a rule, the α sweep) divides by; ValueError when there are
+    none."""
+    if priors is None:
+        raise ValueError(f"{what} needs pixel-wise priors")
+    return priors
 
 
 def adapted_priors(priors: torch.Tensor, alpha: float) -> torch.Tensor:

@@ -23,7 +23,7 @@ from collections.abc import Sequence
 
 from costseg.classes import CLASS_NAMES
 from costseg.costs import cost_or_symmetric, with_defer
-from costseg.rules.base import Rule, RuleGroup
+from costseg.rules.base import Rule, RuleGroup, needs_priors
 from costseg.rules.named import NamedRules, parse_rules, rule_columns
 
 DEFER_FAMILY = "defer"
@@ -93,7 +93,7 @@ def defer_group(
         [f"{r.name}@defer={r.defer_cost:.12g}" for r in rules],
         NamedRules(tuple(rules)),
         [rule_columns(r, True) for r in rules],
-        needs_priors=any(r.priors_alpha for r in rules),
+        needs_priors=needs_priors(rules),
         candidates=True,
         output="defer_sweep",
         rules=rules,

@@ -24,7 +24,14 @@ from costseg.classes import CLASS_NAMES
 from costseg.costs import PRESETS, cost_or_symmetric, has_defer_row, load_cost, with_defer
 from costseg.decision import decide
 from costseg.decision.label_maps import empty_labels
-from costseg.rules.base import DEFER_COLUMN, Rule, RuleGroup, adapted_priors
+from costseg.rules.base import (
+    DEFER_COLUMN,
+    Rule,
+    RuleGroup,
+    adapted_priors,
+    given_priors,
+    needs_priors,
+)
 
 RULE_NAMES = (*PRESETS, "ml")
 
@@ -85,10 +92,9 @@ def apply_rules(
     for k, rule in enumerate(rules):
         if not rule.priors_alpha:
             out[:, k] = decide(probs, rule.cost)
-        elif priors is None:
-            raise ValueError(f"rule {rule.name!r} needs pixel-wise priors")
         else:
-            out[:, k] = decide(probs, rule.cost, adapted_priors(priors, rule.priors_alpha))
+            pi = given_priors(priors, f"the rule {rule.name}")
+            out[:, k] = decide(probs, rule.cost, adapted_priors(pi, rule.priors_alpha))
     return out
 
 
@@ -121,6 +127,6 @@ def rules_group(rules: Sequence[Rule]) -> RuleGroup:
         [rule_columns(r, defer) for r in rules],
         is_named=True,
         heatmaps=True,
-        needs_priors=any(r.priors_alpha for r in rules),
+        needs_priors=needs_priors(rules),
         rules=rules,
     )

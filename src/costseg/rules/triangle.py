@@ -16,7 +16,7 @@ import torch
 from costseg.classes import CLASS_NAMES
 from costseg.costs import barycentric_grid, cost_or_symmetric, rescale
 from costseg.decision import decide_mixtures
-from costseg.rules.base import RuleGroup
+from costseg.rules.base import RuleGroup, needs_priors
 from costseg.rules.named import parse_rules
 
 WEIGHT_COLUMNS = ("alpha", "beta", "gamma")
@@ -44,7 +44,7 @@ def vertex_matrices(
     if scaling not in ("none", "mean"):
         raise ValueError(f"vertex scaling must be 'none' or 'mean', got {scaling!r}")
     rules = parse_rules(names, class_names)
-    if any(r.priors_alpha for r in rules):
+    if needs_priors(rules):
         raise ValueError("'ml' uses pixel-wise priors and is no matrix: it cannot be a vertex")
     if any(r.defers for r in rules):
         raise ValueError("a vertex of the triangle cannot have a defer row (it is an N x N cost)")

@@ -6,8 +6,6 @@
 from __future__ import annotations
 
 import contextlib
-import hashlib
-import json
 import logging
 import shutil
 import sys
@@ -275,29 +273,22 @@ def _compute_priors(model: SegmentationModule, data, trainer: Trainer) -> torch.
 
     They are computed once per data settings and kept in ``<save_dir>/priors_cache/`` (the
     logger's folder, e.g. ``runs/``); delete a file there to count its labels again."""
-    from costseg.data.priors_cache import cached_priors
+    from costseg.data.priors_cache import settings_key, training_priors
     from costseg.report.files import save_figure
     from costseg.report.priors import plot_priors, plot_roi_map
 
     settings = {"data": type(data).__qualname__, **data.hparams}
-    key = hashlib.sha1(json.dumps(settings, sort_keys=True, default=str).encode()).hexdigest()
     save_dir = getattr(trainer.logger, "save_dir", None)
     with tempfile.TemporaryDirectory() as scratch:  # no logger folder (fast_dev_run): no cache
-        found = cached_priors(
+        found = training_priors(
             data.prior_labels,
-            Path(save_dir or scratch) / "priors_cache" / f"{key[:12]}.pt",
+            Path(save_dir or scratch) / "priors_cache" / f"{settings_key(settings)}.pt",
             settings,
             num_classes=data.num_classes,
             sigma=model.hparams.prior_sigma,
             class_names=data.class_names,
         )
-    verb = "reused" if found.reused else "computed"
-    print(f"priors {verb} from {found.num_labels} training labels (σ = {found.sigma:g} px)")
-    model.priors_info = {
-        "labels": found.num_labels,
-        "sigma_px": found.sigma,
-        "size": list(found.priors.shape[1:]),
-    }
+    model.priors_info = found.record | {"size": list(found.priors.shape[1:])}
     if trainer.is_global_zero and trainer.log_dir:
         run = Path(trainer.log_dir)
         save_priors(run / "priors.pt", found.priors, data.class_names)
