@@ -1,4 +1,5 @@
-"""Confusion cost matrices: load, validate, build (symmetric, aggregates, sky), mix, grid.
+"""Confusion cost matrices: load, validate, build (symmetric, aggregates, sky), mix, grid; the
+class weights of a matrix.
 
 A cost matrix ``C`` is (N, N) with **rows = predicted class, columns = true class**
 (docs/definitions.md §1), or (N + 1, N) with a last row of defer costs ``c_defer[j] >= 0``, the
@@ -226,6 +227,27 @@ def off_diagonal(cost: torch.Tensor) -> torch.Tensor:
     """
     n = cost.shape[-1]
     return cost[..., :n, :][..., ~torch.eye(n, dtype=torch.bool, device=cost.device)]
+
+
+def cost_weights(cost: torch.Tensor) -> torch.Tensor:
+    """Class weights from a cost matrix (rows predicted, columns true): the mean cost of missing
+    class j, ``w_j = mean_{k≠j} C[k, j]`` over the class rows (a defer row counts nowhere),
+    normalised to mean 1 over the classes (docs/definitions.md §16, §18).
+
+    Args:
+        cost: (N, N) matrix, or (N + 1, N) with a defer row.
+
+    Returns:
+        (N,) weights of ``cost``'s dtype.
+
+    >>> cost = torch.tensor([[0, 1, 3], [1, 0, 3], [1, 1, 0]], dtype=torch.float64)
+    >>> [round(w, 6) for w in cost_weights(cost).tolist()]
+    [0.6, 0.6, 1.8]
+    """
+    n = cost.shape[-1]
+    off = ~torch.eye(n, dtype=torch.bool, device=cost.device)
+    missing = (cost[:n] * off).sum(0) / (n - 1)
+    return missing / missing.mean()
 
 
 def cost_or_symmetric(cost: torch.Tensor | None, n: int) -> torch.Tensor:

@@ -32,7 +32,7 @@ import torch.distributed as dist
 from torch import Tensor, nn
 
 from costseg.classes import IGNORE_INDEX
-from costseg.costs import has_defer_row, load_cost, rescale
+from costseg.costs import cost_weights, has_defer_row, load_cost, rescale
 
 __all__ = [
     "CrossEntropy",
@@ -135,20 +135,6 @@ class CrossEntropy(SegmentationLoss):
     def forward(self, logits: Tensor, labels: Tensor, priors: Tensor | None = None) -> LossSums:
         nll, valid, _ = _nll(logits, labels)
         return _sums(nll.sum(), valid, nll)
-
-
-def cost_weights(cost: Tensor) -> Tensor:
-    """Class weights from a cost matrix (rows predicted, columns true): the mean cost of missing
-    class j, ``w_j = mean_{k≠j} C[k, j]``, normalised to mean 1 over the classes.
-
-    >>> cost = torch.tensor([[0, 1, 3], [1, 0, 3], [1, 1, 0]], dtype=torch.float64)
-    >>> [round(w, 6) for w in cost_weights(cost).tolist()]
-    [0.6, 0.6, 1.8]
-    """
-    n = cost.shape[-1]
-    off = ~torch.eye(n, dtype=torch.bool)
-    missing = (cost[:n] * off).sum(0) / (n - 1)
-    return missing / missing.mean()
 
 
 class WeightedCrossEntropy(SegmentationLoss):
