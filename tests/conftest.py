@@ -127,7 +127,8 @@ EVERY_OUTPUT = [
     ["--cost", "robotistic", "ml", "--calibrate", "temperature", "--temperature_sweep",
      "--sweep", "0.5", "--alpha_sweep", "0.5", "--defer_sweep", "0.2", "0.6", "0.2",
      "--meta", "--meta_split", "train", "--meta_images", "6", "--fuse", "ml", "--fuse_tau", "0",
-     "1", "--save-segments", "--save-predictions", "--save-probs", "--explorer"],
+     "1", "--save-segments", "--save-predictions", "--save-probs", "--explorer", "--conformal",
+     "0.3"],
     ["--cost", "robotistic", "--anomalies", "--shift", "fog:2"],
 ]  # fmt: skip
 """Options of the evaluations of ``every_output``: together, every figure and most files."""

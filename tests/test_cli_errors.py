@@ -121,6 +121,19 @@ EVALUATE_CASES = {
     "probs folder missing": (["--probs", "somewhere"], ["--probs folder not found"], False),
     "probs without data": (["--probs", str(TESTS)], ["--probs needs --data_root"], False),
     "missing data root": (["--data_root", "no/such/cityscapes"], ["no/such/cityscapes"]),
+    "conformal alpha of one": (["--conformal", "1"], ["--conformal", "(0, 1)"]),
+    "conformal options without it": (
+        ["--conformal_sets", "aps"],
+        ["--conformal_sets goes with --conformal"],
+    ),
+    "conformal tau without binary loss": (
+        ["--conformal", "0.1", "--conformal_tau", "0.8"],
+        ["--conformal_tau goes with --conformal_loss binary"],
+    ),
+    "conformal roi out of range": (
+        ["--conformal", "0.1", "--conformal_roi", "7"],
+        ["--conformal_roi must be a RoI id 1-4"],
+    ),
 }
 
 

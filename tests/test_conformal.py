@@ -5,6 +5,7 @@ simulation."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -292,3 +293,59 @@ def test_bad_inputs_are_refused_with_a_clear_message():
         crc_threshold(np.array([[np.nan, 0.0]]), [0.0, 1.0], 0.1)
     with pytest.raises(ValueError, match="losses must lie in"):
         crc_threshold(np.array([[1.5, 0.0]]), [0.0, 1.0], 0.1)
+
+
+def test_evaluate_conformal_matches_a_brute_force_scan(cityscapes_root, tmp_path):
+    """``evaluate.py --conformal``: λ̂ from the held-out split and the reported images' loss, set
+    sizes and coverage equal a scan of the grid written from the definitions, on saved
+    probabilities (the altruistic anchor is not the argmax)."""
+    from costseg.cli import evaluate_main
+    from costseg.data.cityscapes import CityscapesSegmentation
+    from costseg.decision import decide_reference
+    from costseg.networks.probs_files import load_probs, save_probs
+    from tests.conftest import CITYSCAPES_FILES, CITYSCAPES_SIZE
+
+    generator = torch.Generator().manual_seed(0)
+    folder = tmp_path / "probs"
+    for names in CITYSCAPES_FILES.values():
+        for name in names:
+            logits = 3 * torch.randn(19, *CITYSCAPES_SIZE, generator=generator)
+            save_probs(folder / f"{name}.npz", logits.softmax(0))
+    out, alpha = tmp_path / "out", 0.4
+    args = ["--probs", str(folder), "--data_root", str(cityscapes_root), "--no-progress"]
+    args += ["--cost", "robotistic", "altruistic", "--calibration_split", "train"]
+    evaluate_main([*args, "--conformal", str(alpha), "--output_dir", str(out)])
+    record = json.loads((out / "results.json").read_text())["conformal"]["rules"]
+
+    grid = np.linspace(0, 1, 1001)
+    altruistic = load_cost("altruistic")
+
+    def pixels_of(split: str):
+        data = CityscapesSegmentation(cityscapes_root, split)
+        for i, name in enumerate(CITYSCAPES_FILES[split]):
+            probs = load_probs(folder / f"{name}.npz").double()
+            yield probs.numpy(), data[i][1].numpy()
+
+    def losses(split, cost, lams):  # (images, λ): share of labelled pixels not in the set
+        out_ = []
+        for p, y in pixels_of(split):
+            d = decide_reference(torch.from_numpy(p)[None], cost)[0].numpy()
+            keep = y != 255
+            p_y = np.take_along_axis(p, np.where(keep, y, 0)[None], 0)[0][keep]
+            anchored = (d == y)[keep]
+            out_.append([1 - np.mean(anchored | (p_y >= 1 - lam)) for lam in lams])
+        return np.array(out_)
+
+    for name, cost in (("robotistic", None), ("altruistic", altruistic)):
+        risk = losses("train", cost, grid).mean(0)
+        n = len(CITYSCAPES_FILES["train"])
+        lam = grid[np.flatnonzero(n / (n + 1) * risk + 1 / (n + 1) <= alpha)[0]]
+        assert record[name]["lambda"] == pytest.approx(lam) and record[name]["reached"]
+        reported = losses("val", cost, [lam])[:, 0].mean()
+        assert record[name]["reported_loss"] == pytest.approx(reported, abs=1e-9)
+        sizes = []
+        for p, y in pixels_of("val"):
+            d = decide_reference(torch.from_numpy(p)[None], cost)[0].numpy()
+            sets = (p >= 1 - lam) | (np.arange(19)[:, None, None] == d)
+            sizes.append(sets.sum(0)[y != 255])
+        assert record[name]["mean_set_size"]["image"] == pytest.approx(np.concatenate(sizes).mean())

@@ -243,6 +243,7 @@ def build_parser(options: type, prog: str, description: str) -> argparse.Argumen
         meta = dict(f.metadata)
         title = meta.pop("group", None)
         meta.pop("candidates", None)
+        meta.pop("needs", None)
         if title not in groups:
             groups[title] = parser.add_argument_group(title)
         flag = meta.pop("flag", f"--{f.name}")

@@ -142,7 +142,8 @@ def option(default: Any = None, help: str | None = None, **metadata: Any) -> Any
         **metadata: ``flag`` (default ``--<name>``), ``type`` (a value type such as
             :func:`whole_number`), ``nargs``, ``metavar``, ``group`` (an argument group's title),
             ``candidates=True`` (the option builds a rule group whose rules ``--target`` and
-            ``--guarantee`` choose among: :func:`candidate_flags`).
+            ``--guarantee`` choose among: :func:`candidate_flags`), ``needs`` (the option that
+            must be given for this one to mean anything: :func:`check_needs`).
     """
     metadata["help"] = help
     if isinstance(default, list):
@@ -419,6 +420,7 @@ class EvalOptions(SourceOptions):
         "how a set grows with λ: lac (every class with p >= 1 - λ) or aps (classes by "
         "decreasing p until their mass exceeds λ)",
         group=CONFORMAL,
+        needs="conformal",
     )
     conformal_loss: Literal["uniform", "cost", "binary"] = option(
         "uniform",
@@ -426,16 +428,35 @@ class EvalOptions(SourceOptions):
         "(uniform), each weighted by the anchor rule's mean cost of missing its class (cost), "
         "or 1 when the covered share is below --conformal_tau (binary)",
         group=CONFORMAL,
+        needs="conformal",
     )
     conformal_tau: float = option(
-        0.9, "the covered share of --conformal_loss binary", type=fraction, group=CONFORMAL
+        0.9,
+        "the covered share of --conformal_loss binary",
+        type=fraction,
+        group=CONFORMAL,
+        needs="conformal",
     )
     conformal_roi: int | None = option(
         help="count only the pixels of this RoI (1 = street, 2 = sidewalk) in the loss",
         type=whole_number(0),
         metavar="R",
         group=CONFORMAL,
+        needs="conformal",
     )
+
+
+def check_needs(opts: Any) -> None:
+    """ValueError when an option is given without the option it ``needs`` (its metadata).
+
+    >>> check_needs(EvalOptions(conformal_sets="aps"))
+    Traceback (most recent call last):
+    ValueError: --conformal_sets goes with --conformal
+    """
+    for f in dataclasses.fields(opts):
+        needed = f.metadata.get("needs")
+        if needed and changed(opts, [f.name]) and not changed(opts, [needed]):
+            raise ValueError(f"{changed(opts, [f.name])[0]} goes with --{needed}")
 
 
 def candidate_flags() -> str:

@@ -15,11 +15,12 @@ from costseg.calibration.guarantee import minimum_images, tests_sharing_delta
 from costseg.classes import CLASS_NAMES, INSTANCE_CLASSES, class_indices
 from costseg.data.from_config import same_data
 from costseg.data.priors import check_priors_file
+from costseg.evaluation.analyses import check_analyses
 from costseg.metrics.selection import parse_metric, parse_target, risk_level
 from costseg.networks.probs_files import DATA_RECORD, records_its_data
 from costseg.networks.protocols import OPTIONS, Protocol
 from costseg.networks.sources import resolve_device
-from costseg.options import EvalOptions, candidate_flags, changed
+from costseg.options import EvalOptions, candidate_flags, changed, check_needs
 from costseg.report.outputs import check_free
 from costseg.rules import (
     TEMPERATURES,
@@ -38,6 +39,7 @@ def check_options(opts: EvalOptions) -> list[RuleGroup]:
     """Fail on malformed or contradictory options; returns the rule groups they ask for."""
     class_indices(opts.classes)
     resolve_device(opts.device)
+    check_needs(opts)
     if opts.probs is not None and (opts.ckpt_path is not None or opts.network is not None):
         raise ValueError("--probs replaces the network: give it without --ckpt_path and --network")
     if opts.probs is not None and not Path(opts.probs).is_dir():
@@ -72,6 +74,7 @@ def check_options(opts: EvalOptions) -> list[RuleGroup]:
     check_selection(opts, groups)
     _check_calibration(opts)
     _check_priors(opts, groups)
+    check_analyses(opts)
     if opts.output_dir is not None:
         check_free(opts.output_dir, opts.overwrite)
     return groups
@@ -169,9 +172,11 @@ def _check_calibration(opts: EvalOptions) -> None:
     if opts.calibrate not in (None, "temperature", "vector"):
         raise ValueError(f"--calibrate must be temperature or vector, got {opts.calibrate!r}")
     if opts.calibration_split is not None:
-        if not (opts.calibrate or opts.guarantee is not None or opts.meta or opts.fuse):
+        held_out = opts.calibrate or opts.guarantee is not None or opts.conformal is not None
+        if not (held_out or opts.meta or opts.fuse):
             raise ValueError(
-                "--calibration_split goes with --calibrate, --guarantee, --meta or --fuse"
+                "--calibration_split goes with --calibrate, --guarantee, --conformal, --meta or "
+                "--fuse"
             )
         if opts.calibration_split == opts.split:
             raise ValueError(

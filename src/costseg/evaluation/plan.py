@@ -177,7 +177,8 @@ def _shifts(opts: EvalOptions) -> list[Shift]:
 def _split_calibration(opts: EvalOptions, images: Images, count: int):
     """(reported indices, calibration (dataset, indices) or None), disjoint by construction."""
     meta_held_out = (opts.meta or opts.fuse) and opts.meta_split is None
-    if not (opts.calibrate or opts.guarantee is not None or meta_held_out):
+    held_out = opts.calibrate or opts.guarantee is not None or opts.conformal is not None
+    if not (held_out or meta_held_out):
         return list(range(count)), None
     if opts.calibration_split is not None:
         held = images.split(opts.calibration_split)

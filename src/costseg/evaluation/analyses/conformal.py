@@ -1,0 +1,139 @@
+"""``--conformal ALPHA``: prediction sets anchored on each named rule's decision, their λ chosen
+by conformal risk control on the held-out images so that the expected loss on new images is at
+most α (docs/definitions.md §18); on the reported images their loss, sizes and coverage."""
+
+from __future__ import annotations
+
+import torch
+import torch.distributed as dist
+
+from costseg.calibration.conformal import (
+    RiskControl,
+    SetCounts,
+    binary_losses,
+    class_weights,
+    conformity_scores,
+    crc_threshold,
+    image_losses,
+    label_thresholds,
+    lambda_grid,
+)
+from costseg.classes import CLASS_NAMES, NUM_ROIS, ROI_NAMES
+from costseg.evaluation.analyses import Analysis, Seen
+from costseg.options import EvalOptions, changed
+from costseg.report.conformal import ConformalOutputs, RuleSets
+from costseg.rules import named_group
+
+
+class Conformal(Analysis):
+    @staticmethod
+    def check(opts: EvalOptions) -> None:
+        if opts.conformal_loss != "binary" and changed(opts, ["conformal_tau"]):
+            raise ValueError("--conformal_tau goes with --conformal_loss binary")
+        if opts.conformal_roi is not None and not 1 <= opts.conformal_roi < len(ROI_NAMES):
+            raise ValueError(
+                f"--conformal_roi must be a RoI id 1-{len(ROI_NAMES) - 1} "
+                f"({', '.join(ROI_NAMES[1:])}), got {opts.conformal_roi}"
+            )
+
+    def fit(self) -> None:
+        self.rules = named_group(self.context.plan.groups).rules
+        self.grid = lambda_grid()
+        losses = [[] for _ in self.rules]
+        with torch.inference_mode():
+            for batch in self.context.held_out.batches("conformal risk control"):
+                seen = self._decided(batch)
+                for k, loss in enumerate(self._losses(seen, self.grid)):
+                    losses[k].append(loss.cpu())
+        self.control: list[RiskControl] = [
+            crc_threshold(torch.cat(mine).numpy(), self.grid.numpy(), self.opts.conformal)
+            for mine in losses
+        ]
+
+    def start(self) -> None:
+        device = self.context.plan.device
+        self.counts = [SetCounts.zeros(len(CLASS_NAMES), NUM_ROIS, device) for _ in self.rules]
+        self.reported = [[] for _ in self.rules]
+        self.example = None
+
+    def process(self, seen: Seen) -> None:
+        labels = seen.batch.labels
+        for k, (control, counts) in enumerate(zip(self.control, self.counts, strict=True)):
+            scores = conformity_scores(seen.probs, seen.named[:, k], self.opts.conformal_sets)
+            counts.add(scores, labels, control.lam, seen.roi)
+            lam = torch.tensor([control.lam], dtype=torch.float64)
+            self.reported[k].append(self._loss(scores, labels, seen.roi, lam, k).cpu())
+        if self.example is None:
+            sets = [
+                (conformity_scores(seen.probs[:1], seen.named[:1, k], self.opts.conformal_sets)
+                 <= c.lam).sum(1)[0].cpu()
+                for k, c in enumerate(self.control)
+            ]  # fmt: skip
+            self.example = (seen.batch.images[0].cpu(), seen.batch.stems[0], sets)
+
+    def result(self) -> ConformalOutputs:
+        rules = []
+        for rule, control, counts, losses in zip(
+            self.rules, self.control, self.counts, self.reported, strict=True
+        ):
+            losses = torch.cat(losses)[:, 0]
+            if dist.is_available() and dist.is_initialized():  # every process's images
+                for tensor in (counts.pixels, counts.covered, counts.sizes, counts.singletons):
+                    dist.all_reduce(tensor)
+                losses = _gathered(losses)
+            rules.append(RuleSets(rule.name, control, counts, losses))
+        return ConformalOutputs(
+            self.opts.conformal, self._describe(), self.grid, rules, self.example
+        )
+
+    def _decided(self, batch) -> Seen:
+        """A held-out batch's probabilities and the named rules' decisions."""
+        plan = self.context.plan
+        probs = self.context.probabilities(batch)
+        priors, roi = plan.priors.at(tuple(batch.labels.shape[-2:]))
+        preds = named_group(plan.groups).decide(probs, priors)
+        return Seen(batch, probs, [preds], priors, roi, probs, self.context)
+
+    def _losses(self, seen: Seen, grid: torch.Tensor) -> list[torch.Tensor]:
+        """Per named rule, the (B, L) losses of the batch's images on ``grid``."""
+        kind, labels = self.opts.conformal_sets, seen.batch.labels
+        return [
+            self._loss(conformity_scores(seen.probs, seen.preds[0][:, k], kind), labels,
+                       seen.roi, grid, k)
+            for k in range(len(self.rules))
+        ]  # fmt: skip
+
+    def _loss(self, scores, labels, roi, grid, k: int) -> torch.Tensor:
+        """(B, L) losses of rule k's sets (conformity ``scores``) at each λ of ``grid``."""
+        opts = self.opts
+        thresholds = label_thresholds(scores, labels)
+        mask = None if opts.conformal_roi is None or roi is None else roi == opts.conformal_roi
+        if mask is not None:
+            mask = mask.expand_as(labels)
+        cost = self.rules[k].cost if opts.conformal_loss == "cost" else None
+        weights = class_weights(None if cost is None else cost.to(scores.device))
+        grid = grid.to(scores.device)
+        if opts.conformal_loss == "binary":
+            return binary_losses(thresholds, labels, grid, opts.conformal_tau, mask)
+        return image_losses(thresholds, labels, grid, weights.to(scores.device), mask)
+
+    def _describe(self) -> str:
+        opts = self.opts
+        loss = {
+            "uniform": "the share of labelled pixels whose class is not in the set",
+            "cost": "the share of labelled pixels whose class is not in the set, each weighted "
+            "by the anchor rule's mean cost of missing its class",
+            "binary": f"1 when less than {opts.conformal_tau:g} of the labelled pixels are covered",
+        }[opts.conformal_loss]
+        where = "" if opts.conformal_roi is None else f" in RoI {opts.conformal_roi}"
+        return f"{opts.conformal_sets.upper()} sets; loss of an image: {loss}{where}"
+
+
+def _gathered(values: torch.Tensor) -> torch.Tensor:
+    """``values`` of every process, concatenated."""
+    parts = [None] * dist.get_world_size()
+    dist.all_gather_object(parts, values)
+    return torch.cat(parts)
+
+
+ANALYSIS = Conformal
