@@ -20,14 +20,13 @@ import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     import torch
 
     from costseg.calibration.scaling import Scaling
     from costseg.evaluation.held_out import HeldOut
-    from costseg.evaluation.plan import EvalPlan
     from costseg.networks.sources import Batch
     from costseg.options import EvalOptions
     from costseg.report.early_figures import EarlyFigures
@@ -136,7 +135,7 @@ class Context:
     """What the analyses of one evaluation share: the plan, the fitted scaling, the held-out
     images (one pass of the network, kept), and the results written so far."""
 
-    plan: EvalPlan
+    plan: Any  # the EvalPlan (evaluation/plan.py, which imports this module's checks)
     scaling: Scaling
     held_out: HeldOut | None = None  # the calibration images
     meta_held_out: HeldOut | None = None  # the meta models' images (often the same object)
