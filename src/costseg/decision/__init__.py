@@ -18,7 +18,7 @@ as the last candidate (§14). Read in this order:
 from costseg.decision.api import decide, decide_mixtures
 from costseg.decision.dispatch import explain
 from costseg.decision.label_maps import DEFERRED
-from costseg.decision.reference import decide_mixtures_reference, decide_reference
+from costseg.decision.reference import decide_mixtures_reference, decide_reference, expected_costs
 
 __all__ = [
     "DEFERRED",
@@ -26,5 +26,6 @@ __all__ = [
     "decide_mixtures",
     "decide_mixtures_reference",
     "decide_reference",
+    "expected_costs",
     "explain",
 ]

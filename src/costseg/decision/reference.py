@@ -108,3 +108,21 @@ def reference_labels(q: torch.Tensor, shifted: torch.Tensor) -> torch.Tensor:
     for k in range(q.shape[1]):  # ascending k, product and sum each rounded once
         costs = costs + shifted[..., k] * q[:, k, None]  # broadcasts to (..., R, M)
     return costs.min(-1).indices  # the first minimum: ties to the lowest index
+
+
+def expected_costs(
+    probs: torch.Tensor, cost: torch.Tensor | None = None, priors: torch.Tensor | None = None
+) -> torch.Tensor:
+    """(B, K, H, W) float64 expected cost ``Σ_k C[k', k] q_k`` of each decision k' (the rows of
+    ``cost``, a defer row last; None: symmetric), with ``q = p / π`` (``priors``: None, (N,) or
+    (N, H, W)). The rule decides the row of least expected cost (docs/definitions.md §1).
+
+    >>> p = torch.tensor([0.5, 0.25, 0.25]).view(1, 3, 1, 1)
+    >>> expected_costs(p).flatten().tolist()
+    [0.5, 0.75, 0.75]
+    """
+    q = probs.double()
+    if priors is not None:
+        q = q / priors.to(q)
+    cost = cost_or_symmetric(cost, probs.shape[1]).to(q)
+    return torch.einsum("jk,bkhw->bjhw", cost, q)

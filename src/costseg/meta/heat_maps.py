@@ -24,6 +24,7 @@ import torch
 from torch import Tensor
 
 from costseg.costs import cost_or_symmetric, off_diagonal
+from costseg.decision import expected_costs
 from costseg.networks.uncertainty import entropy
 from costseg.rules.base import Rule, adapted_priors, given_priors
 
@@ -62,13 +63,10 @@ def cost_margin(probs: Tensor, rule: Rule, priors: Tensor | None = None) -> Tens
     Expected costs are ``Σ_k C[k', k] q_k`` for each decision k' (rows of C: the predicted class,
     a defer row last), with ``q = p / π_α`` for a rule with priors, else ``q = p``.
     """
-    n = probs.shape[1]
-    cost = cost_or_symmetric(rule.cost, n)
-    cost = cost.to(probs.device, torch.float64)
-    q = probs.double()
+    pi = None
     if rule.priors_alpha:
         pi = given_priors(priors, f"the rule {rule.name}")
-        q = q / adapted_priors(pi.to(q), rule.priors_alpha)
-    expected = torch.einsum("jk,bkhw->bjhw", cost, q)
-    low = expected.topk(2, dim=1, largest=False).values
-    return ((low[:, 1] - low[:, 0]) / off_diagonal(cost).max()).float()
+        pi = adapted_priors(pi.double(), rule.priors_alpha)
+    low = expected_costs(probs, rule.cost, pi).topk(2, dim=1, largest=False).values
+    largest = off_diagonal(cost_or_symmetric(rule.cost, probs.shape[1])).max()
+    return ((low[:, 1] - low[:, 0]) / largest.to(low)).float()
