@@ -132,7 +132,7 @@ EVALUATE_CASES = {
     ),
     "conformal roi out of range": (
         ["--conformal", "0.1", "--conformal_roi", "7"],
-        ["--conformal_roi must be a RoI id 1-4"],
+        ["--conformal_roi", "invalid choice: 7"],
     ),
 }
 

@@ -268,6 +268,8 @@ def _argument(default: Any, hint: Any, meta: dict[str, Any]) -> dict[str, Any]:
         kind = list(typing.get_args(kind[0]))
     if typing.get_origin(kind[0]) is typing.Literal:
         meta["choices"] = typing.get_args(kind[0])
+        if all(isinstance(c, int) for c in meta["choices"]):
+            meta.setdefault("type", int)
     elif kind[0] in (int, float):
         meta.setdefault("type", kind[0])
     return meta

@@ -435,11 +435,11 @@ class EvalOptions(SourceOptions):
         "the covered share of --conformal_loss binary",
         type=fraction,
         group=CONFORMAL,
-        needs="conformal",
+        needs="conformal_loss=binary",
     )
-    conformal_roi: int | None = option(
-        help="count only the pixels of this RoI (1 = street, 2 = sidewalk) in the loss",
-        type=whole_number(0),
+    conformal_roi: Literal[1, 2, 3, 4] | None = option(
+        help="count only the pixels of this RoI in the loss (1 street, 2 sidewalk, 3 building, "
+        "4 sky: docs/definitions.md §3)",
         metavar="R",
         group=CONFORMAL,
         needs="conformal",
@@ -447,16 +447,23 @@ class EvalOptions(SourceOptions):
 
 
 def check_needs(opts: Any) -> None:
-    """ValueError when an option is given without the option it ``needs`` (its metadata).
+    """ValueError when an option is given without the option it ``needs`` (its metadata: a
+    field's name, or ``name=value``).
 
     >>> check_needs(EvalOptions(conformal_sets="aps"))
     Traceback (most recent call last):
     ValueError: --conformal_sets goes with --conformal
+    >>> check_needs(EvalOptions(conformal=0.1, conformal_tau=0.8))
+    Traceback (most recent call last):
+    ValueError: --conformal_tau goes with --conformal_loss binary
     """
     for f in dataclasses.fields(opts):
-        needed = f.metadata.get("needs")
-        if needed and changed(opts, [f.name]) and not changed(opts, [needed]):
-            raise ValueError(f"{changed(opts, [f.name])[0]} goes with --{needed}")
+        name, _, value = f.metadata.get("needs", "").partition("=")
+        if not name or not changed(opts, [f.name]):
+            continue
+        if (str(getattr(opts, name)) != value) if value else not changed(opts, [name]):
+            flag = changed(opts, [f.name])[0]
+            raise ValueError(f"{flag} goes with --{name}" + (f" {value}" if value else ""))
 
 
 def candidate_flags() -> str:

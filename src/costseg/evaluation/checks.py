@@ -15,7 +15,6 @@ from costseg.calibration.guarantee import minimum_images, tests_sharing_delta
 from costseg.classes import CLASS_NAMES, INSTANCE_CLASSES, class_indices
 from costseg.data.from_config import same_data
 from costseg.data.priors import check_priors_file
-from costseg.evaluation.analyses import check_analyses
 from costseg.metrics.selection import parse_metric, parse_target, risk_level
 from costseg.networks.probs_files import DATA_RECORD, records_its_data
 from costseg.networks.protocols import OPTIONS, Protocol
@@ -74,7 +73,6 @@ def check_options(opts: EvalOptions) -> list[RuleGroup]:
     check_selection(opts, groups)
     _check_calibration(opts)
     _check_priors(opts, groups)
-    check_analyses(opts)
     if opts.output_dir is not None:
         check_free(opts.output_dir, opts.overwrite)
     return groups

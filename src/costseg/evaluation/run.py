@@ -8,10 +8,13 @@ metrics' sums of all processes are merged.
 
 from __future__ import annotations
 
+import threading
+
 import torch.distributed as dist
 from torch.utils.data import Dataset
 
 from costseg import workers
+from costseg.evaluation.analyses import import_analyses
 from costseg.evaluation.loop import close_held_out, run
 from costseg.evaluation.plan import EvalPlan, plan, rank
 from costseg.networks.sources import Source
@@ -32,6 +35,8 @@ def evaluate(
     folder is marked ``INCOMPLETE`` until every file is written; an interrupt or a failed write
     says where the partial outputs are."""
     workers.start()
+    prepare = threading.Thread(target=import_analyses, args=(opts,), daemon=True)
+    prepare.start()  # their imports (torchmetrics, the reports) overlap the network's loading
     planned = plan(opts, source, dataset)
     try:
         if len(planned.shifts) > 1:

@@ -80,10 +80,10 @@ def analysis_class(entry: Entry) -> type[Analysis]:
     return importlib.import_module(f"{__name__}.{entry.module}").ANALYSIS
 
 
-def check_analyses(opts: EvalOptions) -> None:
-    """Every wanted analysis's own option checks (no heavy work: before the network loads)."""
+def import_analyses(opts: EvalOptions) -> None:
+    """Import the modules of the wanted analyses (and what they import)."""
     for entry in wanted(opts):
-        analysis_class(entry).check(opts)
+        analysis_class(entry)
 
 
 @dataclass(eq=False)
@@ -166,11 +166,6 @@ class Analysis:
         self.context = context
         self.opts = context.plan.options
 
-    @staticmethod
-    def check(opts: EvalOptions) -> None:
-        """ValueError (one line) on a bad combination of this analysis's options; called
-        before anything heavy, without the plan."""
-
     every_entropy: bool = False
     """Whether :meth:`process` needs the expected entropy of a source of several runs on every
     reported image (else on the first ``--num_examples``: each costs a pass per run)."""
@@ -196,7 +191,7 @@ __all__ = [
     "Entry",
     "Seen",
     "analysis_class",
-    "check_analyses",
+    "import_analyses",
     "null_keys",
     "wanted",
 ]

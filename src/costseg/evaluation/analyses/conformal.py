@@ -18,24 +18,13 @@ from costseg.calibration.conformal import (
     label_thresholds,
     lambda_grid,
 )
-from costseg.classes import CLASS_NAMES, NUM_ROIS, ROI_NAMES
+from costseg.classes import CLASS_NAMES, NUM_ROIS
 from costseg.evaluation.analyses import Analysis, Seen
-from costseg.options import EvalOptions, changed
 from costseg.report.conformal import ConformalOutputs, RuleSets
 from costseg.rules import named_group
 
 
 class Conformal(Analysis):
-    @staticmethod
-    def check(opts: EvalOptions) -> None:
-        if opts.conformal_loss != "binary" and changed(opts, ["conformal_tau"]):
-            raise ValueError("--conformal_tau goes with --conformal_loss binary")
-        if opts.conformal_roi is not None and not 1 <= opts.conformal_roi < len(ROI_NAMES):
-            raise ValueError(
-                f"--conformal_roi must be a RoI id 1-{len(ROI_NAMES) - 1} "
-                f"({', '.join(ROI_NAMES[1:])}), got {opts.conformal_roi}"
-            )
-
     def fit(self) -> None:
         self.rules = named_group(self.context.plan.groups).rules
         self.grid = lambda_grid()
