@@ -65,3 +65,25 @@ def test_guarantee_on_a_disjoint_calibration_split(ckpt, tmp_path, capsys):
         assert "certified for person:roi0:recall>=0.5" in printed
     else:
         assert record["certified"] == [] and "no value system is certified" in printed
+
+
+def test_each_image_goes_through_the_network_once(ckpt, tmp_path, monkeypatch):
+    """--calibrate, --meta, --guarantee and --conformal all fit on the held-out images, which the
+    network scores once; the reported images are scored once too."""
+    from collections import Counter
+
+    from costseg.networks.sources import Source
+
+    seen, original = Counter(), Source.scores
+
+    def counted(self, images, stems, *args, **kwargs):  # scores_and_entropy calls it too
+        seen.update(stems)
+        return original(self, images, stems, *args, **kwargs)
+
+    monkeypatch.setattr(Source, "scores", counted)
+    args = ["--ckpt_path", ckpt, "--cost", "robotistic", "--sweep", "0.5", "--no-progress"]
+    args += ["--target", "person:roi0:recall>=0.5", "--maximize", "person:roi0:precision"]
+    args += ["--calibrate", "temperature", "--meta", "--conformal", "0.3", "--guarantee", "0.5"]
+    evaluate_main([*args, "--calibration_split", "train", "--output_dir", str(tmp_path / "o")])
+    assert len(seen) == 8 + 3  # the train split held out, the val split reported
+    assert set(seen.values()) == {1}
