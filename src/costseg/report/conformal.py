@@ -5,6 +5,7 @@ the held-out images, the set sizes over the first reported image)."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
@@ -142,7 +143,15 @@ class ConformalOutputs(Result):
             f"set size {r['mean_set_size'][ROI_NAMES[0]]:.2f}"
             for name, r in record.items()
         ]
-        return f"conformal sets at α = {self.alpha:g}: " + "; ".join(parts)
+        line = f"conformal sets at α = {self.alpha:g}: " + "; ".join(parts)
+        n = self.rules[0].control.n
+        if not self.rules[0].control.reached:
+            needed = math.ceil(1 / self.alpha - 1)
+            line += (
+                f"\n{n} held-out images cannot meet α = {self.alpha:g} (it takes at least "
+                f"{needed}): every class is in every set; give --calibration_split or a larger α"
+            )
+        return line
 
 
 def _per_class_and_roi(values: torch.Tensor) -> dict[str, dict[str, float]]:
