@@ -15,6 +15,7 @@ from costseg.calibration.guarantee import minimum_images, tests_sharing_delta
 from costseg.classes import CLASS_NAMES, INSTANCE_CLASSES, class_indices
 from costseg.data.from_config import same_data
 from costseg.data.priors import check_priors_file
+from costseg.evaluation.analyses import held_out_flags
 from costseg.metrics.selection import parse_metric, parse_target, risk_level
 from costseg.networks.probs_files import DATA_RECORD, records_its_data
 from costseg.networks.protocols import OPTIONS, Protocol
@@ -170,12 +171,9 @@ def _check_calibration(opts: EvalOptions) -> None:
     if opts.calibrate not in (None, "temperature", "vector"):
         raise ValueError(f"--calibrate must be temperature or vector, got {opts.calibrate!r}")
     if opts.calibration_split is not None:
-        held_out = opts.calibrate or opts.guarantee is not None or opts.conformal is not None
-        if not (held_out or opts.meta or opts.fuse):
-            raise ValueError(
-                "--calibration_split goes with --calibrate, --guarantee, --conformal, --meta or "
-                "--fuse"
-            )
+        if not (held_out_flags(opts) or opts.meta or opts.fuse):
+            flags = ", ".join(held_out_flags())
+            raise ValueError(f"--calibration_split goes with {flags}, --meta or --fuse")
         if opts.calibration_split == opts.split:
             raise ValueError(
                 f"--calibration_split {opts.calibration_split} overlaps the reported split "

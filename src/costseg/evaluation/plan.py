@@ -24,6 +24,7 @@ from costseg.data.from_config import (
     evaluated_data,
 )
 from costseg.data.prior_maps import PriorMaps, heatmap_canvas
+from costseg.evaluation.analyses import held_out_flags
 from costseg.evaluation.checks import (
     check_calibration_size,
     check_options,
@@ -177,8 +178,7 @@ def _shifts(opts: EvalOptions) -> list[Shift]:
 def _split_calibration(opts: EvalOptions, images: Images, count: int):
     """(reported indices, calibration (dataset, indices) or None), disjoint by construction."""
     meta_held_out = (opts.meta or opts.fuse) and opts.meta_split is None
-    held_out = opts.calibrate or opts.guarantee is not None or opts.conformal is not None
-    if not (held_out or meta_held_out):
+    if not (held_out_flags(opts) or meta_held_out):
         return list(range(count)), None
     if opts.calibration_split is not None:
         held = images.split(opts.calibration_split)

@@ -1,7 +1,6 @@
-"""What an evaluation produces, as typed values: per rule group its metrics, and flat rows.
-
-The job (:mod:`costseg.evaluation.run`) fills these; :mod:`costseg.report` writes them. Nothing here
-knows the model, the data loading or Lightning.
+"""What an evaluation produces, as typed values: per rule group its metrics and flat rows, the
+examples, and the result of every analysis (:mod:`costseg.evaluation.analyses` fills them; each
+writes its own outputs). Nothing here knows the model, the data loading or Lightning.
 """
 
 from __future__ import annotations

@@ -36,12 +36,14 @@ if TYPE_CHECKING:
 @dataclass(frozen=True)
 class Entry:
     """One analysis: its module (``costseg.evaluation.analyses.<module>``, which defines
-    ``ANALYSIS``, an :class:`Analysis` subclass), when the options want it, and the results.json
-    keys it leaves null when not run."""
+    ``ANALYSIS``, an :class:`Analysis` subclass), when the options want it, the results.json
+    keys it leaves null when not run, and the flag that asks for it where it fits on held-out
+    images (``--calibration_split``, or the first half of ``--split``)."""
 
     module: str
     wanted: Callable[[EvalOptions], bool]
     absent: tuple[str, ...] = ()
+    held_out: str | None = None
 
 
 def _always(opts: EvalOptions) -> bool:
@@ -51,14 +53,14 @@ def _always(opts: EvalOptions) -> bool:
 ANALYSES: tuple[Entry, ...] = (
     # fit order: the scaling changes the probabilities every later analysis sees; the meta
     # models decide the fused rules the guarantee may certify
-    Entry("scaling", lambda o: o.calibrate is not None, absent=("scaling",)),
+    Entry("scaling", lambda o: o.calibrate is not None, held_out="--calibrate"),
     Entry("metrics", _always),
     Entry("segments", lambda o: bool(o.meta or o.fuse or o.save_segments), absent=("meta",)),
-    Entry("guarantee", lambda o: o.guarantee is not None),
+    Entry("guarantee", lambda o: o.guarantee is not None, held_out="--guarantee"),
     Entry("calibration", _always),
     Entry("saved", lambda o: bool(o.save_probs or o.save_predictions)),
     Entry("anomalies", lambda o: o.anomalies, absent=("anomalies",)),
-    Entry("conformal", lambda o: o.conformal is not None, absent=("conformal",)),
+    Entry("conformal", lambda o: o.conformal is not None, ("conformal",), held_out="--conformal"),
     Entry("examples", _always),
     Entry("explorer", lambda o: o.explorer),
 )
@@ -67,6 +69,11 @@ ANALYSES: tuple[Entry, ...] = (
 def wanted(opts: EvalOptions) -> list[Entry]:
     """The entries of :data:`ANALYSES` that ``opts`` ask for, in the table's order."""
     return [entry for entry in ANALYSES if entry.wanted(opts)]
+
+
+def held_out_flags(opts: EvalOptions | None = None) -> list[str]:
+    """The flags of the analyses that fit on held-out images (those ``opts`` ask for)."""
+    return [e.held_out for e in ANALYSES if e.held_out and (opts is None or e.wanted(opts))]
 
 
 def null_keys(ran: dict[Entry, Result | None]) -> tuple[str, ...]:
@@ -191,6 +198,7 @@ __all__ = [
     "Entry",
     "Seen",
     "analysis_class",
+    "held_out_flags",
     "import_analyses",
     "null_keys",
     "wanted",
