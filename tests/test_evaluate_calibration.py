@@ -1,11 +1,13 @@
 """`evaluate.py --calibrate / --temperature_sweep / --guarantee` end to end on a tiny model."""
 
 import json
+from collections import Counter
 
 import pytest
 
 from costseg.checkpoints import find_checkpoint
 from costseg.cli import evaluate_main
+from costseg.networks.sources import Source
 
 
 @pytest.fixture(scope="module")
@@ -47,13 +49,24 @@ def test_temperature_scaling_and_sweep(ckpt, tmp_path):
     assert (out / "figures" / "temperature_person.png").is_file()
 
 
-def test_guarantee_on_a_disjoint_calibration_split(ckpt, tmp_path, capsys):
+def test_guarantee_on_a_disjoint_calibration_split(ckpt, tmp_path, capsys, monkeypatch):
+    """Learn-then-Test on the train split; with --calibrate, --meta and --conformal, which fit
+    on the same held-out images, every image goes through the network once."""
+    seen, original = Counter(), Source.scores
+
+    def counted(self, images, stems, *args, **kwargs):  # scores_and_entropy calls it too
+        seen.update(stems)
+        return original(self, images, stems, *args, **kwargs)
+
+    monkeypatch.setattr(Source, "scores", counted)
     out = tmp_path / "out"
     args = ["--ckpt_path", ckpt, "--cost", "robotistic", "--sweep", "0.5", "--no-progress"]
     args += ["--target", "person:roi0:recall>=0.5", "--maximize", "person:roi0:precision"]
+    args += ["--calibrate", "temperature", "--meta", "--conformal", "0.3"]
     evaluate_main(
         [*args, "--guarantee", "0.5", "--calibration_split", "train", "--output_dir", str(out)]
     )
+    assert len(seen) == 8 + 3 and set(seen.values()) == {1}  # train held out, val reported
     record = json.loads((out / "guarantee.json").read_text())
     assert record["calibration_images"] == 8 and record["candidates"] == 6
     assert record["alpha"] == pytest.approx(0.5) and record["delta"] == 0.5
@@ -65,25 +78,3 @@ def test_guarantee_on_a_disjoint_calibration_split(ckpt, tmp_path, capsys):
         assert "certified for person:roi0:recall>=0.5" in printed
     else:
         assert record["certified"] == [] and "no value system is certified" in printed
-
-
-def test_each_image_goes_through_the_network_once(ckpt, tmp_path, monkeypatch):
-    """--calibrate, --meta, --guarantee and --conformal all fit on the held-out images, which the
-    network scores once; the reported images are scored once too."""
-    from collections import Counter
-
-    from costseg.networks.sources import Source
-
-    seen, original = Counter(), Source.scores
-
-    def counted(self, images, stems, *args, **kwargs):  # scores_and_entropy calls it too
-        seen.update(stems)
-        return original(self, images, stems, *args, **kwargs)
-
-    monkeypatch.setattr(Source, "scores", counted)
-    args = ["--ckpt_path", ckpt, "--cost", "robotistic", "--sweep", "0.5", "--no-progress"]
-    args += ["--target", "person:roi0:recall>=0.5", "--maximize", "person:roi0:precision"]
-    args += ["--calibrate", "temperature", "--meta", "--conformal", "0.3", "--guarantee", "0.5"]
-    evaluate_main([*args, "--calibration_split", "train", "--output_dir", str(tmp_path / "o")])
-    assert len(seen) == 8 + 3  # the train split held out, the val split reported
-    assert set(seen.values()) == {1}
