@@ -6,8 +6,8 @@ images (kept from their one pass through the network), shows each one every repo
 :class:`Seen` (:meth:`Analysis.process`), and collects their typed results
 (:class:`~costseg.report.sections.Result`), each of which writes its own files and returns its
 share of the shared outputs (results.json keys, a table.md section, figures as picklable jobs,
-TensorBoard). A new capability is its
-module here, its options in :mod:`costseg.options` and one :class:`Entry` below.
+TensorBoard). A new capability is its module here, its result in :mod:`costseg.report`, its
+options in :mod:`costseg.options` and one :class:`Entry` below.
 
 >>> from costseg.options import EvalOptions
 >>> [e.module for e in wanted(EvalOptions(calibrate="temperature"))][:2]
@@ -60,7 +60,12 @@ ANALYSES: tuple[Entry, ...] = (
     Entry("calibration", _always),
     Entry("saved", lambda o: bool(o.save_probs or o.save_predictions)),
     Entry("anomalies", lambda o: o.anomalies, absent=("anomalies",)),
-    Entry("conformal", lambda o: o.conformal is not None, ("conformal",), held_out="--conformal"),
+    Entry(
+        "conformal",
+        lambda o: o.conformal is not None,
+        absent=("conformal",),
+        held_out="--conformal",
+    ),
     Entry("examples", _always),
     Entry("explorer", lambda o: o.explorer),
 )
