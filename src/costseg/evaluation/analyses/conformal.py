@@ -46,19 +46,16 @@ class Conformal(Analysis):
         self.example = None
 
     def process(self, seen: Seen) -> None:
-        labels = seen.batch.labels
+        labels, sizes = seen.batch.labels, []
         for k, (control, counts) in enumerate(zip(self.control, self.counts, strict=True)):
             scores = conformity_scores(seen.probs, seen.named[:, k], self.opts.conformal_sets)
             counts.add(scores, labels, control.lam, seen.roi)
             lam = torch.tensor([control.lam], dtype=torch.float64)
             self.reported[k].append(self._loss(scores, labels, seen.roi, lam, k).cpu())
+            if self.example is None:  # the first image's set sizes, for its figure
+                sizes.append((scores[0] <= control.lam).sum(0).cpu())
         if self.example is None:
-            sets = [
-                (conformity_scores(seen.probs[:1], seen.named[:1, k], self.opts.conformal_sets)
-                 <= c.lam).sum(1)[0].cpu()
-                for k, c in enumerate(self.control)
-            ]  # fmt: skip
-            self.example = (seen.batch.images[0].cpu(), seen.batch.stems[0], sets)
+            self.example = (seen.batch.images[0].cpu(), seen.batch.stems[0], sizes)
 
     def result(self) -> ConformalOutputs:
         rules = []
