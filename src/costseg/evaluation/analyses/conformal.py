@@ -31,8 +31,7 @@ class Conformal(Analysis):
         losses = [[] for _ in self.rules]
         with torch.inference_mode():
             for batch in self.context.held_out.batches("conformal risk control"):
-                seen = self._decided(batch)
-                for k, loss in enumerate(self._losses(seen, self.grid)):
+                for k, loss in enumerate(self._held_out_losses(batch)):
                     losses[k].append(loss.cpu())
         self.control: list[RiskControl] = [
             crc_threshold(torch.cat(mine).numpy(), self.grid.numpy(), self.opts.conformal)
@@ -72,22 +71,16 @@ class Conformal(Analysis):
             self.opts.conformal, self._describe(), self.grid, rules, self.example
         )
 
-    def _decided(self, batch) -> Seen:
-        """A held-out batch's probabilities and the named rules' decisions."""
-        plan = self.context.plan
+    def _held_out_losses(self, batch) -> list[torch.Tensor]:
+        """Per named rule, the (B, L) losses on the grid of a held-out batch's images."""
+        plan, kind = self.context.plan, self.opts.conformal_sets
         probs = self.context.probabilities(batch)
         priors, roi = plan.priors.at(tuple(batch.labels.shape[-2:]))
         preds = named_group(plan.groups).decide(probs, priors)
-        return Seen(batch, probs, [preds], priors, roi, probs, self.context)
-
-    def _losses(self, seen: Seen, grid: torch.Tensor) -> list[torch.Tensor]:
-        """Per named rule, the (B, L) losses of the batch's images on ``grid``."""
-        kind, labels = self.opts.conformal_sets, seen.batch.labels
         return [
-            self._loss(conformity_scores(seen.probs, seen.preds[0][:, k], kind), labels,
-                       seen.roi, grid, k)
+            self._loss(conformity_scores(probs, preds[:, k], kind), batch.labels, roi, self.grid, k)
             for k in range(len(self.rules))
-        ]  # fmt: skip
+        ]
 
     def _loss(self, scores, labels, roi, grid, k: int) -> torch.Tensor:
         """(B, L) losses of rule k's sets (conformity ``scores``) at each λ of ``grid``."""
