@@ -156,6 +156,5 @@ def test_the_fused_rules_drop_the_candidates_the_classifier_distrusts() -> None:
         kept != np.where(labels[1] == person, person, labels[0])
     ).any()
     for p, expected in ((0.9, kept), (0.1, np.where(labels[1] == person, person, labels[0]))):
-        fused = FusedRules(base, (ml,), (0.5,), (person,))
-        fused.use({"ml": _Constant(p)})
+        fused = FusedRules(base, (ml,), (0.5,), (person,)).using({"ml": _Constant(p)})
         np.testing.assert_array_equal(fused(probs, priors)[0, 0].numpy(), expected)

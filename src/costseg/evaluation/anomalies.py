@@ -50,7 +50,8 @@ class AnomalyPass:
     def __init__(self, rules: Sequence[Rule], num_classes: int, num_examples: int) -> None:
         self.rules, self.num_classes, self.num_examples = list(rules), num_classes, num_examples
         self.metric: AnomalyMetrics | None = None
-        self.examples: list[tuple[Tensor, Tensor, dict[str, Tensor]]] = []  # for the figures
+        # for the figures: (position among the reported images, (image, mask, score maps))
+        self.examples: list[tuple[int, tuple[Tensor, Tensor, dict[str, Tensor]]]] = []
 
     def update(
         self,
@@ -60,12 +61,17 @@ class AnomalyPass:
         preds: Tensor,
         priors: Tensor | None,
         expected_entropy: Tensor | None,
+        positions: Sequence[int],
     ) -> None:
-        """``images`` (B, 3, H, W) uint8; ``preds``: (B, R, H, W) the named rules' label maps."""
+        """``images`` (B, 3, H, W) uint8; ``preds``: (B, R, H, W) the named rules' label maps;
+        ``positions``: the images' positions among the reported ones (the first
+        ``num_examples`` are kept for the figures)."""
         scores = anomaly_scores(probs, self.rules, priors, expected_entropy)
-        for i in range(min(len(images), self.num_examples - len(self.examples))):
-            maps = {k: v[i].half().cpu() for k, v in scores.items()}
-            self.examples.append((images[i].permute(1, 2, 0).cpu(), masks[i].cpu(), maps))
+        for i, position in enumerate(positions):
+            if position < self.num_examples:
+                maps = {k: v[i].half().cpu() for k, v in scores.items()}
+                example = (images[i].permute(1, 2, 0).cpu(), masks[i].cpu(), maps)
+                self.examples.append((position, example))
         if self.metric is None:
             self.metric = AnomalyMetrics(list(scores), len(self.rules), self.num_classes)
             self.metric.to(probs.device)

@@ -14,17 +14,11 @@ from typing import TYPE_CHECKING
 import torch
 
 from costseg.calibration.scaling import Scaling
-from costseg.evaluation.analyses import (
-    Analysis,
-    Context,
-    Seen,
-    analysis_class,
-    null_keys,
-    wanted,
-)
+from costseg.evaluation.analyses import Analysis, Context, analysis_class, null_keys, wanted
 from costseg.evaluation.held_out import HeldOut
-from costseg.evaluation.plan import EvalPlan, rank
-from costseg.networks.sources import Batch, batches
+from costseg.evaluation.plan import EvalPlan
+from costseg.evaluation.processes import rank
+from costseg.networks.sources import batches
 from costseg.report.results import EvalResults
 
 if TYPE_CHECKING:
@@ -42,10 +36,15 @@ def run(plan: EvalPlan, early: EarlyFigures | None = None) -> EvalResults:
     for analysis in analyses:
         analysis.start()
     with torch.inference_mode():
+        seen_so_far = 0
         for batch in _reported_batches(plan, analyses):
-            seen = _see(context, batch)
+            positions = plan.positions[seen_so_far : seen_so_far + len(batch.labels)]
+            seen = context.see(batch, positions)
             for analysis in analyses:
                 analysis.process(seen)
+            seen_so_far += len(positions)
+    for analysis in analyses:
+        analysis.gather()
     ran = {e: a.result() for e, a in zip(entries, analyses, strict=True)}
     return EvalResults(
         output_dir=plan.output_dir,
@@ -93,20 +92,6 @@ def _reported_batches(plan: EvalPlan, analyses: list[Analysis]):
         plan.source, plan.dataset, plan.indices, plan.batch_size, plan.device, plan.num_workers,
         desc, entropy,
     )  # fmt: skip
-
-
-def _see(context: Context, batch: Batch) -> Seen:
-    """The batch's probabilities and every rule group's label maps."""
-    plan = context.plan
-    unrounded = context.probabilities(batch)
-    probs = unrounded.half().float() if plan.options.save_probs else unrounded
-    priors, roi = plan.priors.at(tuple(batch.labels.shape[-2:]))
-    tempered = {None: probs}
-    for t in {g.temperature for g in plan.groups if g.temperature}:
-        logits = plan.source.logits_of(batch.scores)
-        tempered[t] = Scaling("temperature", temperature=t).apply(logits)
-    preds = [g.decide(tempered[g.temperature], priors) for g in plan.groups]
-    return Seen(batch, probs, preds, priors, roi, unrounded, context)
 
 
 def _describe_probabilities(plan: EvalPlan, scaling: Scaling) -> str:

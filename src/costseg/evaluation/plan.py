@@ -6,7 +6,6 @@ share of the reported images."""
 from __future__ import annotations
 
 import datetime
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -31,6 +30,7 @@ from costseg.evaluation.checks import (
     instance_classes,
     source_priors,
 )
+from costseg.evaluation.processes import on_rank0, share, world_size
 from costseg.networks.ensemble import open_sources
 from costseg.networks.protocols import Protocol
 from costseg.networks.sources import Source, resolve_device
@@ -51,6 +51,7 @@ class EvalPlan:
     source: Source
     dataset: Dataset  # the reported images (seen through the shift when there is one)
     indices: list[int]  # this process's share of the reported images
+    positions: list[int]  # their positions among all reported images (the order of one process)
     num_reported: int  # reported images over all processes
     calibration: tuple[Dataset, list[int]] | None  # images that fit / certify, never reported
     meta_images: tuple[Dataset, list[int]] | None  # images that fit the meta models, never reported
@@ -133,7 +134,8 @@ def plan(
         device=device,
         source=source,
         dataset=reported_images,
-        indices=reported[rank() :: world_size()],
+        indices=[reported[i] for i in share(len(reported))],
+        positions=share(len(reported)),
         num_reported=len(reported),
         calibration=calibration,
         meta_images=meta_images,
@@ -187,21 +189,3 @@ def _split_calibration(opts: EvalOptions, images: Images, count: int):
     if half == 0:
         raise ValueError(f"{count} image(s): too few to split into calibration and report halves")
     return list(range(half, count)), (images.reported, list(range(half)))
-
-
-def on_rank0(make):
-    """``make()`` on rank 0, its value shared with every process (e.g. the output folder)."""
-    value = [make() if rank() == 0 else None]
-    if dist.is_available() and dist.is_initialized():
-        dist.broadcast_object_list(value, src=0)
-    return value[0]
-
-
-def rank() -> int:
-    return dist.get_rank() if dist.is_available() and dist.is_initialized() else 0
-
-
-def world_size() -> int:
-    if dist.is_available() and dist.is_initialized():
-        return dist.get_world_size()
-    return int(os.environ.get("WORLD_SIZE", "1"))

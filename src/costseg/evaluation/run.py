@@ -16,7 +16,8 @@ from torch.utils.data import Dataset
 from costseg import workers
 from costseg.evaluation.analyses import import_analyses
 from costseg.evaluation.loop import close_held_out, run
-from costseg.evaluation.plan import EvalPlan, plan, rank
+from costseg.evaluation.plan import EvalPlan, plan
+from costseg.evaluation.processes import rank
 from costseg.networks.sources import Source
 from costseg.options import EvalOptions
 from costseg.report.outputs import INCOMPLETE, mark_complete

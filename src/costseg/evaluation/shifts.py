@@ -10,7 +10,8 @@ import dataclasses
 from collections.abc import Callable
 
 from costseg.data.shift import Shift, ShiftedDataset
-from costseg.evaluation.plan import EvalPlan, on_rank0, rank
+from costseg.evaluation.plan import EvalPlan
+from costseg.evaluation.processes import on_rank0, rank
 from costseg.report.outputs import claim_output_dir, mark_complete
 from costseg.report.results import EvalResults
 
@@ -39,7 +40,6 @@ def evaluate_shifts(
             options=dataclasses.replace(planned.options, shift=[str(s) for s in shifted]),
             dataset=_seen_through(planned, shift),
             output_dir=on_rank0(lambda f=out / folder: claim_output_dir(str(f), False, out)),
-            groups=list(planned.groups),  # a fitted temperature adds a group to the run's list
             shifts=shifted,
         )
         results.append(evaluate_plan(one))

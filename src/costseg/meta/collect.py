@@ -34,20 +34,33 @@ def rule_segments(
     return segment_features(labels, probs[0].float().cpu().numpy(), heat, gt)
 
 
+@dataclass
+class ImageSegments:
+    """The segments of one image: its name, each rule's segment table (column → (n,) values)
+    and, for the first images, each rule's (H, W) segment ids (for figures)."""
+
+    stem: str
+    columns: dict[str, dict[str, np.ndarray]]
+    maps: dict[str, np.ndarray] | None
+
+
 class SegmentCollector:
     """Collects, image after image, the segment table of each of ``rules``.
 
     Args:
         rules: the rules whose label maps are described (their names key the tables).
-        keep_maps: images whose segment ids (and per-segment values) are kept for figures.
+        keep_maps: the first images (by position) whose segment ids are kept for figures.
+
+    Attributes:
+        records: ``(position, ImageSegments)`` of every image added; the tables list the images
+            in the order of their positions (under ``torchrun``, every process's records
+            gathered: :func:`costseg.evaluation.processes.in_image_order`).
     """
 
     def __init__(self, rules: Sequence[Rule], keep_maps: int = 0) -> None:
         self.rules = list(rules)
         self.keep_maps = keep_maps
-        self.parts: dict[str, list[dict[str, np.ndarray]]] = {r.name: [] for r in self.rules}
-        self.maps: list[dict[str, np.ndarray]] = []  # per kept image: rule → (H, W) ids
-        self.images: list[str] = []
+        self.records: list[tuple[int, ImageSegments]] = []
 
     def add(
         self,
@@ -57,35 +70,57 @@ class SegmentCollector:
         priors: torch.Tensor | None,
         expected_entropy: torch.Tensor | None,
         stems: Sequence[str],
+        positions: Sequence[int] | None = None,
     ) -> None:
         """One batch: (B, N, H, W) probabilities, (B, K, H, W) label maps of the K rules,
-        (B, H, W) ground truth or None, the priors and the runs' expected entropy (or None)."""
-        for b, stem in enumerate(stems):
+        (B, H, W) ground truth or None, the priors and the runs' expected entropy (or None),
+        the images' names and positions (default: after the images added so far)."""
+        if positions is None:
+            positions = range(len(self.records), len(self.records) + len(stems))
+        for b, (stem, position) in enumerate(zip(stems, positions, strict=True)):
             gt = None if labels is None else labels[b].cpu().numpy()
             runs = None if expected_entropy is None else expected_entropy[b : b + 1]
-            kept = {}
+            columns, maps = {}, {}
             for k, rule in enumerate(self.rules):
                 labels_k = preds[b, k].cpu().numpy()
                 table = rule_segments(probs[b : b + 1], labels_k, rule, priors, runs, gt)
-                columns = dict(table.columns)
-                columns["image"] = np.full(table.count, len(self.images))
-                columns["segment"] = np.arange(1, table.count + 1)
-                self.parts[rule.name].append(columns)
-                kept[rule.name] = table.ids
-            if len(self.maps) < self.keep_maps:
-                self.maps.append(kept)
-            self.images.append(stem)
+                columns[rule.name] = dict(table.columns)
+                maps[rule.name] = table.ids
+            kept = maps if position < self.keep_maps else None
+            self.records.append((position, ImageSegments(stem, columns, kept)))
+
+    @property
+    def ordered(self) -> list[ImageSegments]:
+        """The images' segments in the order of their positions."""
+        return [record for _, record in sorted(self.records, key=lambda r: r[0])]
+
+    @property
+    def images(self) -> list[str]:
+        """The images' names, in order."""
+        return [image.stem for image in self.ordered]
+
+    @property
+    def maps(self) -> list[dict[str, np.ndarray]]:
+        """Per kept image (the first ones), rule → (H, W) segment ids."""
+        return [image.maps for image in self.ordered if image.maps is not None]
 
     def features(self, rule: str) -> list[str]:
         """The feature columns of ``rule``'s tables (targets, image and segment ids left out)."""
-        first = next((c for c in self.parts[rule]), None)
+        first = self.records[0][1].columns[rule] if self.records else None
         heat = [h for h in (*HEAT_MAPS, "MI") if first is not None and h in first]
         num_classes = 0 if first is None else sum(k.startswith("cprob") for k in first)
         return feature_names(heat, num_classes)
 
     def table(self, rule: str) -> dict[str, np.ndarray]:
-        """Every segment of ``rule`` over the images so far: column → (n,) values."""
-        parts = self.parts[rule]
+        """Every segment of ``rule`` over the images so far, in order: column → (n,) values
+        (``image`` indexes :attr:`images`, ``segment`` numbers each image's segments from 1)."""
+        parts = []
+        for i, image in enumerate(self.ordered):
+            columns = dict(image.columns[rule])
+            count = len(columns["S"])
+            columns["image"] = np.full(count, i)
+            columns["segment"] = np.arange(1, count + 1)
+            parts.append(columns)
         if not parts:
             return {}
         return {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}

@@ -8,13 +8,14 @@ inside a segment that was not dropped: there it is R's. τ = 0 drops every candi
 all but those the classifier is certain of.
 
 The meta classifier of R is fitted on held-out images before the reported ones are decided
-(:func:`costseg.evaluation.run.run`), then handed to the group's decider (:meth:`FusedRules.use`).
+(:func:`costseg.evaluation.run.run`), then handed on in a copy of the group's decider
+(:meth:`FusedRules.using`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -72,19 +73,20 @@ class FusedRules:
     classes: tuple[int, ...]
     models: dict[str, MetaModels] | None = field(default=None, repr=False)
 
-    def use(self, models: dict[str, MetaModels]) -> None:
-        """The meta models of the fused rules (rule name → models), fitted on held-out images."""
+    def using(self, models: dict[str, MetaModels]) -> FusedRules:
+        """These rules with the meta models of the fused rules (rule name → models), fitted on
+        held-out images."""
         missing = [r.name for r in self.fused if FUSION_MODEL not in models[r.name].fitted]
         if missing:
             raise ValueError(
                 f"no meta classifier for {', '.join(missing)}: the held-out segments of the rule "
                 "are all false or all true; use more images (--meta_split)"
             )
-        self.models = models
+        return replace(self, models=models)
 
     def __call__(self, probs: torch.Tensor, priors: torch.Tensor | None) -> torch.Tensor:
         if self.models is None:
-            raise RuntimeError("FusedRules needs its meta models (use()) before it decides")
+            raise RuntimeError("FusedRules needs its meta models (using()) before it decides")
         decided = apply_rules(probs, (self.base, *self.fused), priors).cpu().numpy()
         out = np.empty((len(probs), len(self.fused) * len(self.taus), *probs.shape[-2:]), np.uint8)
         for b in range(len(probs)):

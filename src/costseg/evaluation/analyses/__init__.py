@@ -17,8 +17,8 @@ options in :mod:`costseg.options` and one :class:`Entry` below.
 from __future__ import annotations
 
 import importlib
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
 from functools import cached_property
 from typing import TYPE_CHECKING, Any
 
@@ -31,6 +31,7 @@ if TYPE_CHECKING:
     from costseg.options import EvalOptions
     from costseg.report.early_figures import EarlyFigures
     from costseg.report.sections import Result
+    from costseg.rules import RuleGroup
 
 
 @dataclass(frozen=True)
@@ -98,27 +99,64 @@ def import_analyses(opts: EvalOptions) -> None:
         analysis_class(entry)
 
 
+class Decisions(Sequence):
+    """Every rule group's (B, K, H, W) label maps of one batch, each decided on first use and
+    kept: an analysis of the held-out images asks only for the groups it needs, and every group
+    decides on the probabilities of its temperature (the main ones when None)."""
+
+    def __init__(self, seen: Seen) -> None:
+        self.seen, self.maps = seen, {}
+
+    def __len__(self) -> int:
+        return len(self.seen.context.groups)
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return [self[i] for i in range(len(self))[index]]
+        if index not in self.maps:
+            group = self.seen.context.groups[index]
+            self.maps[index] = group.decide(self.seen.tempered(group.temperature), self.seen.priors)
+        return self.maps[index]
+
+
 @dataclass(eq=False)
 class Seen:
-    """One reported batch as every analysis sees it.
+    """One batch of images as every analysis sees it, reported or held out
+    (:meth:`Context.see`, the one step from scores to decisions).
 
     Attributes:
         batch: images, labels, instance ids, anomaly masks, names and the source's scores.
-        probs: (B, N, H, W) the probabilities every rule group decided on (scaled; rounded to
-            float16 with ``--save-probs``, as saved).
-        preds: per rule group of the plan (in its order), the (B, K, H, W) label maps.
+        probs: (B, N, H, W) the probabilities every rule group decides on (scaled; rounded to
+            float16 with ``--save-probs`` for the reported images, as saved).
         priors, roi: the pixel-wise priors and (H, W) RoI ids at the labels' size, or None.
         unrounded: ``probs`` before the float16 rounding (the same tensor without it).
-        context: the evaluation's shared state (the plan, the fitted scaling).
+        context: the evaluation's shared state (the plan, the fitted scaling, the groups).
+        positions: each image's position among all reported images (the order of one process,
+            whichever process sees it); None for held-out images.
     """
 
     batch: Batch
     probs: torch.Tensor
-    preds: list[torch.Tensor]
     priors: torch.Tensor | None
     roi: torch.Tensor | None
     unrounded: torch.Tensor
     context: Context
+    positions: list[int] | None = None
+
+    @cached_property
+    def preds(self) -> Decisions:
+        """Per rule group of ``context.groups`` (in its order), the (B, K, H, W) label maps."""
+        return Decisions(self)
+
+    def tempered(self, temperature: float | None) -> torch.Tensor:
+        """The probabilities a group of ``temperature`` decides on: ``probs``, or the raw
+        logits' softmax at T."""
+        from costseg.calibration.scaling import Scaling
+
+        if temperature is None:
+            return self.probs
+        logits = self.context.plan.source.logits_of(self.batch.scores)
+        return Scaling("temperature", temperature=temperature).apply(logits)
 
     @cached_property
     def unscaled(self) -> torch.Tensor:
@@ -144,19 +182,25 @@ class Seen:
 
 @dataclass(eq=False)
 class Context:
-    """What the analyses of one evaluation share: the plan, the fitted scaling, the held-out
-    images (one pass of the network, kept), and the results written so far."""
+    """What the analyses of one evaluation share: the plan (read, never changed), the fitted
+    scaling, the rule groups (the plan's, then what a fit hands on: the named rules at a fitted
+    temperature, the fused rules with their meta models), the held-out images (one pass of the
+    network, kept) and the figures drawn early."""
 
     plan: Any  # the EvalPlan (evaluation/plan.py, which imports this module's checks)
     scaling: Scaling
     held_out: HeldOut | None = None  # the calibration images
     meta_held_out: HeldOut | None = None  # the meta models' images (often the same object)
     early: EarlyFigures | None = None  # figures drawn while the images are evaluated
+    groups: list[RuleGroup] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.groups = self.groups or list(self.plan.groups)
 
     @property
     def named(self) -> int:
-        """The index of the named rules' group in ``plan.groups``."""
-        return next(i for i, g in enumerate(self.plan.groups) if g.is_named)
+        """The index of the named rules' group in ``groups``."""
+        return next(i for i, g in enumerate(self.groups) if g.is_named)
 
     def probabilities(self, batch: Batch) -> torch.Tensor:
         """The probabilities the rules see for ``batch``: the source's, scaled."""
@@ -165,13 +209,31 @@ class Context:
             return self.scaling.apply(source.logits_of(batch.scores))
         return source.probabilities_of(batch.scores)
 
+    def see(self, batch: Batch, positions: list[int] | None = None) -> Seen:
+        """The one step from a batch's scores to what the analyses see: its probabilities
+        (for reported images with ``--save-probs``, rounded to float16 as saved), priors, RoIs
+        and every group's decisions (each on first use)."""
+        unrounded = self.probabilities(batch)
+        rounded = positions is not None and self.plan.options.save_probs
+        probs = unrounded.half().float() if rounded else unrounded
+        priors, roi = self.plan.priors.at(tuple(batch.labels.shape[-2:]))
+        return Seen(batch, probs, priors, roi, unrounded, self, positions)
+
+    def held_out_seen(self, what: str, held: HeldOut | None = None) -> Iterator[Seen]:
+        """The held-out images (``held``; default the calibration images) seen batch by batch
+        as the reported ones are (a progress bar named ``what``)."""
+        for batch in (held or self.held_out).batches(what):
+            yield self.see(batch)
+
 
 class Analysis:
     """One capability of an evaluation. Subclasses override what they need.
 
     Construction happens after every option check and before the held-out images are seen;
-    :meth:`fit` runs in :data:`ANALYSES`' order, then :meth:`start`, then :meth:`process` for
-    each reported batch, and :meth:`result` once at the end.
+    :meth:`fit` runs in :data:`ANALYSES`' order (seeing the held-out images through
+    :meth:`Context.held_out_seen`, and handing what it fitted on through the context, never by
+    changing the plan), then :meth:`start`, then :meth:`process` for each reported batch (this
+    process's share under ``torchrun``), :meth:`gather` and :meth:`result` once at the end.
     """
 
     def __init__(self, context: Context) -> None:
@@ -191,6 +253,13 @@ class Analysis:
     def process(self, seen: Seen) -> None:
         """See one reported batch."""
 
+    def gather(self) -> None:
+        """After the last reported batch, before :meth:`result`: bring every process's share of
+        the reported images together (under ``torchrun``) with the collectives of
+        :mod:`costseg.evaluation.processes`: per-image records into the reported images' order
+        (``in_image_order``), other counts into their sum (``summed``). torchmetrics states
+        need nothing here: they sum themselves across processes."""
+
     def result(self) -> Result | None:
         """The typed result (None: nothing to write)."""
         return None
@@ -200,6 +269,7 @@ __all__ = [
     "ANALYSES",
     "Analysis",
     "Context",
+    "Decisions",
     "Entry",
     "Seen",
     "analysis_class",

@@ -7,6 +7,7 @@ from __future__ import annotations
 from costseg.classes import CLASS_NAMES
 from costseg.evaluation.analyses import Analysis, Seen
 from costseg.evaluation.anomalies import AnomalyPass
+from costseg.evaluation.processes import in_image_order
 from costseg.report.anomalies import AnomalyOutputs
 from costseg.rules import named_group
 
@@ -15,19 +16,22 @@ class Anomalies(Analysis):
     every_entropy = True  # the mutual information score, on every image
 
     def start(self) -> None:
-        rules = named_group(self.context.plan.groups).rules
+        rules = named_group(self.context.groups).rules
         self.found = AnomalyPass(rules, len(CLASS_NAMES), self.opts.num_examples)
 
     def process(self, seen: Seen) -> None:
         batch = seen.batch
         self.found.update(
             batch.images, seen.probs, batch.anomalies, seen.named, seen.priors,
-            batch.expected_entropy,
+            batch.expected_entropy, seen.positions,
         )  # fmt: skip
+
+    def gather(self) -> None:
+        self.examples = in_image_order(self.found.examples)
 
     def result(self) -> AnomalyOutputs:
         found = self.found.result()
-        return AnomalyOutputs(found["scores"], found["decided"], self.found.examples)
+        return AnomalyOutputs(found["scores"], found["decided"], self.examples)
 
 
 ANALYSIS = Anomalies

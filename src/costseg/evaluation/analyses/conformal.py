@@ -4,8 +4,9 @@ most α (docs/definitions.md §18); on the reported images their loss, sizes and
 
 from __future__ import annotations
 
+from dataclasses import fields
+
 import torch
-import torch.distributed as dist
 
 from costseg.calibration.conformal import (
     RiskControl,
@@ -20,18 +21,19 @@ from costseg.calibration.conformal import (
 )
 from costseg.classes import CLASS_NAMES, NUM_ROIS
 from costseg.evaluation.analyses import Analysis, Seen
+from costseg.evaluation.processes import in_image_order, summed
 from costseg.report.conformal import ConformalOutputs, RuleSets
 from costseg.rules import named_group
 
 
 class Conformal(Analysis):
     def fit(self) -> None:
-        self.rules = named_group(self.context.plan.groups).rules
+        self.rules = named_group(self.context.groups).rules
         self.grid = lambda_grid()
         losses = [[] for _ in self.rules]
         with torch.inference_mode():
-            for batch in self.context.held_out.batches("conformal risk control"):
-                for k, loss in enumerate(self._held_out_losses(batch)):
+            for seen in self.context.held_out_seen("conformal risk control"):
+                for k, loss in enumerate(self._held_out_losses(seen)):
                     losses[k].append(loss.cpu())
         self.control: list[RiskControl] = [
             crc_threshold(torch.cat(mine).numpy(), self.grid.numpy(), self.opts.conformal)
@@ -41,7 +43,7 @@ class Conformal(Analysis):
     def start(self) -> None:
         device = self.context.plan.device
         self.counts = [SetCounts.zeros(len(CLASS_NAMES), NUM_ROIS, device) for _ in self.rules]
-        self.reported = [[] for _ in self.rules]
+        self.reported = [[] for _ in self.rules]  # per rule: (position, loss) of each image
         self.example = None
 
     def process(self, seen: Seen) -> None:
@@ -50,35 +52,39 @@ class Conformal(Analysis):
             scores = conformity_scores(seen.probs, seen.named[:, k], self.opts.conformal_sets)
             counts.add(scores, labels, control.lam, seen.roi)
             lam = torch.tensor([control.lam], dtype=torch.float64)
-            self.reported[k].append(self._loss(scores, labels, seen.roi, lam, k).cpu())
-            if self.example is None:  # the first image's set sizes, for its figure
+            losses = self._loss(scores, labels, seen.roi, lam, k)[:, 0].cpu()
+            self.reported[k] += zip(seen.positions, losses.tolist(), strict=True)
+            if seen.positions[0] == 0:  # the first image's set sizes, for its figure
                 sizes.append((scores[0] <= control.lam).sum(0).cpu())
-        if self.example is None:
+        if sizes:
             self.example = (seen.batch.images[0].cpu(), seen.batch.stems[0], sizes)
+
+    def gather(self) -> None:
+        self.example = in_image_order([] if self.example is None else [(0, self.example)])[0]
+        self.counts = [
+            SetCounts(*(summed(getattr(c, f.name)) for f in fields(c))) for c in self.counts
+        ]
+        self.reported = [
+            torch.tensor(in_image_order(mine), dtype=torch.float64) for mine in self.reported
+        ]
 
     def result(self) -> ConformalOutputs:
         rules = []
         for rule, control, counts, losses in zip(
             self.rules, self.control, self.counts, self.reported, strict=True
         ):
-            losses = torch.cat(losses)[:, 0]
-            if dist.is_available() and dist.is_initialized():  # every process's images
-                for tensor in (counts.pixels, counts.covered, counts.sizes, counts.singletons):
-                    dist.all_reduce(tensor)
-                losses = _gathered(losses)
             rules.append(RuleSets(rule.name, control, counts, losses))
         return ConformalOutputs(
             self.opts.conformal, self._describe(), self.grid, rules, self.example
         )
 
-    def _held_out_losses(self, batch) -> list[torch.Tensor]:
+    def _held_out_losses(self, seen: Seen) -> list[torch.Tensor]:
         """Per named rule, the (B, L) losses on the grid of a held-out batch's images."""
-        plan, kind = self.context.plan, self.opts.conformal_sets
-        probs = self.context.probabilities(batch)
-        priors, roi = plan.priors.at(tuple(batch.labels.shape[-2:]))
-        preds = named_group(plan.groups).decide(probs, priors)
+        kind, labels, preds = self.opts.conformal_sets, seen.batch.labels, seen.named
         return [
-            self._loss(conformity_scores(probs, preds[:, k], kind), batch.labels, roi, self.grid, k)
+            self._loss(
+                conformity_scores(seen.probs, preds[:, k], kind), labels, seen.roi, self.grid, k
+            )
             for k in range(len(self.rules))
         ]
 
@@ -106,13 +112,6 @@ class Conformal(Analysis):
         }[opts.conformal_loss]
         where = "" if opts.conformal_roi is None else f" in RoI {opts.conformal_roi}"
         return f"{opts.conformal_sets.upper()} sets; loss of an image: {loss}{where}"
-
-
-def _gathered(values: torch.Tensor) -> torch.Tensor:
-    """``values`` of every process, concatenated."""
-    parts = [None] * dist.get_world_size()
-    dist.all_gather_object(parts, values)
-    return torch.cat(parts)
 
 
 ANALYSIS = Conformal

@@ -7,6 +7,7 @@ from __future__ import annotations
 import torch
 
 from costseg.evaluation.analyses import Analysis, Seen
+from costseg.evaluation.processes import in_image_order
 from costseg.report.examples import ExampleOutputs
 from costseg.report.results import Example
 from costseg.rules import masked_groups
@@ -14,13 +15,13 @@ from costseg.rules import masked_groups
 
 class Examples(Analysis):
     def start(self) -> None:
-        groups = self.context.plan.groups
+        groups = self.context.groups
         self.shown = [groups.index(g) for g in masked_groups(groups)]
-        self.examples: list[Example] = []
+        self.kept: list[tuple[int, Example]] = []  # (position among the reported images, example)
 
     def process(self, seen: Seen) -> None:
-        batch, limit = seen.batch, self.opts.num_examples
-        kept = range(min(len(batch.images), limit - len(self.examples)))
+        batch = seen.batch
+        kept = [i for i, p in enumerate(seen.positions) if p < self.opts.num_examples]
         if kept:
             preds = torch.cat([seen.preds[g] for g in self.shown], 1)
             maps = seen.uncertainty
@@ -28,11 +29,13 @@ class Examples(Analysis):
             probs = seen.probs[i].to("cpu", torch.float16) if self.opts.explorer else None
             image, label = batch.images[i].cpu(), batch.labels[i].cpu()
             uncertainty = {k: v[i].to("cpu", torch.float16) for k, v in maps.items()}
-            self.examples.append(
-                Example(image, label, preds[i].cpu(), batch.stems[i], probs, uncertainty)
-            )
-        if self.context.early is not None:
-            self.context.early.after_batch(self.examples)
+            example = Example(image, label, preds[i].cpu(), batch.stems[i], probs, uncertainty)
+            self.kept.append((seen.positions[i], example))
+        if self.context.early is not None:  # drawn once this process holds every example
+            self.context.early.after_batch([example for _, example in self.kept])
+
+    def gather(self) -> None:
+        self.examples = in_image_order(self.kept)
 
     def result(self) -> ExampleOutputs:
         early = self.context.early

@@ -11,7 +11,7 @@ from costseg.classes import CLASS_NAMES, NUM_ROIS
 from costseg.evaluation.analyses import Analysis
 from costseg.metrics.names import INSTANCE_RATES, SEGMENT_RATES
 from costseg.metrics.per_image import per_image_counts, per_image_loss
-from costseg.metrics.scoring import GroupMetrics, score_batch
+from costseg.metrics.scoring import GroupMetrics
 from costseg.metrics.selection import metric_values, parse_metric, parse_target, risk_level
 from costseg.report.guarantee import Certificate
 
@@ -31,7 +31,7 @@ def certify(context, opts) -> Certificate:
     ``--maximize``; among certified rules of the same best value, the one of largest
     ``group.prefer`` (the defer sweep: the larger defer cost)."""
     plan = context.plan
-    group = next(g for g in plan.groups if g.candidates)
+    index, group = next((i, g) for i, g in enumerate(context.groups) if g.candidates)
     t, goal = parse_target(opts.target), parse_metric(opts.maximize)
     named = {t.cls} | ({goal.cls} if goal.metric in SEGMENT_RATES else set())
     segments = sorted({*plan.class_ids, *named} - {None})  # None: all classes (coverage)
@@ -41,17 +41,16 @@ def certify(context, opts) -> Certificate:
     )
     counts, n = [], 0
     with torch.inference_mode():
-        for batch in context.held_out.batches("certify"):
-            priors, roi = plan.priors.at(tuple(batch.labels.shape[-2:]))
-            metrics.to(batch.labels.device)  # a no-op after the first batch
-            probs, ids = context.probabilities(batch), batch.instances
-            preds = score_batch(group, metrics, probs, batch.labels, priors, roi, ids)
+        for seen in context.held_out_seen("certify"):
+            labels, ids, preds = seen.batch.labels, seen.batch.instances, seen.preds[index]
+            metrics.to(labels.device)  # a no-op after the first batch
+            metrics.update(preds, labels, seen.roi, ids)
             counts.append(
                 per_image_counts(
-                    preds, batch.labels, roi, t.cls, t.roi, t.metric, instances=ids
+                    preds, labels, seen.roi, t.cls, t.roi, t.metric, instances=ids
                 ).cpu()
             )
-            n += len(batch.labels)
+            n += len(labels)
     losses = per_image_loss(torch.cat(counts), t.metric).numpy()
     alpha = risk_level(t)
     ltt = learn_then_test_paths(losses, alpha, opts.guarantee, opts.guarantee_method, group.paths)

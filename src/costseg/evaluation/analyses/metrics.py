@@ -16,7 +16,6 @@ class RuleGroupMetrics(Analysis):
     def start(self) -> None:
         plan = self.context.plan
         classes, self.instances = plan.instance_classes
-        print(self.instances)
         self.metrics = [
             GroupMetrics(
                 g,
@@ -26,7 +25,7 @@ class RuleGroupMetrics(Analysis):
                 plan.canvas,
                 instance_classes=classes,
             ).to(plan.device)
-            for g in plan.groups
+            for g in self.context.groups
         ]
 
     def process(self, seen: Seen) -> None:
@@ -35,7 +34,7 @@ class RuleGroupMetrics(Analysis):
             metrics.update(preds, batch.labels, seen.roi, batch.instances)
 
     def result(self) -> GroupOutputs:
-        groups = self.context.plan.groups
+        groups = self.context.groups
         results = [GroupResult(g, **m.compute()) for g, m in zip(groups, self.metrics, strict=True)]
         return GroupOutputs(results, self.instances)
 

@@ -5,7 +5,7 @@ rules' label-id PNGs (``--save-predictions``)."""
 from __future__ import annotations
 
 from costseg.evaluation.analyses import Analysis, Seen
-from costseg.evaluation.plan import rank
+from costseg.evaluation.processes import rank
 from costseg.networks.probs_files import save_data_record
 from costseg.report.outputs import BatchWriter
 from costseg.rules import named_group
@@ -18,7 +18,7 @@ class SavedOutputs(Analysis):
 
     def start(self) -> None:
         plan = self.context.plan
-        names = named_group(plan.groups).names
+        names = named_group(self.context.groups).names
         self.writer = BatchWriter(plan.output_dir, names, self.opts.save_predictions)
         if self.opts.save_probs and plan.data is not None and rank() == 0:
             save_data_record(plan.output_dir / "probs", plan.data, plan.priors.priors)

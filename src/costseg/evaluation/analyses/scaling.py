@@ -24,8 +24,8 @@ class Scaling(Analysis):
         print(f"calibration: {scaling.describe()}")
         self.context.scaling = scaling
         if self.opts.temperature_sweep and scaling.kind == "temperature":
-            named = named_group(plan.groups)
-            plan.groups.append(temperature_group(named.rules, scaling.temperature))
+            named = named_group(self.context.groups)
+            self.context.groups.append(temperature_group(named.rules, scaling.temperature))
 
 
 ANALYSIS = Scaling

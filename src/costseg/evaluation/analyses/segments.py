@@ -4,9 +4,12 @@ on the reported ones (``--meta``), and the fused rules' models (``--fuse``)."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import torch
 
 from costseg.evaluation.analyses import Analysis, Seen
+from costseg.evaluation.processes import in_image_order
 from costseg.meta.collect import SegmentCollector
 from costseg.meta.fusion import FUSED_FAMILY
 from costseg.meta.models import MetaModels, fit_models
@@ -27,7 +30,7 @@ class Segments(Analysis):
     def start(self) -> None:
         self.collector = None
         if self.every_entropy:
-            rules = named_group(self.context.plan.groups).rules
+            rules = named_group(self.context.groups).rules
             self.collector = SegmentCollector(rules, self.opts.num_examples)
 
     def process(self, seen: Seen) -> None:
@@ -35,8 +38,12 @@ class Segments(Analysis):
             batch = seen.batch
             self.collector.add(
                 seen.probs, seen.named, batch.labels, seen.priors, batch.expected_entropy,
-                batch.stems,
+                batch.stems, seen.positions,
             )  # fmt: skip
+
+    def gather(self) -> None:
+        if self.collector is not None:
+            self.collector.records = list(enumerate(in_image_order(self.collector.records)))
 
     def result(self) -> SegmentOutputs | None:
         collector = self.collector
@@ -54,48 +61,60 @@ class Segments(Analysis):
         return segments
 
 
-def _fusion(groups: list[RuleGroup]) -> RuleGroup | None:
-    return next((g for g in groups if g.family == FUSED_FAMILY), None)
+def _fusion(groups: list[RuleGroup]) -> int | None:
+    """The index of the fused rules' group in ``groups``, or None."""
+    return next((i for i, g in enumerate(groups) if g.family == FUSED_FAMILY), None)
 
 
 def _meta_rules(context) -> list[Rule]:
     """The rules whose segments the meta models judge: the named ones (``--meta``) and the
     fused ones (``--fuse``)."""
-    groups = context.plan.groups
+    groups = context.groups
     rules = list(named_group(groups).rules) if context.plan.options.meta else []
     fusion = _fusion(groups)
     if fusion is not None:
-        rules += [r for r in fusion.decide.fused if r.name not in {q.name for q in rules}]
+        fused = groups[fusion].decide.fused
+        rules += [r for r in fused if r.name not in {q.name for q in rules}]
     return rules
+
+
+def _decided(seen: Seen, named: RuleGroup, rule: Rule) -> torch.Tensor:
+    """(B, 1, H, W) ``rule``'s label maps: the named group's, or a fused rule's own."""
+    if rule.name in named.names:
+        return seen.named[:, [named.names.index(rule.name)]]
+    return apply_rules(seen.probs, [rule], seen.priors)
 
 
 def _fit_meta(context) -> dict[str, MetaModels]:
     """Fit the meta models of every rule of :func:`_meta_rules` on the segments of the held-out
-    images; hand the fused rules theirs (without MI: a rule decides from the probabilities)."""
+    images; hand the fused rules theirs (without MI: a rule decides from the probabilities) in
+    a fused group of the context that holds them."""
     plan, held = context.plan, context.meta_held_out
     rules = _meta_rules(context)
+    named = named_group(context.groups)
     collector = SegmentCollector(rules)
     with torch.inference_mode():
-        for batch in held.batches("meta features"):
-            probs = context.probabilities(batch)
-            priors, _ = plan.priors.at(tuple(batch.labels.shape[-2:]))
-            preds = apply_rules(probs, rules, priors)
-            collector.add(probs, preds, batch.labels, priors, batch.expected_entropy, batch.stems)
+        for seen in context.held_out_seen("meta features", held):
+            batch = seen.batch
+            preds = torch.cat([_decided(seen, named, r) for r in rules], 1)
+            collector.add(
+                seen.probs, preds, batch.labels, seen.priors, batch.expected_entropy, batch.stems
+            )
     fitting = "meta models, rule by rule" if plan.options.progress else None
     models = {
         r.name: fit_models(collector.table(r.name), collector.features(r.name), len(held))
         for r in progress(rules, fitting)
     }
-    fusion = _fusion(plan.groups)
+    fusion = _fusion(context.groups)
     if fusion is not None:
-        own = {}
-        for r in fusion.decide.fused:
+        group, own = context.groups[fusion], {}
+        for r in group.decide.fused:
             features = [f for f in collector.features(r.name) if not f.startswith("MI")]
             same = features == models[r.name].features
             own[r.name] = (
                 models[r.name] if same else fit_models(collector.table(r.name), features, len(held))
             )
-        fusion.decide.use(own)
+        context.groups[fusion] = replace(group, decide=group.decide.using(own))
     fitted = {r: m.num_segments for r, m in models.items()}
     print(f"meta models fitted on {len(held)} held-out images: segments {fitted}")
     return models
