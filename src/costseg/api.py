@@ -22,7 +22,7 @@ from torch.utils.data import Dataset
 
 from costseg.networks.base import IMAGENET_MEAN, IMAGENET_STD, ImageNetwork
 from costseg.networks.sources import Source, resolve_device
-from costseg.options import RULES, EvalOptions, PredictOptions
+from costseg.options import RULES, EvalOptions, PredictOptions, check_values
 from costseg.report.results import EvalResults
 
 __all__ = ["evaluate", "module_source", "predict"]
@@ -64,11 +64,13 @@ def evaluate(
         ValueError: an unknown option, a malformed item of ``dataset``, or what
             ``evaluate.py`` refuses.
     """
+    from costseg.evaluation.checks import check_options
     from costseg.evaluation.run import evaluate as run_evaluation
 
-    opts, source = _options(EvalOptions, network, costs, priors, mean, std, options)
+    opts = _options(EvalOptions, network, costs, priors, options)
+    check_options(opts)  # evaluate.py's checks, before the network moves or data is read
     _check_item(dataset)
-    return run_evaluation(opts, source, dataset)
+    return run_evaluation(opts, _source(network, opts, mean, std, priors), dataset)
 
 
 def predict(
@@ -96,12 +98,14 @@ def predict(
     from costseg.prediction import job
 
     options["input"] = [str(path) for path in inputs]
-    opts, source = _options(PredictOptions, network, costs, priors, mean, std, options)
-    return job.predict(opts, source)
+    opts = _options(PredictOptions, network, costs, priors, options)
+    check_values(opts)
+    return job.predict(opts, _source(network, opts, mean, std, priors))
 
 
-def _options(kind, network, costs, priors, mean, std, options: dict[str, Any]):
-    """(the job's options, a source of a module given in Python or None)."""
+def _options(kind, network, costs, priors, options: dict[str, Any]):
+    """The job's options (``kind``) of the keyword arguments, with the command line's checks
+    of each value (:func:`costseg.options.check_values`)."""
     known = {f.name for f in dataclasses.fields(kind)} - {"cost", "priors"}
     unknown = sorted(set(options) - known)
     if unknown:
@@ -111,11 +115,17 @@ def _options(kind, network, costs, priors, mean, std, options: dict[str, Any]):
         options["network"] = [network]
     if isinstance(priors, (str, Path)):
         options["priors"] = str(priors)
-    opts = kind(cost=list(costs), **options)
+    opts = kind(cost=list(costs) if isinstance(costs, (list, tuple)) else costs, **options)
+    check_values(opts)
+    return opts
+
+
+def _source(network, opts, mean, std, priors) -> Source | None:
+    """A source of a module given in Python (None: the options name the network)."""
     if not isinstance(network, nn.Module):
-        return opts, None
+        return None
     given = priors if isinstance(priors, Tensor) else None
-    return opts, module_source(network, resolve_device(opts.device), mean, std, given)
+    return module_source(network, resolve_device(opts.device), mean, std, given)
 
 
 def module_source(

@@ -16,6 +16,8 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import types
+import typing
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -444,6 +446,60 @@ class EvalOptions(SourceOptions):
         group=CONFORMAL,
         needs="conformal",
     )
+
+
+def check_values(opts: Any) -> None:
+    """ValueError naming the option when a field of ``opts`` holds a value its command line
+    would refuse: the type, the choices, the number of values and the value type of its
+    metadata. The command line's values pass here as the Python API's do
+    (:func:`costseg.api.evaluate`), so every entry checks the same.
+
+    >>> check_values(EvalOptions(conformal=1.5))
+    Traceback (most recent call last):
+    ValueError: --conformal: expected a number in (0, 1) such as 0.1, got '1.5'
+    >>> check_values(EvalOptions(roi="geometrc"))
+    Traceback (most recent call last):
+    ValueError: --roi: expected one of priors, geometric; got 'geometrc'
+    """
+    hints = typing.get_type_hints(type(opts))
+    for f in dataclasses.fields(opts):
+        value = getattr(opts, f.name)
+        if not f.init or (value is None and field_default(f) is None):
+            continue
+        try:
+            _check_value(value, hints[f.name], f.metadata)
+        except (ValueError, TypeError, argparse.ArgumentTypeError) as err:
+            raise ValueError(f"{f.metadata.get('flag', f'--{f.name}')}: {err}") from None
+
+
+def _check_value(value: Any, hint: Any, meta: Any) -> None:
+    """Raise unless ``value`` is one the option of type ``hint`` and ``meta`` data accepts."""
+    kinds = [a for a in typing.get_args(hint) if a is not type(None)]
+    if typing.get_origin(hint) in (typing.Union, types.UnionType):
+        hint = kinds[0]
+    if typing.get_origin(hint) is list:
+        if not isinstance(value, (list, tuple)):
+            raise ValueError(f"expected a list of values, got {value!r}")
+        count = meta.get("nargs")
+        if isinstance(count, int) and len(value) != count:
+            raise ValueError(f"expected {count} values, got {len(value)}")
+        if count is None and not value:
+            raise ValueError("expected at least one value")
+        for item in value:
+            _check_value(item, typing.get_args(hint)[0], meta)
+    elif hint is bool:
+        if not isinstance(value, bool):
+            raise ValueError(f"expected True or False, got {value!r}")
+    elif typing.get_origin(hint) is typing.Literal:
+        choices = typing.get_args(hint)
+        if value not in choices or isinstance(value, bool):
+            raise ValueError(f"expected one of {', '.join(map(str, choices))}; got {value!r}")
+    elif "type" in meta:
+        meta["type"](str(value))
+    elif hint in (int, float) and (isinstance(value, bool) or not isinstance(value, (int, float))):
+        raise ValueError(f"expected a number, got {value!r}")
+    elif hint is str and not isinstance(value, str):
+        raise ValueError(f"expected a text, got {value!r}")
 
 
 def check_needs(opts: Any) -> None:

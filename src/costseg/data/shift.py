@@ -18,15 +18,30 @@ True
 
 from __future__ import annotations
 
+import importlib
 import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
+from typing import TYPE_CHECKING, Any
 
-import albumentations as A
 import numpy as np
 import torch
 from torch.utils.data import Dataset
+
+if TYPE_CHECKING:
+    import albumentations
+
+
+class _OnFirstUse:
+    """albumentations, imported when a transform is first built: its import takes seconds, and
+    naming a shift (``parse_shift``, an option check) needs none of it."""
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(importlib.import_module("albumentations"), name)
+
+
+A = _OnFirstUse()
 
 __all__ = [
     "BY_ALBUMENTATIONS",
@@ -77,23 +92,23 @@ def _contrast(image: np.ndarray, severity: int, rng: np.random.Generator) -> np.
 
 
 # Each albumentations corruption: severity 1–5 → its transform (p = 1: always applied).
-def _fog(s: int) -> A.BasicTransform:
+def _fog(s: int) -> albumentations.BasicTransform:
     f = (0.2, 0.35, 0.5, 0.65, 0.8)[s - 1]
     return A.RandomFog(fog_coef_range=(f, f), alpha_coef=0.1, p=1)
 
 
-def _rain(s: int) -> A.BasicTransform:
+def _rain(s: int) -> albumentations.BasicTransform:
     kind, brightness, blur = (("drizzle", 0.9, 3), ("default", 0.8, 3), ("heavy", 0.75, 5),
                               ("heavy", 0.65, 7), ("torrential", 0.55, 7))[s - 1]  # fmt: skip
     return A.RandomRain(rain_type=kind, brightness_coefficient=brightness, blur_value=blur, p=1)
 
 
-def _snow(s: int) -> A.BasicTransform:
+def _snow(s: int) -> albumentations.BasicTransform:
     v = (0.1, 0.2, 0.3, 0.4, 0.5)[s - 1]
     return A.RandomSnow(snow_point_range=(v, v), method="bleach", p=1)
 
 
-def _spatter(s: int) -> A.BasicTransform:
+def _spatter(s: int) -> albumentations.BasicTransform:
     """ImageNet-C's table: (mean, std, gauss_sigma, cutout_threshold, intensity, mode), the mud
     intensity 1.5 lowered to albumentations' largest, 1."""
     mean, std, sigma, threshold, intensity, mode = (
@@ -105,29 +120,29 @@ def _spatter(s: int) -> A.BasicTransform:
                      intensity=intensity, mode=mode, p=1)  # fmt: skip
 
 
-def _motion_blur(s: int) -> A.BasicTransform:
+def _motion_blur(s: int) -> albumentations.BasicTransform:
     """A kernel of 2σ + 1 pixels for ImageNet-C's σ (3, 5, 8, 12, 15), in a random direction."""
     k = (7, 11, 17, 25, 31)[s - 1]
     return A.MotionBlur(blur_limit=(k, k), allow_shifted=False, p=1)
 
 
-def _defocus_blur(s: int) -> A.BasicTransform:
+def _defocus_blur(s: int) -> albumentations.BasicTransform:
     radius, alias = ((3, 0.1), (4, 0.5), (6, 0.5), (8, 0.5), (10, 0.5))[s - 1]
     return A.Defocus(radius=(radius, radius), alias_blur=(alias, alias), p=1)
 
 
-def _gaussian_noise(s: int) -> A.BasicTransform:
+def _gaussian_noise(s: int) -> albumentations.BasicTransform:
     std = (0.08, 0.12, 0.18, 0.26, 0.38)[s - 1]
     return A.GaussNoise(std_range=(std, std), p=1)
 
 
-def _jpeg(s: int) -> A.BasicTransform:
+def _jpeg(s: int) -> albumentations.BasicTransform:
     quality = (25, 18, 15, 10, 7)[s - 1]
     return A.ImageCompression(quality_range=(quality, quality), p=1)
 
 
 # name → the albumentations transform of a severity
-BY_ALBUMENTATIONS: dict[str, Callable[[int], A.BasicTransform]] = {
+BY_ALBUMENTATIONS: dict[str, Callable[[int], albumentations.BasicTransform]] = {
     "fog": _fog,
     "rain": _rain,
     "snow": _snow,
@@ -173,7 +188,7 @@ def parse_shift(text: str) -> Shift:
 
 
 @cache
-def _transform(name: str, severity: int) -> A.Compose:
+def _transform(name: str, severity: int) -> albumentations.Compose:
     return A.Compose([BY_ALBUMENTATIONS[name](severity)])
 
 

@@ -20,7 +20,7 @@ from costseg.metrics.selection import parse_metric, parse_target, risk_level
 from costseg.networks.probs_files import DATA_RECORD, records_its_data
 from costseg.networks.protocols import OPTIONS, Protocol
 from costseg.networks.sources import resolve_device
-from costseg.options import EvalOptions, candidate_flags, changed, check_needs
+from costseg.options import EvalOptions, candidate_flags, changed, check_needs, check_values
 from costseg.report.outputs import check_free
 from costseg.rules import (
     TEMPERATURES,
@@ -37,6 +37,7 @@ from costseg.rules import (
 
 def check_options(opts: EvalOptions) -> list[RuleGroup]:
     """Fail on malformed or contradictory options; returns the rule groups they ask for."""
+    check_values(opts)
     class_indices(opts.classes)
     resolve_device(opts.device)
     check_needs(opts)
@@ -80,7 +81,12 @@ def check_options(opts: EvalOptions) -> list[RuleGroup]:
 
 
 def check_shifts(shifts: list[str]) -> None:
-    """No ``--shift`` named twice (each is parsed with :func:`costseg.data.shift.parse_shift`)."""
+    """Each ``--shift`` a known corruption and severity
+    (:func:`costseg.data.shift.parse_shift`), none named twice."""
+    from costseg.data.shift import parse_shift
+
+    for text in shifts:
+        parse_shift(text)
     if len(set(shifts)) < len(shifts):
         raise ValueError(f"--shift names a shift twice: {' '.join(shifts)}")
 

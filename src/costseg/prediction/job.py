@@ -20,7 +20,7 @@ from costseg.networks.ensemble import open_sources
 from costseg.networks.protocols import Protocol
 from costseg.networks.sources import Source, resolve_device
 from costseg.networks.uncertainty import output_maps
-from costseg.options import PredictOptions
+from costseg.options import PredictOptions, check_values
 from costseg.prediction.inputs import Inputs, Item, find_inputs, read_image, video_frames
 from costseg.prediction.outputs import PredictionWriter
 from costseg.progress import progress
@@ -59,6 +59,7 @@ class PredictPlan:
 def plan(opts: PredictOptions, source: Source | None = None) -> PredictPlan:
     """Check options and inputs (before the network loads), open the source (``source``
     replaces the one the options name: :func:`costseg.api.predict`), claim the folder."""
+    check_values(opts)
     rules = parse_rules(opts.cost, defer=opts.defer)
     if opts.explorer:
         vertex_matrices(opts.vertices, opts.vertex_scaling)
