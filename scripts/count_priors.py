@@ -5,7 +5,9 @@
 LABELS is searched recursively for Cityscapes label-id PNGs (``*_gtFine_labelIds.png``, mapped
 to the 19 train ids); with ``--train_ids``, for PNGs that hold train ids already (0-18, 255 =
 ignored). All labels must have one size; the priors are stored at it, smoothed with σ = 80 px per
-1024 rows unless ``--sigma`` says otherwise, and the RoI map's share of each region is printed.
+1024 rows unless ``--sigma`` says otherwise, and the RoI map's share of each region is printed,
+with a note when there are fewer than 50 labels (evaluate.py notes priors counted on the
+evaluated images themselves).
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from PIL import Image
 from costseg.classes import CLASS_NAMES, LABEL_ID_TO_TRAIN_ID, ROI_NAMES
 from costseg.cli import user_errors
 from costseg.data.cityscapes import LABEL_SUFFIX
-from costseg.data.priors import default_sigma, pixel_priors, roi_map, save_priors
+from costseg.data.priors import default_sigma, pixel_priors, priors_note, roi_map, save_priors
 
 
 def label_files(folder: Path, train_ids: bool) -> list[Path]:
@@ -62,6 +64,9 @@ def main(args: list[str] | None = None) -> None:
         h, w = priors.shape[1:]
         count, sigma = len(files), default_sigma(h) if opts.sigma is None else opts.sigma
         settings = {"labels": str(opts.labels.resolve()), "num_labels": count, "sigma_px": sigma}
+        note = priors_note(count)
+        if note is not None:
+            settings["note"] = note
         save_priors(opts.output, priors, CLASS_NAMES, settings=settings)
         roi = roi_map(priors)
         shares = ", ".join(
@@ -72,6 +77,8 @@ def main(args: list[str] | None = None) -> None:
         print(
             f"{opts.output}: priors of {count} labels at {h} x {w}, σ = {sigma:g} px; RoIs {shares}"
         )
+        if note is not None:
+            print(note)
 
 
 if __name__ == "__main__":

@@ -26,7 +26,9 @@ from costseg.calibration.conformal import (
     set_size_curves,
     set_sizes,
 )
+from costseg.classes import CLASS_NAMES, ROI_NAMES
 from costseg.costs import load_cost
+from costseg.report.conformal import conformal_table
 
 UNIT = 16
 """Probabilities are multiples of 1 / UNIT: every sum is exact, so λ may sit on a boundary."""
@@ -349,3 +351,36 @@ def test_evaluate_conformal_matches_a_brute_force_scan(cityscapes_root, tmp_path
             sets = (p >= 1 - lam) | (np.arange(19)[:, None, None] == d)
             sizes.append(sets.sum(0)[y != 255])
         assert record[name]["mean_set_size"]["image"] == pytest.approx(np.concatenate(sizes).mean())
+
+
+def test_the_table_names_each_columns_unit():
+    """table.md: risk and loss as fractions (as α), set sizes in classes, shares in %; each
+    header says which, and the cells follow it."""
+    per_roi = dict.fromkeys(ROI_NAMES, 0.0)
+    record = {
+        "altruistic": {
+            "lambda": 0.25,
+            "reached": True,
+            "calibration_images": 20,
+            "calibration_risk": 0.0625,
+            "reported_loss": 0.125,
+            "mean_set_size": {**per_roi, ROI_NAMES[0]: 1.5, ROI_NAMES[1]: 2.0},
+            "singleton_share": {**per_roi, ROI_NAMES[0]: 0.5},
+            "coverage": {"person": {**per_roi, ROI_NAMES[1]: 0.93}},
+        }
+    }
+    person = CLASS_NAMES.index("person")
+    lines = conformal_table(record, 0.1, "sets", [person]).splitlines()
+    header = [c.strip() for c in lines[-3].strip("|").split("|")]
+    cells = [c.strip() for c in lines[-1].strip("|").split("|")]
+    assert dict(zip(header, cells, strict=True)) == {
+        "matrix": "altruistic",
+        "λ̂": "0.250",
+        "calibration images": "20",
+        "calibration risk (fraction)": "0.0625",
+        "reported loss (fraction)": "0.125",
+        "set size (classes)": "1.5",
+        "set size RoI 1 (classes)": "2",
+        "singletons (%)": "50.00",
+        "person covered RoI 1 (%)": "93.00",
+    }

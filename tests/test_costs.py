@@ -164,13 +164,52 @@ def test_aggregate_table_named_inline_or_packaged(tmp_path):
             {"classes": [*CLASS_NAMES[:-1], "scooter"], "matrix": [[1] * 19] * 19},
             r"unknown class 'scooter'",
         ),
+        (
+            {"classes": [*CLASS_NAMES[:-2], "road"], "matrix": [[1] * 18] * 18},
+            r"missing classes 'motorcycle', 'bicycle'; listed twice: class 'road'$",
+        ),
+        (
+            _aggregate_spec(aggregates={"aggregates": {**AGGREGATES, "human": []}}),
+            r"classes 'sky', 'person', 'rider' are in no aggregate",
+        ),
+        ({"classes": list(CLASS_NAMES)}, r"missing key 'matrix': this form needs 'classes' and"),
+        (
+            {k: v for k, v in _aggregate_spec().items() if k != "order"},
+            r"missing key 'order': this form needs 'aggregates', 'order' and 'matrix'$",
+        ),
+        (_aggregate_spec(epsilom=0.5), r"unknown key 'epsilom': this form takes .*'epsilon'"),
+        ({"off_diagonal": 1, "matrix": []}, r"unknown key 'matrix': this form takes 'off_di"),
+        (_aggregate_spec(epsilon="small"), r"'epsilon' must be a number, got 'small'$"),
+        ({"off_diagonal": None}, r"'off_diagonal' must be a number, got None$"),
         ({"classes": list(CLASS_NAMES), "matrix": [[0] * 19] * 18}, r"must be 19x19, got \(18,"),
         ({"matrix": []}, r"expected a key 'off_diagonal', 'aggregates' or 'classes'"),
     ],
 )
 def test_invalid_yaml_files(tmp_path, spec, message):
-    with pytest.raises(ValueError, match=message):
-        load_cost(_write(tmp_path, spec))
+    path = _write(tmp_path, spec)
+    with pytest.raises(ValueError, match=message) as refused:
+        load_cost(path)
+    assert str(refused.value).startswith(f"cost file {path}: ")  # the file, on one line
+    assert "\n" not in str(refused.value)
+
+
+@pytest.mark.parametrize(
+    ("left_out", "value"),
+    [("epsilon", 0.1), ("suppressed_row_cost", 1000), ("suppressed_column_cost", 1)],
+)
+def test_optional_aggregate_keys_take_the_documented_defaults(tmp_path, left_out, value):
+    """docs/definitions.md §2: ε = 0.1, M = 1000, s = 1 when a file leaves them out."""
+    given = _aggregate_spec(**{left_out: value})
+    without = {k: v for k, v in given.items() if k != left_out}
+    assert torch.equal(
+        load_cost(_write(tmp_path, without)), load_cost(_write(tmp_path, given, "g.yaml"))
+    )
+    bare = {
+        k: v
+        for k, v in given.items()
+        if k not in ("epsilon", "suppressed_row_cost", "suppressed_column_cost")
+    }
+    assert torch.equal(load_cost(_write(tmp_path, bare, "bare.yaml")), load_cost("altruistic"))
 
 
 def test_unknown_preset_and_missing_file(tmp_path):

@@ -2,6 +2,7 @@
 Python floats (the same operations in the same order), exact rational arithmetic where float64
 sums are exact, and the rule's properties (docs/definitions.md §1)."""
 
+import itertools
 from fractions import Fraction
 
 import pytest
@@ -11,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from costseg.costs import barycentric_grid, mix_costs
-from costseg.decision import decide_mixtures_reference, decide_reference
+from costseg.decision import decide_mixtures_reference, decide_reference, expected_costs
 
 
 def python_reference(p, cost, priors=None):
@@ -98,3 +99,22 @@ def test_mixture_reference_is_the_reference_of_each_mixed_matrix():
     assert labels.shape == (1, len(weights), 3, 4) and labels.dtype == torch.long
     for k, cost in enumerate(mix_costs(VERTICES, weights)):
         assert torch.equal(labels[:, k], brute_force(probs, cost))
+
+
+@pytest.mark.parametrize("width", [3, 4])  # 3 = N: a wrong broadcast keeps the shape
+def test_expected_costs_with_global_priors_by_hand(width):
+    """(N,) priors divide each class's probability at every pixel: Σ_k C[j, k] p_k / π_k summed
+    by hand, and the argmin of the expected costs is decide_reference's decision."""
+    gen = torch.Generator().manual_seed(3)
+    probs = torch.rand(2, 3, 2, width, generator=gen, dtype=torch.float64).softmax(1)
+    cost = torch.tensor([[0.0, 4, 1], [2, 0, 8], [1, 3, 0]], dtype=torch.float64)
+    priors = torch.tensor([0.5, 0.2, 0.3], dtype=torch.float64)
+    got = expected_costs(probs, cost, priors)
+    assert got.shape == (2, 3, 2, width)
+    for b, y, x in itertools.product(range(2), range(2), range(width)):
+        p = probs[b, :, y, x].tolist()
+        by_hand = [
+            sum(cost[j, k].item() * p[k] / priors[k].item() for k in range(3)) for j in range(3)
+        ]
+        assert got[b, :, y, x].tolist() == pytest.approx(by_hand, rel=1e-12)
+    assert torch.equal(got.argmin(1), decide_reference(probs, cost, priors))

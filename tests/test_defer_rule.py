@@ -291,7 +291,7 @@ def test_cost_files_with_defer_load_to_the_extended_matrix(tmp_path):
         (float("nan"), "defer costs must be finite and >= 0"),
         ("high", "'defer' must be a number or a mapping"),
         (True, "'defer' must be a number or a mapping"),
-        ({"a": 1, "b": 1}, "no cost for class 'c'"),
+        ({"a": 1, "b": 1}, "no cost for classes 'c', 'd'"),
         ({"ab": 1, "x": 1, "default": 1}, "unknown class 'x'"),
         ({"default": "1"}, "'defer' of 'default' must be a number"),
         ({"c": -1, "default": 1}, "true class 'c' is -1.0"),

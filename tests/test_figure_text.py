@@ -10,7 +10,7 @@ import pytest
 import torch
 from figure_text import InProcessDrawing, clipped_texts
 
-from costseg.classes import CLASS_NAMES
+from costseg.classes import CLASS_NAMES, ROI_NAMES
 from costseg.report.figures import heatmap_grid_figures, plot_heatmap_grid
 from costseg.report.files import render
 from costseg.report.priors import plot_priors, plot_roi_map
@@ -31,7 +31,12 @@ def test_no_text_of_any_figure_is_clipped(drawn):
 
 
 def test_every_figure_says_what_it_shows(drawn):
-    assert "person" in drawn["edges_person_roi1"] and "RoI 1" in drawn["edges_person_roi1"]
+    assert "person" in drawn["edges_person_roi1"] and "RoI 1 (street)" in drawn["edges_person_roi1"]
+    ternaries = [tag for tag in drawn if tag.startswith("ternary_person_roi")]
+    assert ternaries
+    for tag in ternaries:  # the RoI named as the edge plots name it
+        roi = int(tag.split("_roi")[1][0])
+        assert f"RoI {roi} ({ROI_NAMES[roi]})" in drawn[tag], (tag, drawn[tag])
     assert "robotistic" in drawn["meta/segments_0_robotistic"]
     assert "gradient_boosting" in drawn["meta/segments_0_robotistic"]
     for tag in ("masks_0", "fp_segments", "missed_instances", "anomaly_maps_0"):

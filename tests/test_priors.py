@@ -4,6 +4,7 @@ priors file and its cache."""
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -11,9 +12,13 @@ import torch
 from scipy.ndimage import gaussian_filter
 
 from costseg.classes import CLASS_NAMES, ROI_NAMES, class_index
+from costseg.data.prior_maps import PriorMaps
 from costseg.data.priors import (
+    check_priors_file,
     default_sigma,
+    note_priors,
     pixel_priors,
+    priors_note,
     read_priors_file,
     resize_priors,
     roi_map,
@@ -152,7 +157,7 @@ def test_save_and_load(tmp_path: Path) -> None:
     with pytest.raises(FileNotFoundError, match=r"missing\.pt"):
         read_priors_file(tmp_path / "missing.pt", CLASS_NAMES)
     (tmp_path / "junk.pt").write_bytes(b"junk")
-    with pytest.raises(ValueError, match=r"junk\.pt"):
+    with pytest.raises(ValueError, match=r"junk\.pt.*; expected a pixel-priors \.pt file"):
         read_priors_file(tmp_path / "junk.pt", CLASS_NAMES)
     torch.save({"priors": pi}, tmp_path / "other.pt")
     with pytest.raises(ValueError, match="not a pixel-priors file"):
@@ -160,6 +165,85 @@ def test_save_and_load(tmp_path: Path) -> None:
     renamed = ("street", *CLASS_NAMES[1:])
     with pytest.raises(ValueError, match="expected"):
         read_priors_file(path, renamed)
+
+
+def _uniform(n: int = 19, size: tuple[int, int] = (4, 6)) -> torch.Tensor:
+    return torch.full((n, *size), 1 / n)
+
+
+def _spoilt(value: float) -> torch.Tensor:
+    priors = _uniform()
+    priors[CLASS_NAMES.index("road"), 2, 3] = value
+    return priors
+
+
+@pytest.mark.parametrize(
+    ("priors", "message"),
+    [
+        (_spoilt(float("nan")), r"1 value that is not finite and > 0 \(nan for class 'road' at r"),
+        (_spoilt(float("inf")), r"not finite and > 0 \(inf for class 'road' at row 2, column 3\)"),
+        (_spoilt(0.0), r"not finite and > 0 \(0.0 for class 'road'"),
+        (_spoilt(-0.5), r"not finite and > 0 \(-0.5 for class 'road'"),
+        (torch.full((19, 4, 6), float("nan")), r"hold 456 values that are not finite"),
+        (_uniform(18), r"must be \(19, H, W\) for the 19 classes, got shape \(18, 4, 6\)"),
+        (_uniform()[:, 0], r"must be \(19, H, W\) .* got shape \(19, 6\)"),
+        (_uniform().numpy(), r"must be a torch tensor \(19, H, W\), got ndarray"),
+    ],
+)
+def test_priors_are_checked_wherever_they_enter(tmp_path: Path, priors, message: str) -> None:
+    """A file (read or checked before the run), the maps every rule and RoI reads (a
+    checkpoint's or the Python API's tensor): the same one-line ValueError."""
+    with pytest.raises(ValueError, match=message):
+        PriorMaps(priors)
+    if isinstance(priors, torch.Tensor):
+        path = tmp_path / "bad.pt"
+        torch.save(
+            {
+                "format": "costseg-pixel-priors-v1",
+                "class_names": list(CLASS_NAMES),
+                "priors": priors,
+                "settings": None,
+            },
+            path,
+        )
+        for read in (read_priors_file, lambda p, c: check_priors_file(str(p), c)):
+            with pytest.raises(ValueError, match=rf"the priors in '{path}' (hold|must be)") as err:
+                read(path, CLASS_NAMES)
+            assert "\n" not in str(err.value)
+
+
+def test_nan_priors_no_longer_reach_the_roi_map() -> None:
+    """The issue's case: NaN priors made NaN pixels street; now they are refused."""
+    priors = _spoilt(float("nan"))
+    assert roi_map(priors)[2, 3] == 1  # what a silent use would give (argmax of NaN: street)
+    with pytest.raises(ValueError, match="not finite"):
+        PriorMaps(priors).roi_map()
+
+
+def test_priors_note_on_few_labels_and_on_the_evaluated_labels(tmp_path: Path, capsys) -> None:
+    val = tmp_path / "gtFine" / "val"
+    evaluated = [val / "city" / f"{i}_gtFine_labelIds.png" for i in range(6)]
+    assert priors_note(50) is None and priors_note(None) is None
+    assert "on 49 labels (fewer than 50)" in priors_note(49)
+    own = priors_note(3000, val, evaluated)
+    assert own is not None and f"on the evaluated images' own labels ({val})" in own
+    assert priors_note(3000, tmp_path / "gtFine" / "train", evaluated) is None
+    assert priors_note(3000, tmp_path / "gtFine" / "va", evaluated) is None  # not a prefix match
+    both = priors_note(6, tmp_path, evaluated)
+    assert "6 labels" in both and "own labels" in both and "\n" not in both
+
+    # a Cityscapes-layout dataset lists its (image, label) paths
+    dataset = SimpleNamespace(files=[(label, label) for label in evaluated])
+
+    path = tmp_path / "val_priors.pt"
+    save_priors(path, _uniform(), settings={"labels": str(val), "num_labels": 6})
+    description = {"priors": {"file": str(path)}}
+    note_priors(description, str(path), dataset)
+    printed = capsys.readouterr().out.strip()
+    assert printed == description["priors"]["note"] == priors_note(6, val, evaluated)
+    counted = {"priors": {"labels": 3000, "split": "train"}}
+    note_priors(counted, None, dataset)
+    assert "note" not in counted["priors"] and capsys.readouterr().out == ""
 
 
 def _counts(labels: list[torch.Tensor], n: int) -> np.ndarray:

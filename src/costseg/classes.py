@@ -72,6 +72,17 @@ NUM_ROIS = len(ROI_NAMES) - 1
 ROI_CLASSES: tuple[str, ...] = tuple(cls for _, cls in _ROIS[1:] if cls)
 """The class of each RoI id 1 … R: a location belongs to the RoI whose class has the highest
 prior there."""
+
+
+def roi_label(roi: int) -> str:
+    """How figures and tables name RoI id ``roi``.
+
+    >>> roi_label(1), roi_label(0)
+    ('RoI 1 (street)', 'RoI 0 (image)')
+    """
+    return f"RoI {roi} ({ROI_NAMES[roi]})"
+
+
 ROI_IDS: dict[str, int] = {f"roi{i}": i for i in range(len(ROI_NAMES))}
 ROI_IDS |= {name: i for i, name in enumerate(ROI_NAMES)}
 """How a RoI may be written (``roi1`` or ``street``) → its id."""

@@ -134,23 +134,26 @@ def with_defer(
 def load_cost(name_or_path: str | Path, class_names: Sequence[str] = CLASS_NAMES) -> torch.Tensor:
     """Load a preset (``robotistic``, ``altruistic``, ``egoistic``) or a YAML cost file.
 
-    Three YAML formats (see the presets in ``configs/costs/``):
+    Three YAML formats (see the presets in ``configs/costs/`` and :data:`COST_FILE_KEYS`):
 
     * ``off_diagonal: λ`` — the symmetric matrix with every off-diagonal entry λ;
     * ``classes: [...]`` + ``matrix: N×N`` — a full matrix over named classes (any order);
-    * ``aggregates`` + ``order`` + ``matrix`` (A×A) + ``epsilon``, ``suppressed_row_cost`` (M),
-      ``suppressed_column_cost`` (s) — expanded to N×N as in docs/definitions.md §2.
+    * ``aggregates`` + ``order`` + ``matrix`` (A×A), optionally ``epsilon`` (ε),
+      ``suppressed_row_cost`` (M), ``suppressed_column_cost`` (s), which default to
+      :data:`AGGREGATE_DEFAULTS` — expanded to N×N as in docs/definitions.md §2.
 
-    Each may add ``defer`` (docs/definitions.md §14): a number, the cost of deferring whatever the
-    true class, or a mapping from class names, aggregate names (files with aggregates) and
-    ``default`` (every class not named otherwise) to the cost of deferring that true class; a
-    class's own entry wins over its aggregate's.
+    Each may add ``name`` and ``defer`` (docs/definitions.md §14): a number, the cost of deferring
+    whatever the true class, or a mapping from class names, aggregate names (files with
+    aggregates) and ``default`` (every class not named otherwise) to the cost of deferring that
+    true class; a class's own entry wins over its aggregate's.
 
     Returns:
         (N, N) float64 matrix, or (N + 1, N) with ``defer``, validated.
 
     Raises:
-        ValueError: unknown preset, malformed file, unknown class or aggregate name, invalid matrix.
+        ValueError: unknown preset; a malformed file, a missing or unknown key, unknown class or
+            aggregate names, an invalid matrix: one line naming the file (and every class at
+            fault).
         FileNotFoundError: the path does not exist.
 
     >>> load_cost("robotistic").sum().item()    # 19 * 18 ones
@@ -165,23 +168,11 @@ def load_cost(name_or_path: str | Path, class_names: Sequence[str] = CLASS_NAMES
             )
         path, folder = COSTS_DIR / f"{name_or_path}.yaml", COSTS_DIR
     spec = read_yaml(path)
-    if "off_diagonal" in spec:
-        cost = float(spec["off_diagonal"]) * symmetric_cost(len(class_names))
-    elif "aggregates" in spec:
-        if not {"order", "matrix"} <= spec.keys():
-            raise ValueError(
-                f"{path} is an aggregate table (which class is in which aggregate), not a cost "
-                "matrix: a cost file names it under 'aggregates' with 'order' and 'matrix' "
-                "(see the preset configs/costs/egoistic.yaml)"
-            )
-        cost = expand_aggregates(spec, folder, class_names)
-    elif "classes" in spec:
-        cost = full_matrix(spec, class_names)
-    else:
-        raise ValueError(f"{path}: expected a key 'off_diagonal', 'aggregates' or 'classes'")
-    if "defer" in spec:
-        cost = with_defer(cost, defer_costs(spec, folder, class_names), class_names)
-    return validate_cost(cost, class_names)
+    try:
+        cost = cost_of_spec(spec, folder, class_names)
+    except ValueError as err:  # one place names the file for every rule of the format
+        raise ValueError(f"cost file {path}: {err}") from None
+    return cost
 
 
 def save_cost(
@@ -310,9 +301,89 @@ def barycentric_grid(step: float) -> torch.Tensor:
     return torch.tensor(points, dtype=torch.float64) / n
 
 
-# The sections of a cost YAML file (docs/definitions.md §2, §14), read into tensors: load_cost
-# chooses the form (off_diagonal, aggregates, classes) and validates the result.
+# The keys of each form of a cost YAML file (docs/usage.md#cost-matrices): required, optional.
+COST_FILE_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    "off_diagonal": (("off_diagonal",), ()),
+    "classes": (("classes", "matrix"), ()),
+    "aggregates": (
+        ("aggregates", "order", "matrix"),
+        ("epsilon", "suppressed_row_cost", "suppressed_column_cost", "suppressed"),
+    ),
+}
+"""Per form (named by the key that chooses it): its required keys, and its optional keys besides
+``name`` and ``defer``, which every form takes."""
+
+AGGREGATE_DEFAULTS = {"epsilon": 0.1, "suppressed_row_cost": 1000.0, "suppressed_column_cost": 1.0}
+"""ε, M and s of an aggregate cost file that leaves them out (docs/definitions.md §2)."""
+
+
+def cost_of_spec(
+    spec: dict, folder: Path | Traversable, class_names: Sequence[str]
+) -> torch.Tensor:
+    """The validated matrix of a cost file's mapping ``spec`` (see :func:`load_cost`); tables
+    named in it are looked for in ``folder``.
+
+    >>> cost_of_spec({"off_diagonal": 2}, COSTS_DIR, ["a", "b"]).tolist()
+    [[0.0, 2.0], [2.0, 0.0]]
+    >>> cost_of_spec({"classes": ["a", "b"]}, COSTS_DIR, ["a", "b"])
+    Traceback (most recent call last):
+    ...
+    ValueError: missing key 'matrix': this form needs 'classes' and 'matrix'
+    """
+    form = next((key for key in COST_FILE_KEYS if key in spec), None)
+    if form is None:
+        raise ValueError("expected a key 'off_diagonal', 'aggregates' or 'classes'")
+    required, optional = COST_FILE_KEYS[form]
+    if form == "aggregates" and not {"order", "matrix"} & spec.keys():
+        raise ValueError(
+            "this is an aggregate table (which class is in which aggregate), not a cost matrix: "
+            "a cost file names it under 'aggregates' with 'order' and 'matrix' (see the preset "
+            "configs/costs/egoistic.yaml)"
+        )
+    missing = [key for key in required if key not in spec]
+    if missing:
+        raise ValueError(
+            f"missing {_keys(missing)}: this form needs {_keys(required, 'and', noun=False)}"
+        )
+    unknown = sorted(set(spec) - {*required, *optional, "name", "defer"})
+    if unknown:
+        accepted = _keys([*required, *optional, "name", "defer"], noun=False)
+        raise ValueError(f"unknown {_keys(unknown)}: this form takes {accepted}")
+    if form == "off_diagonal":
+        cost = _number(spec, "off_diagonal") * symmetric_cost(len(class_names))
+    elif form == "aggregates":
+        cost = expand_aggregates(spec, folder, class_names)
+    else:
+        cost = full_matrix(spec, class_names)
+    if "defer" in spec:
+        cost = with_defer(cost, defer_costs(spec, folder, class_names), class_names)
+    return validate_cost(cost, class_names)
+
+
+def _keys(keys: Sequence[str], joint: str = "or", noun: bool = True) -> str:
+    """``key 'a'`` / ``keys 'a', 'b'`` (noun), or ``'a' and 'b'`` (joint) for messages."""
+    quoted = [repr(k) for k in keys]
+    listed = quoted[0] if len(quoted) == 1 else f"{', '.join(quoted[:-1])} {joint} {quoted[-1]}"
+    if not noun:
+        return listed
+    return f"key{'s' if len(keys) > 1 else ''} {', '.join(quoted)}"
+
+
+def _classes(names: Sequence[str]) -> str:
+    """``class 'a'`` / ``classes 'a', 'b'``: every class at fault, in messages."""
+    return f"class{'es' if len(names) > 1 else ''} {', '.join(repr(n) for n in names)}"
+
+
+def _number(spec: dict, key: str) -> float:
+    """``spec[key]`` (else its default in :data:`AGGREGATE_DEFAULTS`) as a float."""
+    value = spec.get(key, AGGREGATE_DEFAULTS.get(key))
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f"{key!r} must be a number, got {value!r}")
+    return float(value)
+
+
 def read_yaml(path: Path | Traversable) -> dict:
+    """The mapping of a YAML file; FileNotFoundError or ValueError naming ``path``."""
     if not path.is_file():
         raise FileNotFoundError(f"cost file not found: {path}")
     try:
@@ -324,13 +395,13 @@ def read_yaml(path: Path | Traversable) -> dict:
     return spec
 
 
-def _as_matrix(values: object, size: int, what: str) -> torch.Tensor:
+def _as_matrix(values: object, size: int) -> torch.Tensor:
     try:
         matrix = torch.tensor(values, dtype=torch.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{what}: 'matrix' must be a list of {size} rows of numbers") from None
+    except (TypeError, ValueError, RuntimeError):
+        raise ValueError(f"'matrix' must be a list of {size} rows of numbers") from None
     if matrix.shape != (size, size):
-        raise ValueError(f"{what}: 'matrix' must be {size}x{size}, got {tuple(matrix.shape)}")
+        raise ValueError(f"'matrix' must be {size}x{size}, got {tuple(matrix.shape)}")
     return matrix
 
 
@@ -338,22 +409,24 @@ def _positions(names: Sequence[str], class_names: Sequence[str], what: str) -> l
     unknown = [n for n in names if n not in class_names]
     if unknown:
         raise ValueError(
-            f"{what}: unknown class {unknown[0]!r}; expected one of: {', '.join(class_names)}"
+            f"{what}: unknown {_classes(unknown)}; expected one of: {', '.join(class_names)}"
         )
     return [list(class_names).index(n) for n in names]
 
 
 def full_matrix(spec: dict, class_names: Sequence[str]) -> torch.Tensor:
     names = list(spec["classes"])
-    if sorted(names) != sorted(class_names):
-        _positions(names, class_names, "cost file")
-        missing = sorted(set(class_names) - set(names))
+    _positions(names, class_names, "'classes'")
+    missing = [c for c in class_names if c not in names]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if missing or twice:
         raise ValueError(
-            f"cost file: 'classes' must list each of the {len(class_names)} classes once"
-            + (f"; missing {missing[0]!r}" if missing else "; a class is listed twice")
+            f"'classes' must list each of the {len(class_names)} classes once"
+            + (f"; missing {_classes(missing)}" if missing else "")
+            + (f"; listed twice: {_classes(twice)}" if twice else "")
         )
-    matrix = _as_matrix(spec.get("matrix"), len(names), "cost file")
-    order = _positions(names, class_names, "cost file")
+    matrix = _as_matrix(spec["matrix"], len(names))
+    order = _positions(names, class_names, "'classes'")
     cost = torch.empty_like(matrix)
     cost[torch.tensor(order)[:, None], torch.tensor(order)[None, :]] = matrix
     return cost
@@ -373,8 +446,8 @@ def _aggregate_table(spec: dict, folder: Path | Traversable) -> tuple[dict, list
         table = {"aggregates": table, "suppressed": spec.get("suppressed", [])}
     if not (isinstance(table, dict) and isinstance(table.get("aggregates"), dict)):
         raise ValueError(
-            "cost file: 'aggregates' must name a table file (e.g. aggregates.yaml) or map each "
-            "aggregate to its classes"
+            "'aggregates' must name a table file (e.g. aggregates.yaml) or map each aggregate "
+            "to its classes"
         )
     return dict(table["aggregates"]), list(table.get("suppressed", []))
 
@@ -385,9 +458,7 @@ def expand_aggregates(
     groups, suppressed = _aggregate_table(spec, folder)
     order = list(spec["order"])
     if sorted(order) != sorted(groups):
-        raise ValueError(
-            f"cost file: 'order' {order} must name each aggregate once: {', '.join(groups)}"
-        )
+        raise ValueError(f"'order' {order} must name each aggregate once: {', '.join(groups)}")
     agg_of = torch.full((len(class_names),), -1, dtype=torch.long)
     for a, name in enumerate(order):
         for i in _positions(groups[name], class_names, f"aggregate {name!r}"):
@@ -397,13 +468,15 @@ def expand_aggregates(
     sup = _positions(suppressed, class_names, "suppressed classes")
     unassigned = [class_names[i] for i in range(len(class_names)) if agg_of[i] < 0 and i not in sup]
     if unassigned:
-        raise ValueError(f"class {unassigned[0]!r} is in no aggregate and not suppressed")
-    matrix = _as_matrix(spec.get("matrix"), len(order), "aggregate cost file")
+        verb = "is" if len(unassigned) == 1 else "are"
+        raise ValueError(f"{_classes(unassigned)} {verb} in no aggregate and not suppressed")
+    matrix = _as_matrix(spec["matrix"], len(order))
+    epsilon, row, column = (_number(spec, key) for key in AGGREGATE_DEFAULTS)
     safe = agg_of.clamp(min=0)
     cost = matrix[safe[:, None], safe[None, :]]
-    cost[agg_of[:, None] == agg_of[None, :]] = float(spec["epsilon"])
-    cost[:, sup] = float(spec["suppressed_column_cost"])  # s: sky as the true class
-    cost[sup, :] = float(spec["suppressed_row_cost"])  # M: predicting sky
+    cost[agg_of[:, None] == agg_of[None, :]] = epsilon
+    cost[:, sup] = column  # s: sky as the true class
+    cost[sup, :] = row  # M: predicting sky
     return cost.fill_diagonal_(0.0)
 
 
@@ -414,8 +487,8 @@ def defer_costs(
     value = spec["defer"]
     if isinstance(value, bool) or not isinstance(value, (int, float, dict)):
         raise ValueError(
-            "cost file: 'defer' must be a number or a mapping from class names, aggregate names "
-            f"or 'default' to numbers, got {value!r}"
+            "'defer' must be a number or a mapping from class names, aggregate names or "
+            f"'default' to numbers, got {value!r}"
         )
     if not isinstance(value, dict):
         return float(value)
@@ -426,17 +499,17 @@ def defer_costs(
     for key in keys:
         number = value[key]
         if isinstance(number, bool) or not isinstance(number, (int, float)):
-            raise ValueError(f"cost file: 'defer' of {key!r} must be a number, got {number!r}")
+            raise ValueError(f"'defer' of {key!r} must be a number, got {number!r}")
         if key == "default":
             row[:] = number
         elif key in groups:
             row[_positions(groups[key], class_names, f"aggregate {key!r}")] = float(number)
         else:
-            row[_positions([key], class_names, "cost file: 'defer'")] = float(number)
+            row[_positions([key], class_names, "'defer'")] = float(number)
     if row.isnan().any():
-        missing = class_names[int(row.isnan().nonzero()[0])]
+        missing = [class_names[int(i)] for i in row.isnan().nonzero()[:, 0]]
         raise ValueError(
-            f"cost file: 'defer' gives no cost for class {missing!r} (name it, its aggregate, "
-            "or 'default')"
+            f"'defer' gives no cost for {_classes(missing)} (name them, their aggregates, or "
+            "'default')"
         )
     return row

@@ -19,7 +19,7 @@ from torch import Tensor
 from torch.utils.data import Dataset
 
 from costseg.classes import CLASS_NAMES
-from costseg.data.priors import geometric_roi_map, resize_priors, roi_map
+from costseg.data.priors import check_priors, geometric_roi_map, resize_priors, roi_map
 
 MAX_CANVAS_WIDTH = 512
 
@@ -28,7 +28,8 @@ class PriorMaps:
     """Priors (N, H, W) and RoI map (H, W) per image size, resized on first use and kept.
 
     Args:
-        priors: (N, H, W) priors at label resolution, or None (then ``at`` gives no priors).
+        priors: (N, H, W) priors at label resolution, finite and > 0 (checked: ValueError), or
+            None (then ``at`` gives no priors).
         class_names: class per channel (must include the RoI classes).
         device: where the resized maps live.
         geometric: RoIs from :func:`~costseg.data.priors.geometric_roi_map` at each size instead
@@ -42,6 +43,8 @@ class PriorMaps:
         device: torch.device | None = None,
         geometric: bool = False,
     ) -> None:
+        if priors is not None:  # whatever their source: a file, a checkpoint, a tensor given
+            check_priors(priors, class_names)
         self.priors = None if priors is None else priors.to(device or "cpu")
         self.class_names = class_names
         self.device = device

@@ -34,6 +34,10 @@ from costseg.progress import progress as progress_of
 _FORMAT = "costseg-pixel-priors-v1"
 _HANDFUL = 10  # no progress bar for a few labels (doctests, tests)
 
+FEW_LABELS = 50
+"""Priors counted on fewer labels than this get a note: the smoothed frequencies of a handful of
+scenes are one street's layout, not a camera's (an ``ml`` mIoU of a few % follows)."""
+
 
 def default_sigma(height: int) -> float:
     """The default smoothing in pixels for labels of ``height`` rows: ``80 · height / 1024``.
@@ -250,32 +254,146 @@ def save_priors(
         torch.save(payload, tmp)
 
 
-def check_priors_file(priors: str | None) -> None:
-    """A ``--priors`` file, when given, that exists (checked before anything heavy).
+def check_priors(
+    priors: Tensor, class_names: Sequence[str] = CLASS_NAMES, what: str = "priors"
+) -> Tensor:
+    """``priors`` if they are (N, H, W) priors of ``class_names``, finite and > 0 everywhere:
+    rules divide by them (``ml``, the α sweep) and the RoI map compares them, so a NaN or a 0
+    would decide pixels silently (docs/definitions.md §3).
+
+    Args:
+        priors: the tensor to check.
+        class_names: the classes of its N channels.
+        what: names the priors in the message (a file, ``the priors given to evaluate``).
+
+    Raises:
+        ValueError: one line naming ``what``, the shape expected, or how many values are not
+            finite and > 0 and where the first is.
+
+    >>> check_priors(torch.full((2, 1, 3), 0.5), ["a", "b"]).shape
+    torch.Size([2, 1, 3])
+    >>> check_priors(torch.tensor([[[0.5, float("nan")]], [[0.5, 0.5]]]), ["a", "b"])
+    ... # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    ValueError: priors hold 1 value that is not finite and > 0 (nan for class 'a' at row 0, ...
+    """
+    n = len(class_names)
+    if not isinstance(priors, Tensor):
+        raise ValueError(f"{what} must be a torch tensor ({n}, H, W), got {type(priors).__name__}")
+    if priors.ndim != 3 or priors.shape[0] != n:
+        raise ValueError(
+            f"{what} must be ({n}, H, W) for the {n} classes, got shape {tuple(priors.shape)}"
+        )
+    bad = ~(torch.isfinite(priors) & (priors > 0))
+    count = int(bad.sum())
+    if count:
+        k, y, x = (int(v) for v in bad.nonzero()[0])
+        values = "value that is" if count == 1 else "values that are"
+        raise ValueError(
+            f"{what} hold {count} {values} not finite and > 0 ({priors[k, y, x].item()} for class "
+            f"{class_names[k]!r} at row {y}, column {x}): rules divide by them and the RoI map "
+            "compares them; count them again"
+        )
+    return priors
+
+
+def check_priors_file(priors: str | None, class_names: Sequence[str] = CLASS_NAMES) -> None:
+    """A ``--priors`` file, when given, that holds priors of ``class_names`` that
+    :func:`check_priors` accepts (checked before anything heavy: one read of a small file).
 
     >>> check_priors_file(None)
     """
-    if priors is not None and not Path(priors).is_file():
-        raise ValueError(f"--priors file not found: {priors}")
+    if priors is not None:
+        if not Path(priors).is_file():
+            raise ValueError(f"--priors file not found: {priors}")
+        read_priors_file(priors, class_names)
 
 
 def read_priors_file(path: str | Path, class_names: Sequence[str]) -> dict[str, Any]:
     """The checked payload of a file written by :func:`save_priors`: ``"priors"`` (N, H, W)
-    float32, ``"class_names"``, ``"settings"``.
+    float32 (finite, > 0: :func:`check_priors`), ``"class_names"``, ``"settings"``.
 
     Raises:
         FileNotFoundError: No file at ``path``.
-        ValueError: The file is not a priors file, or its classes differ from ``class_names``.
+        ValueError: The file is not a priors file, its classes differ from ``class_names``, or
+            its priors are not valid (one line naming the file).
     """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"priors file '{path}' does not exist; create it with save_priors")
-    payload = read_torch_file(path)
+    expected = (
+        "expected a pixel-priors .pt file (a run's priors.pt, scripts/count_priors.py's or "
+        "scripts/export.py's)"
+    )
+    try:
+        payload = read_torch_file(path)
+    except ValueError as err:
+        raise ValueError(f"{err}; {expected}") from None
     if not isinstance(payload, dict) or payload.get("format") != _FORMAT:
-        raise ValueError(f"'{path}' is not a pixel-priors file written by save_priors")
+        raise ValueError(f"'{path}' is not a pixel-priors file written by save_priors: {expected}")
     if list(payload["class_names"]) != list(class_names):
         raise ValueError(
             f"priors in '{path}' are for classes {payload['class_names']}; "
             f"expected {list(class_names)}"
         )
+    check_priors(payload["priors"], class_names, f"the priors in '{path}'")
     return payload
+
+
+def priors_note(
+    num_labels: int | None, folder: str | Path | None = None, evaluated_labels: Iterable = ()
+) -> str | None:
+    """The one line that warns about priors counted on fewer than :data:`FEW_LABELS` labels, or
+    on the labels of the evaluated images themselves; None when neither is known to hold.
+
+    Args:
+        num_labels: how many labels the priors were counted on (None: unknown).
+        folder: the folder they were counted from (``scripts/count_priors.py`` records it).
+        evaluated_labels: the label files of the evaluated images.
+
+    >>> print(priors_note(6, "cs/gtFine/val", ["cs/gtFine/val/a/x_gtFine_labelIds.png"]))
+    ... # doctest: +ELLIPSIS
+    note: the priors were counted on 6 labels (fewer than 50) and on the evaluated images' ...
+    >>> priors_note(2975, "cs/gtFine/train", ["cs/gtFine/val/a/x_gtFine_labelIds.png"]) is None
+    True
+    """
+    reasons = []
+    if isinstance(num_labels, int) and num_labels < FEW_LABELS:
+        reasons.append(f"on {num_labels} labels (fewer than {FEW_LABELS})")
+    if folder is not None:
+        root = Path(folder).resolve()
+        if any(root in Path(label).resolve().parents for label in evaluated_labels):
+            reasons.append(f"on the evaluated images' own labels ({folder})")
+    if not reasons:
+        return None
+    return (
+        f"note: the priors were counted {' and '.join(reasons)}: their RoIs and the rules that "
+        "divide by them (ml) follow those labels, not the scene; count them on a training "
+        "split of 50 labels or more (scripts/count_priors.py)"
+    )
+
+
+def note_priors(description: dict[str, Any], priors_file: str | None, evaluated: object) -> None:
+    """Print :func:`priors_note` of an evaluation's priors and add it to their record
+    ``description["priors"]``: a ``--priors`` file's settings (its label count and folder), or
+    the record of priors counted on the train split (its ``labels`` count); ``evaluated`` is the
+    dataset of the evaluated images (its label files, ``files``, where it has them)."""
+    record = description.get("priors")
+    if priors_file is not None:
+        settings = read_torch_file(priors_file, mmap=True).get("settings") or {}
+        folder = settings.get("labels") if isinstance(settings.get("labels"), str) else None
+        note = priors_note(settings.get("num_labels"), folder, _label_files(evaluated))
+    elif isinstance(record, dict):
+        note = priors_note(record.get("labels"))
+    else:
+        return
+    if note is not None:
+        print(note)
+        if isinstance(record, dict):
+            record["note"] = note
+
+
+def _label_files(dataset: object) -> list[Path]:
+    """The label files of a dataset that lists (image, label) paths as ``files``."""
+    return [pair[1] for pair in getattr(dataset, "files", ())]

@@ -88,11 +88,22 @@ def reference_mixture_rows(probs, vertices, weights, priors) -> torch.Tensor:
 def _q(probs: torch.Tensor, priors) -> torch.Tensor:
     """(B·H·W, N) float64 ``p / π``."""
     n = probs.shape[1]
-    q = probs.detach().double()
-    if priors is not None:
-        priors = torch.as_tensor(priors).to(q.device, torch.float64)
-        q = q / (priors.view(n, 1, 1) if priors.ndim == 1 else priors)
-    return q.permute(0, 2, 3, 1).reshape(-1, n)
+    return over_priors(probs.detach(), priors).permute(0, 2, 3, 1).reshape(-1, n)
+
+
+def over_priors(probs: torch.Tensor, priors: torch.Tensor | None) -> torch.Tensor:
+    """(B, N, H, W) float64 ``q = p / π``, one division per entry, with ``priors`` None, (N,)
+    (the same for every pixel) or (N, H, W).
+
+    >>> p = torch.tensor([0.5, 0.5]).view(1, 2, 1, 1)
+    >>> over_priors(p, torch.tensor([0.25, 0.5])).flatten().tolist()
+    [2.0, 1.0]
+    """
+    q = probs.double()
+    if priors is None:
+        return q
+    priors = torch.as_tensor(priors).to(q.device, torch.float64)
+    return q / (priors.view(-1, 1, 1) if priors.ndim == 1 else priors)
 
 
 def shift(costs: torch.Tensor) -> torch.Tensor:
@@ -121,8 +132,6 @@ def expected_costs(
     >>> expected_costs(p).flatten().tolist()
     [0.5, 0.75, 0.75]
     """
-    q = probs.double()
-    if priors is not None:
-        q = q / priors.to(q)
+    q = over_priors(probs, priors)
     cost = cost_or_symmetric(cost, probs.shape[1]).to(q)
     return torch.einsum("jk,bkhw->bjhw", cost, q)

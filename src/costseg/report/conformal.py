@@ -54,6 +54,37 @@ class RuleSets:
         }
 
 
+def conformal_table(record: dict, alpha: float, sets: str, class_ids: Sequence[int]) -> str:
+    """table.md's section: per anchor rule (``record``: :meth:`RuleSets.summary` by name) λ̂,
+    the risk and loss as fractions (as α), set sizes in classes, singletons and the coverage of
+    ``class_ids`` in RoI 1 in %; each header names its unit."""
+    rows = []
+    for name, r in record.items():
+        row = {
+            "matrix": name,
+            "λ̂": f"{r['lambda']:.3f}" + ("" if r["reached"] else " (not reached)"),
+            "calibration images": r["calibration_images"],
+            "calibration risk (fraction)": format_value(r["calibration_risk"]),
+            "reported loss (fraction)": format_value(r["reported_loss"]),
+            "set size (classes)": format_value(r["mean_set_size"][ROI_NAMES[0]]),
+            "set size RoI 1 (classes)": format_value(r["mean_set_size"][ROI_NAMES[1]]),
+            "singletons (%)": format_value(r["singleton_share"][ROI_NAMES[0]], percent=True),
+        }
+        for cls in class_ids:
+            value = r["coverage"][CLASS_NAMES[cls]][ROI_NAMES[1]]
+            row[f"{CLASS_NAMES[cls]} covered RoI 1 (%)"] = format_value(value, percent=True)
+        rows.append(row)
+    return "\n\n".join(
+        [
+            f"## Conformal prediction sets at α = {alpha:g} (definitions §18)",
+            f"{sets}. λ̂ by conformal risk control on the held-out images bounds the expected "
+            "loss of a new image by α (not the loss of each image); not reached: too few "
+            "held-out images, every class is in the set.",
+            markdown_table(rows, percent=[]),
+        ]
+    )
+
+
 @dataclass
 class ConformalOutputs(Result):
     """Every anchor rule's sets at risk level ``alpha``; ``sets``: what a set and the loss are;
@@ -87,7 +118,7 @@ class ConformalOutputs(Result):
         ]
         return Section(
             json={"conformal": {"alpha": self.alpha, "sets": self.sets, "rules": record}},
-            table="\n\n" + self._table(record, results.class_ids) + "\n",
+            table="\n\n" + conformal_table(record, self.alpha, self.sets, results.class_ids) + "\n",
             console=[self._console(record)],
             curves=curves,
             jobs=jobs,
@@ -109,33 +140,6 @@ class ConformalOutputs(Result):
                         "singleton_share": singletons[roi, cls].item(),
                     })  # fmt: skip
         return rows
-
-    def _table(self, record: dict, class_ids: Sequence[int]) -> str:
-        rows = []
-        for name, r in record.items():
-            row = {
-                "matrix": name,
-                "λ̂": f"{r['lambda']:.3f}" + ("" if r["reached"] else " (not reached)"),
-                "calibration images": r["calibration_images"],
-                "calibration risk": format_value(r["calibration_risk"]),
-                "reported loss": format_value(r["reported_loss"]),
-                "set size": format_value(r["mean_set_size"][ROI_NAMES[0]]),
-                "set size RoI 1": format_value(r["mean_set_size"][ROI_NAMES[1]]),
-                "singletons": format_value(r["singleton_share"][ROI_NAMES[0]], percent=True),
-            }
-            for cls in class_ids:
-                value = r["coverage"][CLASS_NAMES[cls]][ROI_NAMES[1]]
-                row[f"{CLASS_NAMES[cls]} covered RoI 1"] = format_value(value, percent=True)
-            rows.append(row)
-        return "\n\n".join(
-            [
-                f"## Conformal prediction sets at α = {self.alpha:g} (definitions §18)",
-                f"{self.sets}. λ̂ by conformal risk control on the held-out images bounds the "
-                "expected loss of a new image by α (not the loss of each image); not reached: "
-                "too few held-out images, every class is in the set.",
-                markdown_table(rows, percent=[]),
-            ]
-        )
 
     def _console(self, record: dict) -> str:
         parts = [

@@ -18,6 +18,10 @@ from matplotlib.figure import Figure
 from costseg.classes import CLASS_NAMES
 from costseg.report.figures import ArrayLike, as_numpy, freeze_layout
 
+TRUE_AXIS = "true class $k$ (column)"
+PREDICTED_AXIS = r"predicted class $\hat{k}$ (row)"
+"""The axes' labels: the indices of ``C[k̂, k]`` (docs/definitions.md §1), drawn distinct."""
+
 
 def plot_cost_matrix(
     C: ArrayLike, class_names: Sequence[str] = CLASS_NAMES, title: str = ""
@@ -31,8 +35,8 @@ def plot_cost_matrix(
         class_names: N names for the ticks.
         title: e.g. "egoistic".
 
-    >>> plot_cost_matrix(np.ones((2, 2)) - np.eye(2), ["a", "b"]).axes[0].get_ylabel()
-    'predicted class k̂'
+    >>> print(plot_cost_matrix(np.ones((2, 2)) - np.eye(2), ["a", "b"]).axes[0].get_ylabel())
+    predicted class $\\hat{k}$ (row)
     >>> fig = plot_cost_matrix(np.array([[0, 1], [1, 0], [0.5, 0.5]]), ["a", "b"])
     >>> [t.get_text() for t in fig.axes[0].get_yticklabels()]
     ['a', 'b', 'defer']
@@ -94,7 +98,8 @@ def _figure(shown: np.ma.MaskedArray, norm: LogNorm, class_names: Sequence[str])
     image = ax.imshow(shown, cmap=cmap, norm=norm, interpolation="nearest")
     ax.set_xticks(range(n), class_names, rotation=90)
     ax.set_yticks(range(len(rows)), rows)
-    ax.set_xlabel("true class k")
-    ax.set_ylabel("predicted class k̂")
+    # mathtext: a combining hat (k̂) is lost in the default font and both axes would read "k"
+    ax.set_xlabel(TRUE_AXIS)
+    ax.set_ylabel(PREDICTED_AXIS)
     fig.colorbar(image, ax=ax, label="cost (log scale)", shrink=0.8)
     return fig, image

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
 
-from costseg.classes import CLASS_NAMES, ROI_NAMES
+from costseg.classes import CLASS_NAMES, roi_label
 from costseg.metrics.functional.deferral import risk_coverage_area, selective_error
 from costseg.report.curves import Panel, risk_coverage_figures
 from costseg.report.drawing import job
@@ -92,7 +92,7 @@ def risk_coverage_outputs(results: EvalResults, mine: list[GroupResult]) -> Sect
 
 def _table(result: GroupResult, class_ids: Sequence[int]) -> str:
     """The AURC table of table.md."""
-    head = " | ".join(f"RoI {r} ({ROI_NAMES[r]})" for r in CURVE_ROIS)
+    head = " | ".join(roi_label(r) for r in CURVE_ROIS)
     lines = [
         f"| {rule} | {key} | " + " | ".join(format_value(v) for v in by_roi.values()) + " |"
         for rule, by_class in areas(result, class_ids).items()
@@ -122,7 +122,7 @@ def risk_coverage_panels(result: GroupResult, class_ids: Sequence[int]) -> list[
                 coverage, risk = curve(result, path, cls, roi)
                 area = format_value(risk_coverage_area(coverage, risk))
                 curves.append((f"{group.rules[path[0]].name} (AURC {area})", (coverage, risk)))
-            panels.append((name, f"{name}, RoI {roi} ({ROI_NAMES[roi]})", curves))
+            panels.append((name, f"{name}, {roi_label(roi)}", curves))
         figures.append(panels)
     return figures
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
 
-from costseg.classes import CLASS_NAMES, ROI_NAMES
+from costseg.classes import CLASS_NAMES, roi_label
 from costseg.costs import save_cost
 from costseg.metrics.names import PAPER_RATES, PIXEL_RATES, SEGMENT_RATES
 from costseg.metrics.selection import choose
@@ -83,10 +83,11 @@ def _triangle_figures(results: EvalResults, grid: GroupResult) -> list[tuple[str
         name = CLASS_NAMES[cls]
         for roi in PAPER_ROIS:
             for metric in PIXEL_RATES:
-                values, title = pixels[metric][:, roi, cls], f"{metric} of {name}, RoI {roi}"
+                title = f"{metric} of {name} in {roi_label(roi)}"
+                values = pixels[metric][:, roi, cls]
                 ternary.append((f"ternary_{name}_roi{roi}_{metric}", values, title, metric))
             precision, recall = (pixels[m][:, roi, cls] for m in PAPER_RATES)
-            title = f"precision and recall of {name} in RoI {roi} ({ROI_NAMES[roi]})"
+            title = f"precision and recall of {name} in {roi_label(roi)}"
             edges.append((f"edges_{name}_roi{roi}", precision, recall, title))
         for metric in SEGMENT_RATES:
             title = f"{metric.replace('_', ' ')} of {name} segments"
@@ -121,7 +122,7 @@ def _instance_ternaries(grid: GroupResult, cls: int) -> list[tuple]:
     name, recall = CLASS_NAMES[cls], grid.instances["instance_recall"][:, measured.index(cls)]
     return [
         (f"ternary_{name}_roi{roi}_instance_recall", recall[:, roi],
-         f"instance recall of {name}, RoI {roi}", "instance recall")
+         f"instance recall of {name} in {roi_label(roi)}", "instance recall")
         for roi in (1, 2)
     ]  # fmt: skip
 
