@@ -20,6 +20,8 @@ import torch
 from torch import Tensor, nn
 from torch.utils.data import Dataset
 
+from costseg.classes import CLASS_NAMES
+from costseg.data.priors import check_priors
 from costseg.networks.base import IMAGENET_MEAN, IMAGENET_STD, ImageNetwork
 from costseg.networks.sources import Source, resolve_device
 from costseg.options import RULES, EvalOptions, PredictOptions, check_values
@@ -115,6 +117,8 @@ def _options(kind, network, costs, priors, options: dict[str, Any]):
         options["network"] = [network]
     if isinstance(priors, (str, Path)):
         options["priors"] = str(priors)
+    elif priors is not None:
+        check_priors(priors, CLASS_NAMES, "the priors given")
     opts = kind(cost=list(costs) if isinstance(costs, (list, tuple)) else costs, **options)
     check_values(opts)
     return opts

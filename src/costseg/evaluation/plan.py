@@ -23,6 +23,7 @@ from costseg.data.from_config import (
     evaluated_data,
 )
 from costseg.data.prior_maps import PriorMaps, heatmap_canvas
+from costseg.data.priors import note_priors
 from costseg.evaluation.analyses import held_out_flags
 from costseg.evaluation.checks import (
     check_calibration_size,
@@ -122,6 +123,7 @@ def plan(
     cache = (Path(opts.output_dir).resolve().parent if opts.output_dir else base.parent) / "priors"
     geometric = opts.roi == "geometric"
     pixel_priors = source_priors(source, opts, images.config, cache)
+    note_priors(source.description, opts.priors, dataset)
     priors = PriorMaps(pixel_priors, CLASS_NAMES, device, geometric)
     require_priors(groups, priors.priors)
     reported_images = dataset
