@@ -53,7 +53,7 @@ from costseg.metrics.names import (
     TARGET_METRICS,
 )
 
-__all__ = ["per_image_counts", "per_image_loss"]
+__all__ = ["per_image_counts", "per_image_loss", "pixel_parts"]
 
 
 def per_image_counts(
@@ -143,24 +143,45 @@ def _pixel_counts(
     """(B, K, 2): the (numerator, denominator) pixels of ``metric`` (the module docstring) of
     ``cls`` in RoI ``roi_id``, from each image's confusion counts (deferred pixels in the last
     column)."""
-    n, out = NUM_CLASSES, []
+    out = []
     for b in range(len(target)):
         image_roi = roi if roi is None or roi.ndim == 2 else roi[b]
         cm = roi_confusion(
-            preds[b : b + 1], target[b : b + 1], image_roi, n, num_rois, ignore_index, DEFERRED
-        )[:, roi_id]  # (K, N, N + 1)
-        if cls is None:  # all:roi:coverage, over every class
-            gt, deferred = cm.sum((-2, -1)), cm[..., n].sum(-1)
-            tp = predicted = torch.zeros_like(gt)
-        else:
-            tp, predicted = cm[:, cls, cls], cm[:, :, cls].sum(-1)
-            gt, deferred = cm[:, cls].sum(-1), cm[:, cls, n]
-        if metric in PIXEL_RATE_PARTS:  # a deferred pixel is a false negative
-            parts = PIXEL_RATE_PARTS[metric](tp, predicted - tp, gt - tp)
-        else:
-            parts = DEFER_RATE_PARTS[metric](tp, gt - deferred, deferred)
-        out.append(torch.stack(parts, -1))
+            preds[b : b + 1], target[b : b + 1], image_roi, NUM_CLASSES, num_rois, ignore_index,
+            DEFERRED,
+        )  # fmt: skip
+        out.append(pixel_parts(cm[:, roi_id], cls, metric))
     return torch.stack(out)
+
+
+def pixel_parts(confusion: Tensor, cls: int | None, metric: str) -> Tensor:
+    """The (numerator, denominator) pixels of a pixel rate or a rate of deferral (the module
+    docstring) of ``cls`` (None: every class, ``coverage``) from confusion counts.
+
+    Args:
+        confusion: (..., N, N + 1) counts of one RoI, true class × decision (the deferred pixels
+            in the last column), as :func:`~costseg.metrics.functional.roi_confusion` gives.
+        cls, metric: as for :func:`per_image_counts`.
+
+    Returns:
+        (..., 2) counts.
+
+    >>> cm = torch.tensor([[3, 1, 1], [2, 4, 0]])          # 2 classes; column 2: deferred
+    >>> pixel_parts(cm, 0, "recall").tolist(), pixel_parts(cm, 0, "handled_recall").tolist()
+    ([3, 5], [4, 5])
+    """
+    n = confusion.shape[-2]
+    if cls is None:  # all:roi:coverage, over every class
+        gt, deferred = confusion.sum((-2, -1)), confusion[..., n].sum(-1)
+        tp = predicted = torch.zeros_like(gt)
+    else:
+        tp, predicted = confusion[..., cls, cls], confusion[..., :, cls].sum(-1)
+        gt, deferred = confusion[..., cls, :].sum(-1), confusion[..., cls, n]
+    if metric in PIXEL_RATE_PARTS:  # a deferred pixel is a false negative
+        parts = PIXEL_RATE_PARTS[metric](tp, predicted - tp, gt - tp)
+    else:
+        parts = DEFER_RATE_PARTS[metric](tp, gt - deferred, deferred)
+    return torch.stack(parts, -1)
 
 
 def _segment_counts(
