@@ -1,6 +1,7 @@
 """Speed of the decision layer at Cityscapes scale, as ratios measured side by side in one run.
 
     python scripts/bench_decision.py [--repeats 5] [--size 1024 2048] [--threads N]
+        [--counts] [--candidates 1000 [--share 1.0]]
 
 On (1, 19, H, W) float32 probabilities (softmax of smooth random logits, the recipe of
 ``scripts/bench.py``), on the CPU and, when there is one, on the GPU: one read pass ``p.sum()``,
@@ -10,6 +11,14 @@ over the 66-point barycentric grid (robotistic / altruistic / egoistic vertices,
 CPU also without numba's kernels. Each timing is the best of several repeats after a warm-up; every
 ratio compares timings of the same run. The target ratios are also given as the median over
 rounds that time both sides back to back (a machine whose speed drifts moves both alike).
+
+``--counts``: the fused decide-and-count pass of a search (``count_decisions`` on pixels prepared
+once, every pixel labelled, five RoI bands) against ``decide`` alone on the same probabilities,
+at ``--size`` and at the demo's image size (8 images of 128 × 256), for the altruistic matrix and
+a generic dense one, and the pass with a defer row against itself without. ``--candidates K``:
+the wall time of K random dense matrices scored on the demo's held-out images (labels: the toy val
+split's second half; probabilities: the demo model's when ``--ckpt`` is given, else smooth random
+ones of the same shape), on ``--share`` of each image's labelled pixels.
 """
 
 from __future__ import annotations
@@ -22,7 +31,14 @@ from collections.abc import Callable
 import torch
 
 from costseg.costs import barycentric_grid, load_cost, with_defer
-from costseg.decision import DEFERRED, decide, decide_mixtures
+from costseg.decision import (
+    DEFERRED,
+    count_decisions,
+    decide,
+    decide_mixtures,
+    prepare_counts,
+    subsample,
+)
 
 VERTICES = torch.stack([load_cost(n) for n in ("robotistic", "altruistic", "egoistic")])
 DEFER = 0.5  # × the egoistic matrix's mean off-diagonal cost: about 5 % of pixels deferred
@@ -127,16 +143,104 @@ def bench(device: str, shape: tuple[int, int, int, int], repeats: int) -> None:
         )
 
 
+def dense_matrix(n: int, seed: int) -> torch.Tensor:
+    """A generic dense (N, N) matrix: off-diagonal costs uniform in [0.5, 10], zero diagonal."""
+    gen = torch.Generator().manual_seed(seed)
+    cost = 0.5 + 9.5 * torch.rand(n, n, generator=gen, dtype=torch.float64)
+    return cost.fill_diagonal_(0.0)
+
+
+def bench_counts(shape: tuple[int, int, int, int], repeats: int) -> None:
+    """The fused pass against ``decide`` alone, and with a defer row against without (CPU)."""
+    probs = probabilities(shape, "cpu")
+    b, n, h, w = shape
+    labels = torch.randint(0, n, (b, h, w), generator=torch.Generator().manual_seed(1))
+    roi = (torch.arange(h) * 5 // h).view(h, 1).expand(h, w)  # five bands, ids 0..4
+    prepared = prepare_counts(probs, labels, roi)
+    nop, rounds = (lambda: None), 2 * repeats + 1
+    print(f"cpu, {torch.get_num_threads()} threads, fused counts on {tuple(shape)} float32:")
+    for name, cost in (("altruistic", VERTICES[1]), ("dense", dense_matrix(n, 0))):
+        deferring = with_defer(cost, DEFER * cost.sum().item() / (n * n - n))
+        fused = lambda c=cost: count_decisions(prepared, c)  # noqa: E731
+        fused_defer = lambda c=deferring: count_decisions(prepared, c)  # noqa: E731
+        alone = lambda c=cost: decide(probs, c)  # noqa: E731
+        compiled = lambda c=cost: decide(probs, c, path="numba")  # noqa: E731
+        t_fused, t_alone = best_time(fused, repeats, nop), best_time(alone, repeats, nop)
+        t_defer = best_time(fused_defer, repeats, nop)
+        print(
+            f"  {name}: fused {1e3 * t_fused:.1f} ms, decide {1e3 * t_alone:.1f} ms, "
+            f"fused with a defer row {1e3 * t_defer:.1f} ms"
+        )
+        paired, paired_numba = (paired_ratio(fused, f, rounds, nop) for f in (alone, compiled))
+        print(
+            f"    fused / decide          {t_fused / t_alone:6.2f}   (goal <= 1.5); "
+            f"median of {rounds} rounds: {paired:.2f}"
+        )
+        print(f"    fused / decide (numba)  median: {paired_numba:.2f}")
+        print(
+            f"    defer / without         {t_defer / t_fused:6.2f}   (goal <= 1.2); "
+            f"median: {paired_ratio(fused_defer, fused, rounds, nop):.2f}"
+        )
+
+
+def bench_candidates(count: int, share: float, ckpt: str | None) -> None:
+    """Wall time of ``count`` random dense matrices scored on the demo's held-out images."""
+    from costseg.data.toy import StreetScenes
+
+    scenes = StreetScenes(split="val", length=100, size=(128, 256))
+    held_out = range(50, 100)  # the second half of the toy val split
+    images, labels = zip(*(scenes[i] for i in held_out), strict=True)
+    labels = torch.stack(labels)
+    source = "synthetic (smooth random logits)"
+    if ckpt:
+        from costseg.training.module import SegmentationModule
+
+        model = SegmentationModule.load_from_checkpoint(ckpt, map_location="cpu").eval()
+        with torch.no_grad():
+            probs = torch.cat([model(x[None]).softmax(1) for x in images])
+        source = f"the model {ckpt}"
+    else:
+        probs = probabilities((len(labels), 19, 128, 256), "cpu")
+    start = time.perf_counter()
+    part = subsample(probs, labels, share=share) if share < 1 else None
+    prepared = prepare_counts(*(part[:3] if part else (probs, labels)))
+    prepare_s = time.perf_counter() - start
+    count_decisions(prepared, dense_matrix(19, 0))  # the kernels loaded
+    start = time.perf_counter()
+    for k in range(count):
+        count_decisions(prepared, dense_matrix(19, k + 1))
+    wall = time.perf_counter() - start
+    print(
+        f"{count} random dense candidates on {len(labels)} images of 128 x 256, probabilities "
+        f"of {source}, {share:.0%} of the labelled pixels ({prepared.q.shape[1]} in all): "
+        f"{wall:.1f} s ({1e3 * wall / count:.1f} ms each; preparing them once: "
+        f"{prepare_s:.2f} s)"
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--size", type=int, nargs=2, default=(1024, 2048), metavar=("H", "W"))
     parser.add_argument("--threads", type=int, help="CPU threads (default: torch's choice)")
     parser.add_argument("--devices", nargs="+", default=["cpu", "cuda"], choices=["cpu", "cuda"])
+    parser.add_argument("--counts", action="store_true", help="the fused count pass (CPU)")
+    parser.add_argument("--candidates", type=int, help="time this many candidates (CPU)")
+    parser.add_argument("--share", type=float, default=1.0, help="of the labelled pixels")
+    parser.add_argument("--ckpt", help="the demo model's checkpoint, for --candidates")
     args = parser.parse_args()
+    if not 0 < args.share <= 1:
+        parser.error("--share must lie in (0, 1]")
     if args.threads:
         torch.set_num_threads(args.threads)
     shape = (1, 19, *args.size)
+    if args.counts or args.candidates:
+        if args.counts:
+            bench_counts(shape, args.repeats)
+            bench_counts((8, 19, 128, 256), args.repeats)
+        if args.candidates:
+            bench_candidates(args.candidates, args.share, args.ckpt)
+        return
     for device in args.devices:
         if device == "cpu" or torch.cuda.is_available():
             bench(device, shape, args.repeats)

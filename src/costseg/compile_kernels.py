@@ -1,6 +1,7 @@
 """Compile the numba kernels once and cache them on disk (``make setup`` runs it).
 
-The compiled CPU passes (the decision kernels, the many-rules confusion counts, the segment runs,
+The compiled CPU passes (the decision kernels, the fused decide-and-count pass, the many-rules
+confusion counts, the segment runs,
 the segment features of meta classification)
 are compiled on first use and cached beside their modules (``cache=True``); without this step the
 first evaluation after an install waits for the compiler. Each kernel is compiled for the types
@@ -15,8 +16,8 @@ import time
 
 import torch
 
-from costseg.costs import barycentric_grid, load_cost, mix_costs
-from costseg.decision import decide, decide_mixtures
+from costseg.costs import barycentric_grid, load_cost, mix_costs, with_defer
+from costseg.decision import decide, decide_counts, decide_mixtures
 from costseg.meta.features import segment_features
 from costseg.metrics import RoIPrecisionRecall, SegmentErrors
 
@@ -36,6 +37,9 @@ def compile_kernels() -> None:
     target = decide(probs, vertices[0])
     target[1][target[1] == 2] = 0  # a class without segments: its arrays' other memory layout
     roi = torch.randint(0, 5, SIZE, generator=g)
+    for cost in (vertices[2], with_defer(vertices[1], 1.0)):  # the fused count pass
+        for priors in (None, probs[0] + 0.1):  # q is p; q is p / π (settled in float64)
+            decide_counts(probs, cost, target, roi, priors)
     for preds in (rules, rules.long()):
         for region in (None, roi):
             RoIPrecisionRecall(num_rules=len(weights)).update(preds, target, region)

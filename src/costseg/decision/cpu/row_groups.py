@@ -11,14 +11,15 @@ ZERO, TOTAL = 0, 1  # rows of the kernel's buffer: zeros; Σ_k q_k. Then support
 
 
 def shared_rows(sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Groups of rows with shared entries: (N,) each row's group (-1: none) and (G, N) the
-    groups' shared entries B (per column, a nonzero value that two members or more have).
+    """Groups of rows with shared entries of an (M, N) matrix: (M,) each row's group (-1: none)
+    and (G, N) the groups' shared entries B (per column, a nonzero value that two members or more
+    have).
 
     Greedy: the group that saves the most terms (less a pass per group) is taken first, seeded
     by each free row with the free rows that share two entries or more with it, less those that
     would not save a term."""
-    n = len(sparse)
-    group, shared, free = np.full(n, -1), [], np.ones(n, bool)
+    m, n = sparse.shape
+    group, shared, free = np.full(m, -1), [], np.ones(m, bool)
     same = ((sparse[:, None] == sparse[None]) & (sparse[None] != 0)).sum(2) >= 2
     while True:
         best = (0, None, None)
@@ -43,7 +44,7 @@ def shared_rows(sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def program(sums: torch.Tensor, shared: torch.Tensor, own: torch.Tensor, group) -> tuple:
     """``decide_blocks``' program (see there) for (S, N) sums of q (Σ_k q_k, then the
-    supports'), (G, N) groups' shared entries, (N, N) rows' own entries."""
+    supports'), (G, N) groups' shared entries, (M, N) rows' own entries (M candidates)."""
     n, first_shared, first_own = len(own), len(sums), len(sums) + len(shared)
     matrix = torch.cat([sums, shared, own])
     ptr, cols, vals = _terms(matrix)
@@ -68,15 +69,15 @@ def program(sums: torch.Tensor, shared: torch.Tensor, own: torch.Tensor, group) 
 
 def supports(magnitude: torch.Tensor, group: torch.Tensor) -> tuple[torch.Tensor, np.ndarray]:
     """Sums of q over the rows' supports (a group's rows: their union), for the vectorised
-    certificate: (S, N) their indicators, Σ_k q_k first, and (N,) each row's in ``work``. A
-    row on one column uses Σ_k q_k."""
+    certificate: (S, N) their indicators, Σ_k q_k first, and (M,) each row's in ``work`` (M rows
+    of (M, N) magnitudes). A row on one column uses Σ_k q_k."""
     support = magnitude != 0
     for index in range(int(group.max()) + 1):
         members = group == index
         support[members] = support[members].any(0)
     support[support.sum(1) < 2] = True
     sums = support.unique(dim=0)
-    sums = torch.cat([torch.ones(1, len(support), dtype=torch.bool), sums[~sums.all(1)]])
+    sums = torch.cat([torch.ones(1, support.shape[1], dtype=torch.bool), sums[~sums.all(1)]])
     rows = (sums[:, None] == support[None]).all(2).int().argmax(0) + TOTAL
     return sums.double(), rows.numpy()
 

@@ -87,20 +87,52 @@ def reference_pixels(q, shifted_t, priors, labels, start, stop):
     """``reference.reference_labels``, compiled, for pixels ``start:stop`` of (R, N) float32 q
     (exactly p): ``p / π`` in float64, then each product and sum rounded once (no fastmath:
     called from Python, as numba compiles a callee with its caller's flags), ascending k; the
-    first minimum. -1 where a cost is NaN (left to torch's reference)."""
-    n = q.shape[1]
-    costs = np.empty(n, np.float64)
+    first minimum. -1 where a cost is NaN (left to torch's reference). ``shifted_t``: (N, M) the
+    transposed shifted matrix (M candidates: a defer row last)."""
+    n, m = shifted_t.shape
+    costs = np.empty(m, np.float64)
     for r in range(start, stop):
         costs[:] = 0.0
         for k in range(n):
             x = np.float64(q[r, k]) / priors[k]
-            for j in range(n):
+            for j in range(m):
                 costs[j] = costs[j] + shifted_t[k, j] * x
         best = 0
-        for j in range(n):
+        for j in range(m):
             if costs[j] < costs[best]:
                 best = j
         labels[r] = -1 if np.isnan(costs).any() else best
+
+
+@numba.njit(**JIT)
+def scratch(program):
+    """The buffers of :func:`decide_block` for a program: ``work`` (its rows of
+    sums, zeros first, +inf last), best, second (float32), arg, flags (int32), each of a block."""
+    rows = program[4]
+    work = np.zeros((rows, BLOCK), np.float32)
+    work[rows - 1] = np.inf
+    best, second = np.empty(BLOCK, np.float32), np.empty(BLOCK, np.float32)
+    return work, best, second, np.empty(BLOCK, np.int32), np.empty(BLOCK, np.int32)
+
+
+@numba.njit(**JIT)
+def decide_block(q, s, program, certificate, buffers, out):
+    """The block of pixels ``s : s + BLOCK`` of (N, P) float32 q: each pixel's row of the argmin
+    written to ``out`` (BLOCK,), and ``flags`` of ``buffers`` (:func:`scratch`) set to 1 where it
+    is left open (argument meanings: :func:`decide_blocks`)."""
+    passes, cols, vals, results, _ = program
+    coef, support, reference = certificate
+    work, best, second, arg, flags = buffers
+    total = work[TOTAL]
+    for p in range(len(passes)):
+        target, prefix, first, last = passes[p]
+        _sums(q, s, cols, vals, first, last, work[prefix], work[target])
+    _best_two(q, s, work, results, best, second, arg)
+    for i in range(BLOCK):  # M_a <= r_a Σ_k q_k over a's support
+        label, gap = arg[i], second[i] - best[i]
+        need = coef[label] * work[support[label], i] + reference * total[i]
+        sure = (gap > need + np.float32(TINY)) & (gap < np.inf)
+        out[i], flags[i] = label, np.int32(1) - np.int32(sure)
 
 
 @numba.njit(**JIT)
@@ -112,45 +144,40 @@ def decide_blocks(q, program, certificate, labels, start, stop):
         program: (passes, cols, vals, results, rows): each pass ``(out, prefix, first, stop)``
             writes ``work[out] = work[prefix] + Σ`` of terms ``first:stop`` (float32 ``cols``,
             ``vals``): Σ_k q_k, the supports' sums, the groups' shared sums, then the rows but
-            their last term; ``results``: (prefix, col, val) of each class's cost, ``work[prefix]
-            + val q[col]``, padded to a multiple of four with the +inf row; ``rows``: the
-            buffer's row count.
-        certificate: (coef, support, reference): per decided class, the float32 coefficient
-            of ``Σ_k q_k`` over its support and that sum's row of ``work``; the coefficient of
+            their last term; ``results``: (prefix, col, val) of each candidate's cost (a class,
+            or deferring), ``work[prefix] + val q[col]``, padded to a multiple of four with the
+            +inf row; ``rows``: the buffer's row count.
+        certificate: (coef, support, reference): per candidate, the float32 coefficient of
+            ``Σ_k q_k`` over its support and that sum's row of ``work``; the coefficient of
             ``Σ_k q_k`` for the reference's rounding.
         labels: (P,) int64 output.
     """
-    passes, cols, vals, results, rows = program
-    coef, support, reference = certificate
     n = q.shape[0]
-    work = np.zeros((rows, BLOCK), np.float32)
-    work[rows - 1] = np.inf
-    best, second = np.empty(BLOCK, np.float32), np.empty(BLOCK, np.float32)
-    arg, flags = np.empty(BLOCK, np.int32), np.empty(BLOCK, np.int32)
-    index = np.empty(BLOCK, np.int64)
+    buffers = scratch(program)
+    flags, index = buffers[4], np.empty(BLOCK, np.int64)
     opened, count = np.empty(1024, np.int64), 0
-    values, total = np.empty((1024, n), np.float32), work[TOTAL]
+    values = np.empty((1024, n), np.float32)
     for s in range(start, stop, BLOCK):
-        for p in range(len(passes)):
-            out, prefix, first, last = passes[p]
-            _sums(q, s, cols, vals, first, last, work[prefix], work[out])
-        _best_two(q, s, work, results, best, second, arg)
-        out = labels[s : s + BLOCK]
-        for i in range(BLOCK):  # M_a <= r_a Σ_k q_k over a's support
-            label, gap = arg[i], second[i] - best[i]
-            need = coef[label] * work[support[label], i] + reference * total[i]
-            sure = (gap > need + np.float32(TINY)) & (gap < np.inf)
-            out[i], flags[i] = label, np.int32(1) - np.int32(sure)
+        decide_block(q, s, program, certificate, buffers, labels[s : s + BLOCK])
         unsure = 0
         for i in range(BLOCK):  # the pixels left open, gathered
             index[unsure] = i
             unsure += flags[i]
-        if count + unsure > len(opened):  # full: twice as large
-            opened = np.concatenate((opened, np.empty(len(opened) + BLOCK, np.int64)))
-            values = np.concatenate((values, np.empty((len(values) + BLOCK, n), np.float32)))
+        opened, values = room(opened, values, count + unsure)
         for r in range(unsure):
             opened[count + r] = s + index[r]
             for k in range(n):
                 values[count + r, k] = q[k, s + index[r]]
         count += unsure
     return opened[:count].copy(), values[:count].copy()
+
+
+@numba.njit(**JIT)
+def room(opened, values, needed):
+    """``opened`` (R,) and ``values`` (R, N) grown (to twice, and a block more) when ``needed``
+    rows do not fit."""
+    if needed <= len(opened):
+        return opened, values
+    opened = np.concatenate((opened, np.empty(len(opened) + BLOCK, np.int64)))
+    values = np.concatenate((values, np.empty((len(values) + BLOCK, values.shape[1]), np.float32)))
+    return opened, values

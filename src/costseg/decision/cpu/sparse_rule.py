@@ -7,9 +7,10 @@ q_k``. E is sparse for the usual matrices (robotistic: ``-I``; the paper's other
 costs of missing a vulnerable class), and rows of the same kind share most entries (the
 egoistic matrix's seven static classes differ only on the diagonal). So rows are grouped
 (:func:`.row_groups.shared_rows`): a group's shared entries B are summed once per
-pixel, each row adds its own rest ``D_j = E_j - B``. The sums run over a block of pixels that
-stays in cache, up to four terms per pass; each row's last term joins the pass that keeps the
-best two.
+pixel, each row adds its own rest ``D_j = E_j - B``. A defer row (docs/definitions.md §14) is one
+more row, the last candidate: every step below holds for M = N + 1 rows. The sums run over a
+block of pixels that stays in cache, up to four terms per pass; each row's last term joins the
+pass that keeps the best two.
 
 **Certificate.** The kernel sums ``L = B' + D'_j``, the entries moved down by ``g |.|`` and
 rounded down to float32: its float32 sums ``l_j`` lie at or below ``e_j`` whatever their
@@ -47,17 +48,18 @@ class SparseRule:
     Args:
         fast: the matrix's ``CertifiedCosts`` (priors, T's coefficients and ``eps``; the open
             pixels' re-check).
-        cost: (1, N, N) float64 cost matrix; shifted: (1, N, N) the reference's.
+        cost: (1, M, N) float64 cost matrix (M = N, or N + 1 with a defer row, one more
+            candidate); shifted: (1, M, N) the reference's.
     """
 
     def __init__(self, fast: CertifiedCosts, cost: torch.Tensor, shifted: torch.Tensor) -> None:
-        n = cost.shape[-1]
-        total = fast.weight64[n].cpu()  # T's coefficients: R_k, bounding |reference cost| / q_k
+        m, n = cost.shape[-2:]
+        total = fast.weight64[m].cpu()  # T's coefficients: R_k, bounding |reference cost| / q_k
         folded = fast.priors is not None and fast.priors.ndim == 1  # global priors: in E
         priors = fast.priors.cpu().double() if folded else torch.ones(n, dtype=torch.float64)
         matrices = (cost[0], total, priors)
         self.program, self.certificate = _prepared(
-            *(x.numpy().tobytes() for x in matrices), fast.eps
+            *(x.numpy().tobytes() for x in matrices), fast.eps, m
         )
         # Open pixels: the reference here where q is exactly p (no pixel-wise priors; float32
         # and narrower types), else CertifiedCosts.settle.
@@ -91,12 +93,13 @@ class SparseRule:
 
 
 @lru_cache(maxsize=32)
-def _prepared(cost: bytes, total: bytes, priors: bytes, eps: float) -> tuple:
-    """The kernel's program and certificate for a float64 (N, N) matrix, T's (N,) coefficients
-    and (N,) global priors (ones where none), cached: the same matrix comes image after image."""
+def _prepared(cost: bytes, total: bytes, priors: bytes, eps: float, rows: int) -> tuple:
+    """The kernel's program and certificate for a float64 (M, N) matrix (``rows`` M), T's (N,)
+    coefficients and (N,) global priors (ones where none), cached: the same matrix comes image
+    after image."""
     total, priors = (torch.from_numpy(np.frombuffer(x).copy()) for x in (total, priors))
     n = len(total)
-    cost = torch.from_numpy(np.frombuffer(cost).copy()).view(n, n)
+    cost = torch.from_numpy(np.frombuffer(cost).copy()).view(rows, n)
     sparse = cost - cost.mode(0, keepdim=True).values
     sparse, total = sparse / priors, total / priors  # global priors: into the columns
     top = sparse.abs().max().item()
@@ -122,12 +125,12 @@ def _prepared(cost: bytes, total: bytes, priors: bytes, eps: float) -> tuple:
 
 
 def _grouped(sparse: torch.Tensor) -> tuple:
-    """Rows grouped by shared entries (:func:`.row_groups.shared_rows`): (N,) each row's group,
-    (G, N) the groups' shared entries B, (N, N) the rows' own rest D, (N, N) ``|B| + |D|`` and
-    (N,) each row's passes of rounding."""
+    """Rows of an (M, N) matrix grouped by shared entries (:func:`.row_groups.shared_rows`): (M,)
+    each row's group, (G, N) the groups' shared entries B, (M, N) the rows' own rest D, (M, N)
+    ``|B| + |D|`` and (M,) each row's passes of rounding."""
     group, shared = shared_rows(sparse.numpy())
     group, shared = torch.from_numpy(group), torch.from_numpy(shared)
-    base = with_zeros(shared)[group]  # (N, N): each row's B (group -1: the zero row)
+    base = with_zeros(shared)[group]  # (M, N): each row's B (group -1: the zero row)
     own = sparse - base  # D; B + D = E within u64 |D|, far inside g's 1 % slack
     terms = (own != 0).sum(1)  # the last one in the pass that keeps the best two
     steps = with_zeros(_passes((shared != 0).sum(1)))[group] + _passes(terms - 1) + (terms > 0)
