@@ -27,10 +27,10 @@ def not_supported_reasons(inputs: Inputs) -> list[str]:
         reasons.append(f"probabilities on {inputs.device}: numba's kernels run on the CPU")
     if inputs.mixtures is not None and inputs.vertices > VERTICES:
         reasons.append(f"{inputs.vertices} vertex matrices: the kernel mixes at most {VERTICES}")
-    if inputs.defer:
+    if inputs.mixtures is not None and inputs.defer:
         reasons.append(
-            "a defer row: the kernels take square matrices (their row groups, candidate bits and "
-            "compiled reference have one row per class)"
+            "a defer row in mixtures: the mixture kernel takes square matrices (its candidate "
+            "bits have one row per class)"
         )
     return reasons
 
