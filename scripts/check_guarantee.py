@@ -98,7 +98,7 @@ class GuaranteeOptions:
     shift: list[str] = same_option(EvalOptions, "shift")
     sweep: float = same_option(EvalOptions, "sweep", 0.1)
     defer_sweep: list[float] | None = same_option(EvalOptions, "defer_sweep")
-    target: str = same_option(EvalOptions, "target", "person:roi1:recall>=0.95")
+    target: str = same_option(EvalOptions, "target", "person:roi1:recall>=0.95", nargs=None)
     maximize: str = same_option(EvalOptions, "maximize", "person:roi1:precision")
     guarantee: float = same_option(EvalOptions, "guarantee", 0.1)
     guarantee_method: Literal["bonferroni", "fixed_sequence"] = same_option(

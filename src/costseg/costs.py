@@ -176,16 +176,22 @@ def load_cost(name_or_path: str | Path, class_names: Sequence[str] = CLASS_NAMES
 
 
 def save_cost(
-    path: str | Path, cost: torch.Tensor, name: str, class_names: Sequence[str] = CLASS_NAMES
+    path: str | Path,
+    cost: torch.Tensor,
+    name: str,
+    class_names: Sequence[str] = CLASS_NAMES,
+    header: str = "",
 ) -> None:
     """Write ``cost`` as a full-matrix YAML file (a defer row as ``defer`` per class) that
-    :func:`load_cost` reads back exactly."""
+    :func:`load_cost` reads back exactly; ``header``'s lines first, as YAML comments."""
     cost = validate_cost(cost, class_names)
     n = len(class_names)
     spec = {"name": name, "classes": list(class_names), "matrix": cost[:n].tolist()}
     if has_defer_row(cost):
         spec["defer"] = dict(zip(class_names, cost[n].tolist(), strict=True))
-    write_bytes(path, yaml.safe_dump(spec, sort_keys=False, width=1000).encode("utf-8"))
+    comments = "".join(f"# {line}".rstrip() + "\n" for line in header.splitlines())
+    text = comments + yaml.safe_dump(spec, sort_keys=False, width=1000)
+    write_bytes(path, text.encode("utf-8"))
 
 
 def symmetric_cost(

@@ -27,6 +27,7 @@ CALIBRATION = "calibration and guarantees (fitted on held-out images)"
 PROTOCOL = "inference protocol (docs/definitions.md §13)"
 SEGMENTS = "segments: meta classification and fusion (docs/definitions.md §15)"
 CONFORMAL = "conformal prediction sets (docs/definitions.md §18)"
+DESIGN = "designing the value system from requirements (docs/definitions.md §20)"
 RULES = ["robotistic", "altruistic", "egoistic"]
 
 NETWORK_SPECS = {
@@ -328,12 +329,16 @@ class EvalOptions(SourceOptions):
         metavar=("START", "STOP", "STEP"),
         candidates=True,
     )
-    target: str | None = option(
+    target: list[str] | None = option(
         help="constraint on the sweep, e.g. 'person:roi1:recall>=0.99' or "
-        "'person:roi1:handled_recall>=0.99'"
+        "'person:roi1:handled_recall>=0.99'; several (each a requirement) with --design",
+        nargs="+",
+        metavar="CONSTRAINT",
     )
     maximize: str | None = option(
-        help="what to maximise under --target, e.g. person:roi1:precision or all:roi1:coverage"
+        help="what to maximise under --target, e.g. person:roi1:precision or all:roi1:coverage; "
+        "with --design also agreement (the share of pixels decided as argmax, its default) or "
+        "miou"
     )
     alpha_sweep: float | None = option(
         help="also sweep the prior-adapted rule from Bayes (α=0) to ML (α=1)",
@@ -445,6 +450,48 @@ class EvalOptions(SourceOptions):
         metavar="R",
         group=CONFORMAL,
         needs="conformal",
+    )
+
+    design: Literal["triangle", "lagrangian", "aggregate"] | None = option(
+        help="design a cost matrix meeting every --target, jointly with probability 1 - δ "
+        "(--guarantee): searched in this space on half of the held-out images, certified on "
+        "the other half by Pareto Testing; writes designed_cost.yaml",
+        group=DESIGN,
+    )
+    minimize: str | None = option(
+        help="what --design minimises instead of maximising --maximize, e.g. building:roi1:recall",
+        group=DESIGN,
+        needs="design",
+    )
+    design_budget: int = option(
+        300,
+        "candidates --design scores: the aggregate space's search, the finest grid within it "
+        "for the triangle and lagrangian spaces",
+        type=whole_number(2),
+        group=DESIGN,
+        needs="design",
+    )
+    design_base: str | None = option(
+        help="the matrix C0 of --design lagrangian (default robotistic), the aggregate cost file "
+        "of --design aggregate (default altruistic): a name or a .yaml",
+        group=DESIGN,
+        needs="design",
+    )
+    design_defer: list[float] | None = option(
+        help="defer costs the designed matrix may take: a defer row in the space (the grid "
+        "spaces: each; aggregate: the range from the smallest to the largest)",
+        type=defer_cost,
+        metavar="C",
+        group=DESIGN,
+        needs="design",
+    )
+    design_pixels: float = option(
+        0.1,
+        "share of each search image's labelled pixels the search scores on (pixel rates only; "
+        "the certification tests on every pixel)",
+        type=number_above(0, False, "a share", "0.1"),
+        group=DESIGN,
+        needs="design",
     )
 
 

@@ -38,6 +38,7 @@ PRELOAD = [
     "costseg.report.figures",
     "costseg.report.ternary",
     "costseg.report.cost_matrix",
+    "costseg.report.design_figures",
     "costseg.report.curves",
     "costseg.report.priors",
     "costseg.report.uncertainty",

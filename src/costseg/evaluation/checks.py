@@ -16,6 +16,7 @@ from costseg.classes import CLASS_NAMES, INSTANCE_CLASSES, class_indices
 from costseg.data.from_config import same_data
 from costseg.data.priors import check_priors_file
 from costseg.evaluation.analyses import held_out_flags
+from costseg.metrics.requirements import Requirements
 from costseg.metrics.selection import parse_metric, parse_target, risk_level
 from costseg.networks.probs_files import DATA_RECORD, records_its_data
 from costseg.networks.protocols import OPTIONS, Protocol
@@ -32,7 +33,9 @@ from costseg.rules import (
     parse_rules,
     rules_group,
     temperature_group,
+    vertex_matrices,
 )
+from costseg.rules.design_spaces import aggregate_template, constraint_kind
 
 
 def check_options(opts: EvalOptions) -> list[RuleGroup]:
@@ -73,6 +76,7 @@ def check_options(opts: EvalOptions) -> list[RuleGroup]:
         groups.append(_fusion_group(opts))
     _check_meta(opts)
     check_selection(opts, groups)
+    check_design(opts)
     _check_calibration(opts)
     _check_priors(opts, groups)
     if opts.output_dir is not None:
@@ -115,7 +119,10 @@ def no_priors(data: str, geometric: bool = True) -> str:
 def check_selection(opts: EvalOptions, groups: list[RuleGroup]) -> None:
     """``--target`` and ``--guarantee`` choose among the rules of the one rule group that has
     candidates (a sweep); δ and the target's risk level α lie in (0, 1). ``opts`` is any options
-    object with ``target``, ``maximize`` and ``guarantee`` (scripts/check_guarantee.py's too)."""
+    object with ``target``, ``maximize`` and ``guarantee`` (scripts/check_guarantee.py's too);
+    with ``--design`` they are the design's (:func:`check_design`)."""
+    if getattr(opts, "design", None):
+        return
     if opts.guarantee is not None:
         if not 0 < opts.guarantee < 1:
             raise ValueError(f"--guarantee is δ and must lie in (0, 1), got {opts.guarantee}")
@@ -125,6 +132,8 @@ def check_selection(opts: EvalOptions, groups: list[RuleGroup]) -> None:
         return
     if not (opts.target and opts.maximize):
         raise ValueError("--target and --maximize go together")
+    if len(opts.target) > 1:
+        raise ValueError("several --target constraints are requirements of --design (a space)")
     choosing = "--guarantee" if opts.guarantee is not None else "--target"
     candidates = [g.family for g in groups if g.candidates]
     if not candidates:
@@ -134,10 +143,40 @@ def check_selection(opts: EvalOptions, groups: list[RuleGroup]) -> None:
             f"{choosing} chooses among the points of one sweep; these options give "
             f"{len(candidates)} ({', '.join(candidates)}): keep one of {candidate_flags()}"
         )
-    target = parse_target(opts.target)
+    target = parse_target(opts.target[0])
     parse_metric(opts.maximize)
     if opts.guarantee is not None and not 0 < risk_level(target) < 1:
-        raise ValueError(f"--target {opts.target} leaves no risk level α in (0, 1)")
+        raise ValueError(f"--target {opts.target[0]} leaves no risk level α in (0, 1)")
+
+
+def check_design(opts: EvalOptions) -> None:
+    """``--design``: its requirements (``--target``, ``--maximize`` / ``--minimize``), δ, and a
+    space that can be built from them (docs/definitions.md §20)."""
+    if opts.design is None:
+        return
+    if not opts.target or opts.guarantee is None:
+        raise ValueError(
+            "--design needs its requirements: --target (one or more) and --guarantee δ"
+        )
+    if not 0 < opts.guarantee < 1:
+        raise ValueError(f"--guarantee is δ and must lie in (0, 1), got {opts.guarantee}")
+    if opts.design_pixels > 1:
+        raise ValueError(f"--design_pixels is a share in (0, 1], got {opts.design_pixels}")
+    req = Requirements.parse(opts.target, opts.maximize, opts.minimize)
+    vertex_matrices(opts.vertices, opts.vertex_scaling)  # the triangle, searched to compare
+    if opts.design == "lagrangian":
+        for t in req.constraints:
+            constraint_kind(t.metric)
+        base = parse_rules([opts.design_base or "robotistic"])[0]
+        if base.priors_alpha or (base.defers and opts.design_defer):
+            raise ValueError(
+                f"--design_base {base.name}: C0 of --design lagrangian is a cost matrix (not ml)"
+                + (", without a defer row when --design_defer gives one" if base.defers else "")
+            )
+    elif opts.design == "aggregate":
+        aggregate_template(opts.design_base or "altruistic")
+    elif opts.design_base is not None:
+        raise ValueError("--design_base goes with --design lagrangian or aggregate")
 
 
 def _fusion_group(opts: EvalOptions) -> RuleGroup:
@@ -192,7 +231,18 @@ def check_calibration_size(opts: EvalOptions, n_images: int, candidates: RuleGro
     among the rules of ``candidates`` (Bonferroni over them, or over its fixed-sequence paths)."""
     if opts.guarantee is None:
         return
-    alpha, family = risk_level(parse_target(opts.target)), len(candidates.names)
+    if opts.design:
+        alpha = min(Requirements.parse(opts.target).alphas)
+        needed = minimum_images(alpha, opts.guarantee)
+        if n_images - n_images // 2 < needed:
+            raise ValueError(
+                f"{n_images} held-out images leave {n_images - n_images // 2} to certify the "
+                f"design at α = {alpha:.3g}, δ = {opts.guarantee}: at least {needed} are needed "
+                f"(2 x {needed} held-out images); give --calibration_split, a looser --target or a "
+                "larger --guarantee δ"
+            )
+        return
+    alpha, family = risk_level(parse_target(opts.target[0])), len(candidates.names)
     tests = tests_sharing_delta(opts.guarantee_method, family, len(candidates.paths))
     needed = minimum_images(alpha, opts.guarantee, tests)
     if n_images < needed:
@@ -216,7 +266,7 @@ def instance_classes(dataset, opts: EvalOptions) -> tuple[list[int], str]:
         chosen, note = [], f"instance metrics absent: {why} no instance ids (*_instanceIds.png)"
     elif not chosen:
         note = "instance metrics absent: no instance class among --classes"
-    for text in (opts.target, opts.maximize):
+    for text in (*(opts.target or ()), opts.maximize, opts.minimize):
         metric = parse_metric(re.split(r"[<>=]", text)[0]) if text else None
         if metric and metric.metric == "instance_recall" and metric.cls not in chosen:
             name = CLASS_NAMES[metric.cls]

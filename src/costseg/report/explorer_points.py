@@ -67,11 +67,11 @@ def sweep_data(grid: GroupResult, class_ids: Sequence[int]) -> SweepData:
 
 def _marks(results: EvalResults, grid: GroupResult | None) -> Marks:
     marks, opts = Marks(), results.options
-    if grid is not None and opts.get("target") and opts.get("maximize"):
-        choice = choose(grid.pixels, grid.segments, opts["target"], opts["maximize"],
-                        results.class_ids)  # fmt: skip
+    if grid is not None and opts.get("target") and opts.get("maximize") and not opts.get("design"):
+        target = opts["target"][0]
+        choice = choose(grid.pixels, grid.segments, target, opts["maximize"], results.class_ids)
         weights = grid.group.weights.tolist()
-        marks.targets = [(opts["target"], weights[k]) for k in choice.points]
+        marks.targets = [(target, weights[k]) for k in choice.points]
     cert = results.find(Certificate)
     if cert is not None and cert.chosen is not None and cert.group.weights is not None:
         w = cert.group.weights[cert.chosen].tolist()

@@ -71,7 +71,8 @@ def write_choice(results: EvalResults) -> None:
     """``best.json`` (and ``best_cost.yaml``): the answer to ``--target`` over the first group
     of candidates, where asked."""
     candidates = next((r for r in results.groups if r.group.candidates), None)
-    if results.options.get("target") and candidates is not None:
+    opts = results.options
+    if opts.get("target") and not opts.get("design") and candidates is not None:
         _write_choice(results, candidates)
 
 
@@ -132,7 +133,7 @@ def _write_choice(results: EvalResults, result: GroupResult) -> None:
     choice = choose(
         result.pixels,
         result.segments,
-        opts["target"],
+        opts["target"][0],
         opts["maximize"],
         results.class_ids,
         result.instances,

@@ -32,7 +32,7 @@ def certify(context, opts) -> Certificate:
     ``group.prefer`` (the defer sweep: the larger defer cost)."""
     plan = context.plan
     index, group = next((i, g) for i, g in enumerate(context.groups) if g.candidates)
-    t, goal = parse_target(opts.target), parse_metric(opts.maximize)
+    t, goal = parse_target(opts.target[0]), parse_metric(opts.maximize)
     named = {t.cls} | ({goal.cls} if goal.metric in SEGMENT_RATES else set())
     segments = sorted({*plan.class_ids, *named} - {None})  # None: all classes (coverage)
     wanted = {m.cls for m in (t, goal) if m.metric in INSTANCE_RATES}
@@ -60,7 +60,7 @@ def certify(context, opts) -> Certificate:
     )
     # None unless a certified λ has a finite value
     chosen = ltt.best(objective.cpu().numpy(), prefer=group.prefer)
-    return Certificate(group, ltt, chosen, objective, opts.target, opts.maximize, n)
+    return Certificate(group, ltt, chosen, objective, opts.target[0], opts.maximize, n)
 
 
 ANALYSIS = Guarantee

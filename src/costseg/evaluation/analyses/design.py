@@ -1,0 +1,242 @@
+"""``--design SPACE``: a cost matrix designed from several requirements and certified by Pareto
+Testing on the held-out images (docs/definitions.md §20).
+
+The held-out images split in two: the first half (D1) is searched (every candidate of the space
+scored by one fused decide-and-count pass, on a seeded share of each image's pixels), the second
+(D2) tests the D1 Pareto front in order on every pixel. The certified matrix best by the objective
+on all held-out images, and the best certified point of the triangle beside it, join the rule
+groups, so the reported images measure them with every usual row.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+import torch
+
+from costseg.calibration.design_search import search
+from costseg.calibration.pareto_testing import choose, pareto_testing
+from costseg.classes import CLASS_NAMES
+from costseg.costs import cost_or_symmetric
+from costseg.decision import count_decisions, decide, prepare_counts, subsample
+from costseg.evaluation.analyses import Analysis, Context, Seen
+from costseg.metrics.requirements import Requirements
+from costseg.report.design import DESIGNED_FAMILY, DesignOutcome, SearchOutcome
+from costseg.rules import Rule, RuleGroup, parse_rules, vertex_matrices
+from costseg.rules.design_spaces import (
+    AggregateSpace,
+    LagrangianSpace,
+    TriangleSpace,
+    aggregate_template,
+    lagrangian_directions,
+)
+from costseg.rules.named import NamedRules, rule_columns
+
+Space = TriangleSpace | LagrangianSpace | AggregateSpace
+
+
+class Design(Analysis):
+    def fit(self) -> None:
+        self.outcome = design(self.context, self.opts)
+        group = designed_group(self.outcome)
+        if group is not None:
+            self.context.groups.append(group)
+
+    def result(self) -> DesignOutcome:
+        return self.outcome
+
+
+def design(context: Context, opts) -> DesignOutcome:
+    """Search every space of :func:`spaces` on D1, certify each one's Pareto front on D2."""
+    req = Requirements.parse(opts.target, opts.maximize, opts.minimize)
+    n = len(context.held_out)
+    n1 = n // 2
+    share = 1.0 if req.label_maps else opts.design_pixels
+    found = SearchImages.of(context, n1, share, req, opts.seed)
+    searched = []
+    for space in spaces(opts, req):
+        losses: list[np.ndarray] = []
+        candidates = search(
+            space, found.scorer(req, losses.append), req.alphas, opts.design_budget, opts.seed,
+            req.maximize,
+        )  # fmt: skip
+        searched.append((space, candidates, np.stack(losses, 1)))
+    fronts = [_front(losses, c.objective, req, opts.guarantee) for _, c, losses in searched]
+    tested = _test_fronts(
+        context, n1, req, [(c, f) for (_, c, _), f in zip(searched, fronts, strict=True)]
+    )
+    outcomes = []
+    for i, ((_, candidates, losses_d1), (losses_d2, objective_all)) in enumerate(
+        zip(searched, tested, strict=True)
+    ):
+        result = pareto_testing(
+            losses_d1, losses_d2, req.alphas, opts.guarantee, candidates.objective, req.maximize
+        )
+        chosen = choose(result, objective_all, req.maximize)
+        outcomes.append(SearchOutcome(candidates, result, chosen, objective_all, designed=i == 0))
+    return DesignOutcome(req, opts.guarantee, n1, n - n1, share, opts.seed, outcomes)
+
+
+def spaces(opts, req: Requirements) -> list[Space]:
+    """The space of ``--design`` and, when it is another, the triangle (the comparison)."""
+    defer = tuple(opts.design_defer or ())
+    grids = max(1, len(defer))
+    budget = opts.design_budget // grids
+    n = max(1, int((math.sqrt(8 * budget + 1) - 3) / 2))  # (n + 1)(n + 2) / 2 <= budget
+    triangle = TriangleSpace(vertex_matrices(opts.vertices, opts.vertex_scaling), 1 / n, defer)
+    if opts.design == "triangle":
+        return [triangle]
+    if opts.design == "lagrangian":
+        base = parse_rules([opts.design_base or "robotistic"])[0]
+        pairs = [(t.cls, t.metric) for t in req.constraints]
+        size = max(2, int(budget ** (1 / len(pairs)) + 1e-9))
+        base_cost = cost_or_symmetric(base.cost, len(CLASS_NAMES))
+        own = LagrangianSpace(base_cost, lagrangian_directions(pairs, len(CLASS_NAMES)), size,
+                              defer_costs=defer)  # fmt: skip
+    else:
+        box = (min(defer), max(defer)) if defer else None
+        own = AggregateSpace(aggregate_template(opts.design_base or "altruistic"), defer_box=box)
+    return [own, triangle]
+
+
+class SearchImages:
+    """D1, kept for the search: each held-out batch's pixels prepared for the fused count pass
+    (a seeded ``share`` of each image's labelled pixels), and the whole images where a
+    constraint needs label maps."""
+
+    def __init__(self) -> None:
+        self.inputs: list = []
+        self.whole: list[tuple] = []
+
+    @classmethod
+    def of(
+        cls, context: Context, n1: int, share: float, req: Requirements, seed: int
+    ) -> SearchImages:
+        found, seen_so_far = cls(), 0
+        with torch.inference_mode():
+            for seen in context.held_out_seen("design: search images (D1)"):
+                keep = max(0, min(len(seen.probs), n1 - seen_so_far))
+                seen_so_far += len(seen.probs)
+                if keep:
+                    found.add(seen, keep, share, req.label_maps, seed + seen_so_far)
+        return found
+
+    def add(self, seen: Seen, keep: int, share: float, whole: bool, seed: int) -> None:
+        probs, labels = seen.probs[:keep].float(), seen.batch.labels[:keep]
+        roi = None if seen.roi is None else seen.roi.expand_as(labels)
+        if share < 1:
+            part = subsample(probs, labels, roi, share=share, seed=seed)
+            probs, labels, roi = part.probs, part.labels, part.roi
+        self.inputs.append(prepare_counts(probs, labels, roi))
+        if whole:
+            ids = None if seen.batch.instances is None else seen.batch.instances[:keep]
+            self.whole.append((seen.probs[:keep], seen.batch.labels[:keep], seen.roi, ids))
+
+    def scorer(
+        self, req: Requirements, keep_losses: Callable[[np.ndarray], None]
+    ) -> Callable[[torch.Tensor], tuple[np.ndarray, float]]:
+        """``matrix → (D1 risks (K,), objective)``; each candidate's (n1, K) per-image losses
+        go to ``keep_losses``, in the order the search scores them."""
+
+        def score(matrix: torch.Tensor) -> tuple[np.ndarray, float]:
+            losses, confusion, agree = [], 0, 0
+            for i, inputs in enumerate(self.inputs):
+                counts = count_decisions(inputs, matrix)
+                losses.append(_losses(req, counts.confusion, matrix, *self.whole[i : i + 1]))
+                confusion = confusion + counts.confusion.sum(0)
+                agree = agree + counts.agree.sum()
+            image_losses = torch.cat(losses).numpy()
+            keep_losses(image_losses)
+            return _mean_risks(image_losses), req.value(confusion, agree)
+
+        return score
+
+
+def _losses(req: Requirements, confusion, matrix, whole=None) -> torch.Tensor:
+    """(B, K) per-image losses from a batch's counts (and its label maps where needed)."""
+    if whole is None:
+        return req.losses(confusion)
+    probs, labels, roi, ids = whole
+    return req.losses(confusion, decide(probs, matrix), labels, roi, ids)
+
+
+def _mean_risks(losses: np.ndarray) -> np.ndarray:
+    """(K,) mean of each column over its defined (non-NaN) images; NaN where none is."""
+    defined = ~np.isnan(losses)
+    total = np.where(defined, losses, 0).sum(0)
+    count = defined.sum(0)
+    return np.where(count > 0, total / np.maximum(count, 1), np.nan)
+
+
+def _front(losses_d1: np.ndarray, objective, req: Requirements, delta: float) -> np.ndarray:
+    """The D1 Pareto front (candidate indices) of Pareto Testing, before D2 is seen."""
+    untested = np.full((1, *losses_d1.shape[1:]), np.nan)
+    return pareto_testing(losses_d1, untested, req.alphas, delta, objective, req.maximize).front
+
+
+def _test_fronts(context: Context, n1: int, req: Requirements, searches) -> list[tuple]:
+    """One pass over the held-out images at every pixel for the front of each search: the
+    (n2, L, K) D2 losses (NaN off the front) and the (L,) objective on all held-out images
+    (NaN off the front)."""
+    n2 = len(context.held_out) - n1
+    out = []
+    for candidates, front in searches:
+        length, k = len(candidates.objective), len(req.alphas)
+        sums = {int(c): [0, 0] for c in front}  # candidate → [confusion, agreements]
+        out.append((np.full((n2, length, k), np.nan), sums))
+    seen_so_far = 0
+    with torch.inference_mode():
+        for seen in context.held_out_seen("design: certify (D2)"):
+            labels = seen.batch.labels
+            roi = None if seen.roi is None else seen.roi.expand_as(labels)
+            inputs = prepare_counts(seen.probs.float(), labels, roi)
+            first = max(0, n1 - seen_so_far)  # the batch's first D2 image
+            rows = slice(seen_so_far + first - n1, seen_so_far + len(labels) - n1)
+            for (candidates, _), (losses_d2, sums) in zip(searches, out, strict=True):
+                for c, pooled in sums.items():
+                    matrix = candidates.matrices[c]
+                    counts = count_decisions(inputs, matrix)
+                    pooled[0] = pooled[0] + counts.confusion.sum(0)
+                    pooled[1] = pooled[1] + counts.agree.sum()
+                    if first < len(labels):
+                        whole = (seen.probs, labels, seen.roi, seen.batch.instances)
+                        losses = _losses(req, counts.confusion, matrix, whole if req.label_maps
+                                         else None)  # fmt: skip
+                        losses_d2[rows, c] = losses[first:].numpy()
+            seen_so_far += len(labels)
+    results = []
+    for (candidates, _), (losses_d2, sums) in zip(searches, out, strict=True):
+        objective = np.full(len(candidates.objective), np.nan)
+        for c, (confusion, agree) in sums.items():
+            objective[c] = req.value(confusion, agree)
+        results.append((losses_d2, objective))
+    return results
+
+
+def designed_group(outcome: DesignOutcome) -> RuleGroup | None:
+    """The certified designed matrix and the best certified triangle point as one rule group
+    (measured on the reported images like every other), or None when neither exists."""
+    rules = [
+        Rule(found.rule_name, found.candidates.matrices[found.chosen])
+        for found in outcome.searches
+        if found.chosen is not None
+    ]
+    if not rules:
+        return None
+    defer = any(r.defers for r in rules)
+    return RuleGroup(
+        DESIGNED_FAMILY,
+        [r.name for r in rules],
+        NamedRules(tuple(rules)),
+        [rule_columns(r, defer) for r in rules],
+        masks=True,
+        rules=rules,
+        output=DESIGNED_FAMILY,
+        note=f"designed in the {outcome.searches[0].space.name} space for "
+        f"{', '.join(outcome.requirements.texts)} at δ = {outcome.delta}",
+    )
+
+
+ANALYSIS = Design
