@@ -161,7 +161,7 @@ def test_the_example_figures_never_hang_behind_busy_threads(tmp_path, monkeypatc
             out = tmp_path / str(attempt)
             with deadline(20, f"attempt {attempt + 1} of 20"):
                 early = EarlyFigures(out, [group], None, num_examples=1)
-                early.after_batch([example])
+                early.after_batch([example], [group])
                 drawn = early.drawing.finish()
             assert [tag for _, figures in drawn for tag, _ in figures][-1] == "masks_0"
             assert (out / "figures" / "masks_0.png").stat().st_size > 0

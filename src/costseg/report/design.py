@@ -80,7 +80,7 @@ class SearchOutcome:
         c, t = self.candidates, self.testing
         if self.chosen is None:
             if t.best is None:
-                return f"{c.space}: nothing certified (no candidate on the front)"
+                return "nothing certified (no candidate on the front)"
             failed = req.texts[t.failed]
             risks = ", ".join(f"{r:.3f}" for r in t.risks_d1[t.best])
             needed = (
@@ -89,13 +89,13 @@ class SearchOutcome:
                 else "its risk is above α: more images would not help"
             )
             return (
-                f"{c.space}: nothing certified at δ = {delta}; the best search candidate has "
+                f"nothing certified at δ = {delta}; the best search candidate has "
                 f"risks {risks} on the search images and fails {failed} on the certification "
                 f"images (p = {t.pvalues_d2[t.best, t.failed]:.3g}); {needed}"
             )
         k = self.chosen
         return (
-            f"{c.space}: {len(t.certified)} of {len(c.objective)} candidates certified "
+            f"{len(t.certified)} of {len(c.objective)} candidates certified "
             f"(front {len(t.front)}); chosen {_parameters(c, k)}, certification risks "
             f"{', '.join(f'{r:.3f}' for r in t.risks_d2[k])}, {req.objective_text} "
             f"{self.objective_all[k]:.4f} on the held-out images"

@@ -45,18 +45,19 @@ class EarlyFigures:
     ) -> None:
         self.drawing = Drawing(output_dir / "figures", len(os.sched_getaffinity(0)))
         self.group, self.roi, self.num_examples = named_group(groups), roi, num_examples
-        self.mask_names, self.subject = mask_names(groups), subject
+        self.subject = subject
         self.plan_started = self.examples_started = False
 
-    def after_batch(self, examples: list[Example]) -> None:
-        """Start what can be drawn now: the plan's figures, then the examples' once complete."""
+    def after_batch(self, examples: list[Example], groups: Sequence[RuleGroup]) -> None:
+        """Start what can be drawn now: the plan's figures, then the examples' once complete
+        (their label maps those of ``groups``' :func:`mask_names`)."""
         if not self.plan_started:
             for prefix, plan_job in plan_figures(self.group, self.roi):
                 self.drawing.submit(prefix, plan_job)
             self.plan_started = True
         if not self.examples_started and len(examples) >= self.num_examples > 0:
             self.drawing.submit(
-                "evaluation", example_figures(self.mask_names, examples, self.subject)
+                "evaluation", example_figures(mask_names(groups), examples, self.subject)
             )
             self.examples_started = True
 

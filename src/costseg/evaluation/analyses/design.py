@@ -234,7 +234,7 @@ def designed_group(outcome: DesignOutcome) -> RuleGroup | None:
         masks=True,
         rules=rules,
         output=DESIGNED_FAMILY,
-        note=f"designed in the {outcome.searches[0].space.name} space for "
+        note=f"designed in the {outcome.searches[0].candidates.space} space for "
         f"{', '.join(outcome.requirements.texts)} at δ = {outcome.delta}",
     )
 

@@ -32,7 +32,8 @@ class Examples(Analysis):
             example = Example(image, label, preds[i].cpu(), batch.stems[i], probs, uncertainty)
             self.kept.append((seen.positions[i], example))
         if self.context.early is not None:  # drawn once this process holds every example
-            self.context.early.after_batch([example for _, example in self.kept])
+            examples = [example for _, example in self.kept]
+            self.context.early.after_batch(examples, self.context.groups)
 
     def gather(self) -> None:
         self.examples = in_image_order(self.kept)
