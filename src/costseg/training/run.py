@@ -251,11 +251,12 @@ def _name_after_network(config: Any, command_line: Sequence[str]) -> None:
         or arg.startswith("--trainer.logger.init_args.name")
         for arg in command_line
     )
-    if init_args is None or init_args.get("name") is None or named:
+    configs = config.get("config") or []
+    if init_args is None or init_args.get("name") is None or named or not configs:
         return
     import yaml
 
-    with open(str(config["config"][0])) as f:
+    with open(str(configs[0])) as f:
         base = (yaml.safe_load(f) or {}).get("model", {}).get("net")
     net = config.get("model.net")
     if net is not None and _network_name(net) != _network_name(base):
