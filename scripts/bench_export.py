@@ -41,6 +41,7 @@ from costseg.export.parity import parity
 from costseg.export.runtime import run_graph
 from costseg.networks import load_costseg_checkpoint
 from costseg.networks.onnx import onnx_session
+from costseg.options import ExportOptions
 
 SPEED_RULE = "egoistic"
 
@@ -148,9 +149,11 @@ def main() -> None:
     parser.add_argument("--output_dir", type=Path, default=Path("/tmp/export/bench"))
     args = parser.parse_args()
     with user_errors():
-        plan = plan_export([args.ckpt_path] if args.ckpt_path else None, None, None,
-                           str(args.output_dir / "model.onnx"), True, overwrite=True)  # fmt: skip
-        session = onnx_session(export(plan))
+        plan = plan_export(ExportOptions(
+            ckpt_path=[args.ckpt_path] if args.ckpt_path else None,
+            output=str(args.output_dir / "model.onnx"), probabilities=True, overwrite=True,
+        ))  # fmt: skip
+        session = onnx_session(export(plan).graph)
         checkpoint = load_costseg_checkpoint(find_checkpoint(plan.ckpt_path))
         network, priors = checkpoint.network.eval(), checkpoint.priors
         sets = {

@@ -5,9 +5,11 @@
 
 The graph takes uint8 RGB images, the cost matrix (N x N, or N + 1 rows with a defer row),
 priors and the temperature, and gives uint8 labels (255 = deferred) and the margin
-(docs/definitions.md §19); ``model.json`` beside it describes them, and ``model.priors.npy``
-holds a costseg checkpoint's pixel-wise priors. ``--network SPEC`` exports another source
-(``vainf:PATH``, ``hf:DIR``). Needs the ``onnx`` extra (``pip install 'costseg[onnx]'``).
+(docs/definitions.md §19); ``model.json`` beside it describes them, and ``model.priors.pt``
+holds a costseg checkpoint's pixel-wise priors (the format ``evaluate.py --priors`` reads).
+``--network SPEC`` exports another source (``vainf:PATH``, ``hf:DIR``). The options are the
+fields of :class:`costseg.options.ExportOptions`. Needs the ``onnx`` extra
+(``pip install 'costseg[onnx]'``).
 """
 
 from __future__ import annotations
@@ -15,33 +17,33 @@ from __future__ import annotations
 import argparse
 from collections.abc import Sequence
 
-from costseg.cli import user_errors
+from costseg.cli import build_parser, user_errors
+from costseg.options import ExportOptions
 
 
 def parser() -> argparse.ArgumentParser:
-    """The command's options."""
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    p.add_argument("--ckpt_path", nargs="+", help="a train.py checkpoint (default: the newest)")
-    p.add_argument("--network", nargs="+", metavar="SPEC", help="another source: vainf:PATH, ...")
-    p.add_argument("--mc_dropout", type=int, metavar="N", help="refused: no single graph")
-    p.add_argument("--output", required=True, help="the graph to write (.onnx)")
-    p.add_argument("--probabilities", action="store_true", help="also output the probabilities")
-    p.add_argument("--overwrite", action="store_true", help="replace an earlier export")
-    return p
+    """The command's options: the fields of :class:`ExportOptions`."""
+    return build_parser(ExportOptions, "export.py", __doc__.splitlines()[0])
 
 
 def main(args: Sequence[str] | None = None) -> None:
     """Parse, check (before anything loads), export; one line and exit 2 on a mistake."""
-    opts = parser().parse_args(args)
     with user_errors():
-        from costseg.export.job import export, plan_export
+        opts = ExportOptions(**vars(parser().parse_args(args)))
+        from costseg.export.job import CHECK_SIZE, export, plan_export
 
-        plan = plan_export(
-            opts.ckpt_path, opts.network, opts.mc_dropout, opts.output, opts.probabilities,
-            opts.overwrite,
-        )  # fmt: skip
-        path = export(plan)
-        print(f"wrote {path} and {plan.sidecar}")
+        done = export(plan_export(opts))
+        print(f"wrote {done.graph} and {done.sidecar}")
+        if done.priors_file is not None:
+            print(
+                f"wrote {done.priors_file}: the checkpoint's priors (evaluate.py --priors reads it)"
+            )
+        check = done.parity
+        print(
+            f"parity at {CHECK_SIZE[0]} x {CHECK_SIZE[1]} against PyTorch (docs/definitions.md "
+            f"§19): {check.differing:,} of {check.pixels:,} labels differ, "
+            f"{check.outside} beyond the float32 bound"
+        )
 
 
 if __name__ == "__main__":

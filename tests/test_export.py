@@ -5,10 +5,10 @@ against the normalised float path, scripts/export.py's refusals."""
 from __future__ import annotations
 
 import importlib.util
+import re
 import warnings
 from pathlib import Path
 
-import numpy as np
 import pytest
 import torch
 from torch import nn
@@ -154,6 +154,8 @@ def _script():
         (["--network", "onnx:m.onnx"], "onnx:m.onnx is an ONNX file already"),
         (["--ckpt_path", "missing.ckpt"], "checkpoint not found: missing.ckpt"),
         (["--network", "vainf:x.pth?os=3"], "bad option 'os=3'"),
+        (["--probabilites"], "export.py: unrecognized arguments: --probabilites"),
+        (["--mc_dropout", "0"], "export.py: argument --mc_dropout: expected a whole number >= 1"),
     ],
 )
 def test_export_refusals_are_one_line(args, message, tmp_path, capsys) -> None:
@@ -173,19 +175,32 @@ def test_export_never_overwrites_silently(tmp_path, capsys) -> None:
     assert (tmp_path / "m.json").read_text() == "{}"
 
 
-def test_exported_graph_of_a_costseg_checkpoint(tiny_run, tmp_path) -> None:
-    """The whole command: graph, sidecar and priors; the graph decides ML with the stored
-    priors as the reference does on PyTorch's probabilities."""
+def test_exported_graph_of_a_costseg_checkpoint(tiny_run, tmp_path, capsys) -> None:
+    """The whole command: graph, sidecar and priors (in the format --priors reads); the graph
+    decides ML with the stored priors as the reference does on PyTorch's probabilities."""
     import json
 
+    from costseg.classes import CLASS_NAMES
+    from costseg.data.priors import read_priors_file
     from costseg.networks import load_costseg_checkpoint
 
     path = next(Path(tiny_run[2]).glob("**/last.ckpt"))
     out = tmp_path / "m.onnx"
     _script().main(["--ckpt_path", str(path), "--output", str(out), "--probabilities"])
+    printed = capsys.readouterr().out.splitlines()
+    priors_file = out.with_suffix(".priors.pt")
+    assert (
+        printed[1]
+        == f"wrote {priors_file}: the checkpoint's priors (evaluate.py --priors reads it)"
+    )
+    parity_line = r"parity at 72 x 136 against PyTorch \(docs/definitions.md §19\): [\d,]+ of "
+    assert re.fullmatch(
+        parity_line + r"9,792 labels differ, 0 beyond the float32 bound", printed[2]
+    )
     sidecar = json.loads(out.with_suffix(".json").read_text())
+    assert sidecar["priors"] == priors_file.name
     checkpoint = load_costseg_checkpoint(path)
-    priors = torch.from_numpy(np.load(out.with_suffix(".priors.npy")))
+    priors = read_priors_file(priors_file, CLASS_NAMES)["priors"]  # what --priors reads
     assert torch.equal(priors, checkpoint.priors.float())
     assert sidecar["rules"]["ml"]["priors"] and not sidecar["rules"]["egoistic"]["priors"]
     assert sidecar["outputs"].keys() == {"labels", "margin", "probabilities"}

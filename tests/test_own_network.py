@@ -25,6 +25,10 @@ from costseg.networks.costseg import load_costseg_checkpoint
 ADAPTER = "costseg.models.adapter.NetworkAdapter"
 MOBILENET = "torchvision.models.segmentation.deeplabv3_mobilenet_v3_large"
 NO_WEIGHTS = "{weights: null, weights_backbone: null}"  # random weights: nothing downloaded
+DICT_LOGITS_ARGS = [
+    f"--model.net={ADAPTER}",
+    "--model.net.init_args.builder=own_networks.DictLogits",
+]
 TINY = [a for a in TINY_TRAIN if not a.startswith("--model.net")]  # those are DeepLabV3Plus's
 USAGE = (Path(__file__).resolve().parents[1] / "docs" / "usage.md").read_text()
 
@@ -90,9 +94,7 @@ def test_torchvision_deeplabv3_mobilenet_trains_and_its_checkpoint_rebuilds_it(t
 
 
 def test_a_dict_of_smaller_logits_trains_through_the_adapter_at_the_input_size(tmp_path):
-    module, last = _train(
-        tmp_path, f"--model.net={ADAPTER}", "--model.net.init_args.builder=own_networks.DictLogits"
-    )
+    module, last = _train(tmp_path, *DICT_LOGITS_ARGS)
     reference = DictLogits(19)
     reference.load_state_dict(_net_state(last, "net.net."))
     images = _images()
@@ -102,6 +104,15 @@ def test_a_dict_of_smaller_logits_trains_through_the_adapter_at_the_input_size(t
         expected = F.interpolate(quarter, size=(64, 128), mode="bilinear", align_corners=False)
         torch.testing.assert_close(module(images), expected, rtol=1e-5, atol=1e-5)
         assert torch.equal(load_costseg_checkpoint(last).network(images), module(images))
+
+
+def test_a_run_of_an_adapted_network_is_named_after_it_unless_the_command_line_names_it(tmp_path):
+    one_step = [*TINY, *DICT_LOGITS_ARGS, "--trainer.max_steps=1", "--trainer.val_check_interval=1"]
+    train_main([*one_step, f"--trainer.logger.init_args.save_dir={tmp_path}"])
+    train_main([*one_step, f"--trainer.logger.init_args.save_dir={tmp_path}",
+                "--trainer.logger.init_args.name=mine"])  # fmt: skip
+    runs = sorted(p.relative_to(tmp_path).parts[0] for p in tmp_path.glob("*/version_0"))
+    assert runs == ["DictLogits", "mine"]
 
 
 def test_a_checkpoint_rebuilds_the_adapter_without_its_initial_weights():
@@ -121,7 +132,7 @@ def test_a_checkpoint_rebuilds_the_adapter_without_its_initial_weights():
 
 def test_the_adapter_names_a_missing_output_key():
     net = NetworkAdapter("own_networks.DictLogits", 3, output="logits")
-    with pytest.raises(ValueError, match=r"returned a dict with keys \['out'\]: set model.net"):
+    with pytest.raises(ValueError, match=r"keys \['out'\], without 'logits': set --model.net"):
         net(torch.zeros(1, 3, 8, 8))
     with pytest.raises(ValueError, match=r"not a torch\.nn\.Module class or a function returning"):
         NetworkAdapter("os.path.join", 3)
@@ -147,7 +158,7 @@ BAD_NETWORKS = {
             "--model.net.init_args.builder=own_networks.DictLogits",
             "--model.net.init_args.output=logits",
         ],
-        ["set model.net.init_args.output"],
+        ["set --model.net.init_args.output"],
     ),
 }
 

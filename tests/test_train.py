@@ -171,3 +171,27 @@ def test_a_loss_recipe_trains_logs_its_terms_and_is_recorded(tmp_path):
     from costseg.networks import load_costseg_checkpoint
 
     assert load_costseg_checkpoint(_last(tmp_path)).hparams["loss"] == entry
+
+
+def test_priors_are_counted_once_per_dataset_whatever_the_save_dir(tmp_path, capsys):
+    """A second run on the same labels under another save_dir (and another batch size, which
+    does not change the labels) reads the priors the first one counted; other labels (another
+    prior_images) are counted anew. The reference: the pixel priors counted here directly."""
+    from costseg.data.datamodule import StreetScenesDataModule
+    from costseg.data.priors import count_pixel_priors, read_priors_file
+
+    one_step = [*TINY_TRAIN, "--trainer.max_steps=1", "--trainer.val_check_interval=1"]
+    runs = {}
+    for name, extra in (("a", []), ("b", ["--data.init_args.batch_size=4"]),
+                        ("c", ["--data.init_args.prior_images=3"])):  # fmt: skip
+        _, trainer = train_main(
+            [*one_step, *extra, f"--trainer.logger.init_args.save_dir={tmp_path / name}"]
+        )
+        runs[name] = read_priors_file(Path(trainer.log_dir) / "priors.pt", CLASS_NAMES)["priors"]
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("priors ")]
+    assert [line.split()[1] for line in lines] == ["computed", "reused", "computed"], lines
+    assert len(list((tmp_path / "priors_cache").glob("*.pt"))) == 2
+    data = StreetScenesDataModule(batch_size=2, num_workers=0, size=(64, 128), prior_images=4)
+    expected = count_pixel_priors(data.prior_labels(), 19, None, 1e-5, False, None)[0]
+    assert torch.equal(runs["a"], expected) and torch.equal(runs["b"], expected)
+    assert not torch.equal(runs["c"], expected)

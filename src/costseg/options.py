@@ -4,7 +4,8 @@ A field's type, default and ``metadata`` (help, flag, choices, value type, argum
 all the command line knows: :func:`costseg.cli.build_parser` derives the parser from them, and
 the jobs receive the dataclass. :class:`NetworkOptions` holds what every job that runs a network
 shares (source, rules, device, output folder, examples), :class:`SourceOptions` adds a dataset,
-:class:`EvalOptions` and :class:`PredictOptions` add each command's own.
+:class:`EvalOptions` and :class:`PredictOptions` add each command's own; :class:`ExportOptions`
+takes the source options of one network.
 A new option is one field here. No heavy imports, so ``--help`` answers at once.
 
 >>> EvalOptions(cost=["egoistic"]).split
@@ -592,4 +593,29 @@ class PredictOptions(NetworkOptions):
         help="meta/models.joblib of an evaluate.py --meta run: each rule's segments coloured by "
         "their predicted IoU, one more row of the panels",
         metavar="PATH",
+    )
+
+
+@dataclass
+class ExportOptions:
+    """Everything ``scripts/export.py`` can be told: one network (evaluate.py's source options,
+    one of them), the graph to write."""
+
+    ckpt_path: list[str] | None = same_option(
+        NetworkOptions, "ckpt_path", help="a costseg checkpoint (default: the newest)"
+    )
+    network: list[str] | None = same_option(
+        NetworkOptions, "network", help="another source: vainf:PATH, hf:DIR, ..."
+    )
+    mc_dropout: int | None = same_option(
+        NetworkOptions, "mc_dropout", help="refused: Monte-Carlo dropout has no single graph"
+    )
+    output: str | None = option(
+        help="the graph to write (.onnx); FILE.json and FILE.priors.pt beside it",
+        required=True,
+        metavar="FILE",
+    )
+    probabilities: bool = option(False, "the graph also outputs the probabilities")
+    overwrite: bool = same_option(
+        NetworkOptions, "overwrite", help="replace an earlier export's files"
     )

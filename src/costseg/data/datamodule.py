@@ -9,6 +9,8 @@ so shuffling and augmentation are reproducible for a given seed and worker count
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from pathlib import Path
+from typing import Any
 
 import torch
 from lightning.pytorch import LightningDataModule
@@ -114,6 +116,11 @@ class _SegmentationDataModule(LightningDataModule, ABC):
     def test_dataloader(self) -> DataLoader[Pair]:
         return self._loader("test")
 
+    @abstractmethod
+    def prior_key(self) -> dict[str, Any]:
+        """What the labels of :meth:`prior_labels` depend on, JSON-like: the data, not how it
+        is loaded (batch size, workers, crops); the key of the priors' cache."""
+
     def prior_labels(self) -> DataLoader[Tensor]:
         """Un-augmented (H, W) int64 training labels, the first ``prior_images`` (None = all).
 
@@ -179,6 +186,11 @@ class StreetScenesDataModule(_SegmentationDataModule):
         """(H, W) of labels at evaluation resolution."""
         return int(self.settings.size[0]), int(self.settings.size[1])
 
+    def prior_key(self) -> dict[str, Any]:
+        size = [int(s) for s in self.settings.size]
+        labels = len(self.prior_labels())
+        return {"data": "StreetScenes", "size": size, "seed": self.settings.seed, "labels": labels}
+
     def make_dataset(self, split: str, augment: bool) -> Dataset[Pair]:
         scenes = self.settings.dataset(split)
         return _Augmented(scenes, v2.RandomHorizontalFlip()) if augment else scenes
@@ -228,6 +240,10 @@ class CityscapesDataModule(_SegmentationDataModule):
         assert isinstance(val, CityscapesSegmentation)
         with Image.open(val.files[0][1]) as label:
             return label.height, label.width
+
+    def prior_key(self) -> dict[str, Any]:
+        root = str(Path(self.settings.root).resolve())
+        return {"data": "Cityscapes", "root": root, "labels": len(self.prior_labels())}
 
     def make_dataset(self, split: str, augment: bool) -> Dataset[Pair]:
         return self.settings.dataset(split, self.transform if augment else None)

@@ -1,5 +1,6 @@
-"""Priors computed once and cached (docs/definitions.md §3, §8): by train.py in the run's logger
-folder, by evaluate.py for networks costseg did not train or other data, next to its outputs."""
+"""Priors computed once and cached (docs/definitions.md §3, §8): by train.py once per dataset,
+beside the runs folder, by evaluate.py for networks costseg did not train or other data, next to
+its outputs."""
 
 from __future__ import annotations
 

@@ -15,17 +15,18 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 
 from costseg.atomic import AtomicFile
 from costseg.classes import CLASS_NAMES, NUM_CLASSES
 from costseg.costs import PRESETS, load_cost, symmetric_cost
+from costseg.data.priors import save_priors
 from costseg.export.graph import INPUTS, OUTPUTS, DecisionGraph
-from costseg.export.parity import parity
+from costseg.export.parity import Parity, parity
 from costseg.networks.onnx import GRAPH_METADATA
+from costseg.options import ExportOptions
 
-__all__ = ["ExportPlan", "export", "plan_export", "sample_inputs", "trace_graph"]
+__all__ = ["ExportPlan", "Exported", "export", "plan_export", "sample_inputs", "trace_graph"]
 
 TRACE_SIZE = (64, 96)
 """(H, W) of the images the graph is traced with."""
@@ -38,7 +39,7 @@ OPSET = 17
 class ExportPlan:
     """What to export where: the ``--ckpt_path`` (or ``costseg:``) checkpoint or another
     ``--network`` spec, the graph, its sidecar JSON and (for a costseg checkpoint with
-    priors) the priors as ``.npy``."""
+    priors) the priors file, in the format ``--priors`` reads (a run's ``priors.pt``)."""
 
     ckpt_path: str | None
     network: str | None
@@ -51,20 +52,25 @@ class ExportPlan:
 
     @property
     def priors_file(self) -> Path:
-        return self.output.with_suffix(".priors.npy")
+        return self.output.with_suffix(".priors.pt")
 
 
-def plan_export(
-    ckpt_path: list[str] | None,
-    network: list[str] | None,
-    mc_dropout: int | None,
-    output: str,
-    probabilities: bool = False,
-    overwrite: bool = False,
-) -> ExportPlan:
+@dataclass(frozen=True)
+class Exported:
+    """What :func:`export` wrote, and the check of the graph before it was written."""
+
+    graph: Path
+    sidecar: Path
+    priors_file: Path | None
+    """The checkpoint's pixel-wise priors (None: a source without priors)."""
+    parity: Parity
+    """The graph's labels against the reference at ``CHECK_SIZE`` (docs/definitions.md §19)."""
+
+
+def plan_export(opts: ExportOptions) -> ExportPlan:
     """Check the options before anything loads; ValueError or FileNotFoundError in one line.
 
-    >>> plan_export(["a.ckpt", "b.ckpt"], None, None, "m.onnx")
+    >>> plan_export(ExportOptions(ckpt_path=["a.ckpt", "b.ckpt"], output="m.onnx"))
     Traceback (most recent call last):
     ...
     ValueError: an ensemble (2 sources) has no single graph: export one network at a time
@@ -72,13 +78,14 @@ def plan_export(
     from costseg.checkpoints import find_checkpoint
     from costseg.networks import check_spec
 
+    ckpt_path, network, output = opts.ckpt_path, opts.network, str(opts.output)
     sources = [*(ckpt_path or []), *(network or [])]
     if len(sources) > 1:
         raise ValueError(
             f"an ensemble ({len(sources)} sources) has no single graph: "
             "export one network at a time"
         )
-    if mc_dropout is not None:
+    if opts.mc_dropout is not None:
         raise ValueError(
             "Monte-Carlo dropout has no single graph (its passes are random): export without "
             "--mc_dropout"
@@ -86,11 +93,11 @@ def plan_export(
     spec = network[0] if network else None
     if spec is not None and spec.startswith("onnx:"):
         raise ValueError(f"{spec} is an ONNX file already: export a PyTorch network")
-    plan = ExportPlan(ckpt_path[0] if ckpt_path else None, spec, Path(output), probabilities)
+    plan = ExportPlan(ckpt_path[0] if ckpt_path else None, spec, Path(output), opts.probabilities)
     if plan.output.suffix != ".onnx":
         raise ValueError(f"--output {output} should end in .onnx")
     for path in (plan.output, plan.sidecar, plan.priors_file):
-        if path.exists() and not overwrite:
+        if path.exists() and not opts.overwrite:
             raise ValueError(f"{path} exists: choose another --output or add --overwrite")
     if spec is not None and not spec.startswith("costseg:"):
         check_spec(spec)
@@ -99,16 +106,16 @@ def plan_export(
     return plan
 
 
-def export(plan: ExportPlan) -> Path:
+def export(plan: ExportPlan) -> Exported:
     """Load the network, trace and check its graph, write the graph, the sidecar and the priors.
 
     Returns:
-        the graph's path.
+        the files written and the graph's check.
     """
     network, priors, source = _load(plan)
     graph = DecisionGraph(network, probabilities=True)
     model = trace_graph(graph)
-    checked = _check(graph, model)
+    checked, result = _check(graph, model)
     if not plan.probabilities:  # the probabilities stay inside; only the output goes
         del model.graph.output[OUTPUTS.index("probabilities")]
     sidecar = _sidecar(plan, network, source, priors is not None, checked)
@@ -120,9 +127,9 @@ def export(plan: ExportPlan) -> Path:
     with AtomicFile(plan.sidecar) as tmp:
         tmp.write_text(json.dumps(sidecar, indent=2) + "\n")
     if priors is not None:
-        with AtomicFile(plan.priors_file) as tmp, open(tmp, "wb") as f:
-            np.save(f, priors.float().numpy())
-    return plan.output
+        save_priors(plan.priors_file, priors, CLASS_NAMES)
+    priors_file = plan.priors_file if priors is not None else None
+    return Exported(plan.output, plan.sidecar, priors_file, result)
 
 
 def _load(plan: ExportPlan) -> tuple[torch.nn.Module, torch.Tensor | None, str]:
@@ -185,9 +192,10 @@ def trace_graph(graph: DecisionGraph):
     return onnx.load_from_string(buffer.getvalue())
 
 
-def _check(graph: DecisionGraph, model) -> list[list[int]]:
+def _check(graph: DecisionGraph, model) -> tuple[list[list[int]], Parity]:
     """Run the graph at a size other than the traced one against PyTorch; ValueError if a label
-    differs beyond the bound of docs/definitions.md §19. Returns the sizes checked."""
+    differs beyond the bound of docs/definitions.md §19. Returns the sizes checked and the
+    comparison."""
     from costseg.export.runtime import run_graph
     from costseg.networks.onnx import onnx_session
 
@@ -202,7 +210,7 @@ def _check(graph: DecisionGraph, model) -> list[list[int]]:
             f"the exported graph disagrees with PyTorch at {CHECK_SIZE[0]} x {CHECK_SIZE[1]} on "
             f"{result.outside} pixels beyond float32 rounding: not written"
         )
-    return [list(CHECK_SIZE)]
+    return [list(CHECK_SIZE)], result
 
 
 def _sidecar(

@@ -47,7 +47,8 @@ class NetworkAdapter(nn.Module):
             segmentation models; any key of a dict-like output).
 
     Raises:
-        ValueError: ``builder`` is no module class or function returning one.
+        ValueError: ``builder`` is no module class or function returning one, or
+            ``builder_args`` hold another ``num_classes`` (the same one is taken once).
 
     Example:
         >>> net = NetworkAdapter("torchvision.models.segmentation.lraspp_mobilenet_v3_large", 3,
@@ -65,6 +66,13 @@ class NetworkAdapter(nn.Module):
     ) -> None:
         super().__init__()
         builder_args = dict(builder_args or {})
+        given = builder_args.pop("num_classes", num_classes)  # torchvision's habit: the same
+        if given != num_classes:
+            raise ValueError(
+                f"--model.net.init_args.builder_args holds num_classes: {given}, and the network "
+                f"is built with model.num_classes = {num_classes}: remove num_classes from "
+                "builder_args (train.py passes model.num_classes)"
+            )
         self.init_args = {  # what rebuilds this network (a checkpoint's model.net entry)
             "builder": builder,
             "num_classes": num_classes,
@@ -93,8 +101,8 @@ class NetworkAdapter(nn.Module):
             return out[self.output]
         except (KeyError, IndexError, TypeError):
             raise NetworkOutputError(
-                f"{self.init_args['builder']} returned {_described(out)}: set "
-                "model.net.init_args.output to the key of its logits"
+                f"{self.init_args['builder']} returned {_described(out)}, without "
+                f"{self.output!r}: set --model.net.init_args.output to the key of its logits"
             ) from None
 
 

@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import contextlib
+import importlib
 import logging
 import shutil
 import sys
@@ -16,7 +17,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 import torch
-from jsonargparse import ArgumentError
+from jsonargparse import ArgumentError, Namespace
 from lightning.fabric.utilities.exceptions import MisconfigurationException
 from lightning.pytorch import LightningDataModule, Trainer
 from lightning.pytorch.callbacks import RichProgressBar, TQDMProgressBar
@@ -32,7 +33,13 @@ from costseg.training.progress import StepProgress
 
 
 class TrainCLI(LightningCLI):
-    """LightningCLI with ``--ckpt_path`` to resume (``last`` = the newest ``runs/**/last.ckpt``)."""
+    """LightningCLI with ``--ckpt_path`` to resume (``last`` = the newest ``runs/**/last.ckpt``),
+    the class count checked against the dataset's before anything is built, and a run of
+    another network than its config's named after that network."""
+
+    def __init__(self, *cli_args: Any, args: Sequence[str], **kwargs: Any) -> None:
+        self.command_line = list(args)
+        super().__init__(*cli_args, args=self.command_line, **kwargs)
 
     def add_arguments_to_parser(self, parser) -> None:
         parser.add_argument(
@@ -44,7 +51,10 @@ class TrainCLI(LightningCLI):
         parser.link_arguments("model.num_classes", "model.net.init_args.num_classes")
 
     def before_instantiate_classes(self) -> None:
-        """Fill in the precision when neither the config nor the command line sets it."""
+        """Check the class count, name the run, and fill in the precision when neither the
+        config nor the command line sets it."""
+        _check_class_count(self.config)
+        _name_after_network(self.config, self.command_line)
         precision = self.config.get("trainer.precision")
         if precision is None:
             precision, why = choose_precision(self.config.get("trainer.accelerator", "auto"))
@@ -95,7 +105,7 @@ def run_training(args: Sequence[str]) -> tuple[SegmentationModule, Trainer]:
     with _held_messages():
         cli = _parse(args)
         model, data, trainer = cli.model, cli.datamodule, cli.trainer
-        _check(model, data, trainer)
+        _check(model, data, trainer, cli.config.get("trainer.precision"))
         ckpt_path = cli.config.get("ckpt_path")
         if ckpt_path:
             ckpt_path = str(find_checkpoint(ckpt_path))
@@ -164,13 +174,11 @@ def _net_class_path(args: Sequence[str]) -> str | None:
     return None
 
 
-def _check(model: SegmentationModule, data: LightningDataModule, trainer: Trainer) -> None:
+def _check(
+    model: SegmentationModule, data: LightningDataModule, trainer: Trainer, precision: Any
+) -> None:
     """Options that Lightning accepts but that cannot train: refused before any priors."""
-    if model.hparams.num_classes != data.num_classes:
-        raise ValueError(
-            f"model.num_classes is {model.hparams.num_classes} but the dataset has "
-            f"{data.num_classes} classes"
-        )
+    _check_precision(precision, trainer)
     if model.loss.uses_priors == "pixel" and hasattr(getattr(data, "settings", None), "crop_size"):
         raise ValueError(
             f"model.loss {type(model.loss).__name__} with pixel-wise priors needs training labels "
@@ -181,7 +189,90 @@ def _check(model: SegmentationModule, data: LightningDataModule, trainer: Traine
             f"--trainer.max_steps must be >= 1 (the optimiser steps to train), "
             f"got {trainer.max_steps}"
         )
+    _check_data(data)
     _check_network(model)
+
+
+def _check_class_count(config: Any) -> None:
+    """``model.num_classes`` against the class count of the data's class, before the module
+    (whose validation rules name classes) or the data are built."""
+    path = str(config.get("data.class_path") or "")
+    module, _, name = path.rpartition(".")
+    try:
+        classes = getattr(importlib.import_module(module), name).num_classes
+    except (ImportError, AttributeError, ValueError):
+        return  # no such class, or one without a class count: LightningCLI names the first
+    asked = config.get("model.num_classes")
+    if isinstance(classes, int) and asked != classes:
+        raise ValueError(
+            f"--model.num_classes is {asked}, and the dataset ({name}) has {classes} classes: "
+            f"pass --model.num_classes {classes}"
+        )
+
+
+PRECISION_NAMES = {"16": "16-mixed", "bf16": "bf16-mixed", "32": "32-true", "64": "64-true"}
+"""Lightning's short precisions and the names it gives them."""
+
+
+def _check_precision(asked: Any, trainer: Trainer) -> None:
+    """The precision asked for is the one Lightning trains in, with float32 weights."""
+    asked = PRECISION_NAMES.get(str(asked), str(asked))
+    if asked in ("16-true", "bf16-true"):
+        raise ValueError(
+            f"--trainer.precision {asked} keeps the weights in 16 bits, and costseg trains "
+            "float32 weights (the inputs are normalised in float32): pass bf16-mixed, 16-mixed "
+            "(on a GPU) or 32-true"
+        )
+    if asked != str(trainer.precision):  # e.g. 16-mixed on a CPU: Lightning takes bf16-mixed
+        where = type(trainer.accelerator).__name__.removesuffix("Accelerator").lower()
+        raise ValueError(
+            f"--trainer.precision {asked} is not available on this accelerator ({where}; "
+            f"Lightning would train in {trainer.precision}): pass --trainer.precision "
+            f"{trainer.precision} or 32-true"
+        )
+
+
+def _check_data(data: LightningDataModule) -> None:
+    """The training and validation splits exist (a Cityscapes root lists its files; the
+    datasets are kept for training)."""
+    try:
+        data.setup("fit")
+    except FileNotFoundError as err:
+        raise ValueError(f"--data.init_args.root: {err}") from None
+
+
+def _name_after_network(config: Any, command_line: Sequence[str]) -> None:
+    """A run of another network than its first config's is named after that network (its
+    ``runs/<name>/``), unless the command line names the run."""
+    logger = config.get("trainer.logger")
+    init_args = logger.get("init_args") if isinstance(logger, Namespace) else None
+    named = any(
+        arg.split("=", 1)[0] in ("--trainer.logger", "--trainer.logger.name")
+        or arg.startswith("--trainer.logger.init_args.name")
+        for arg in command_line
+    )
+    configs = config.get("config") or []
+    if init_args is None or init_args.get("name") is None or named or not configs:
+        return
+    import yaml
+
+    with open(str(configs[0])) as f:
+        base = (yaml.safe_load(f) or {}).get("model", {}).get("net")
+    net = config.get("model.net")
+    if net is not None and _network_name(net) != _network_name(base):
+        init_args["name"] = _network_name(net)
+
+
+def _network_name(entry: Any) -> str | None:
+    """The name of a ``model.net`` entry's network: an adapter's builder's, else its class's."""
+    if isinstance(entry, Namespace):
+        entry = entry.as_dict()
+    if not isinstance(entry, dict):
+        return None
+    path = str(entry.get("class_path", ""))
+    if path == ADAPTER:
+        path = str((entry.get("init_args") or {}).get("builder", path))
+    return path.rpartition(".")[2]
 
 
 def _check_network(model: SegmentationModule) -> None:
@@ -222,7 +313,8 @@ def _after_failure(trainer: Trainer, new_run: Path | None, err: BaseException) -
         isinstance(err, SystemExit) and trainer.interrupted
     )
     if not interrupted:
-        if isinstance(err, OSError) and not err.filename:  # e.g. a full disk under TensorBoard
+        if isinstance(err, OSError) and err.errno is not None and not err.filename:
+            # a system error without its file, e.g. a full disk under TensorBoard
             err.filename = trainer.log_dir
         raise err
     last = _newest_last(trainer)
@@ -271,18 +363,21 @@ def _data_config(cli: LightningCLI) -> dict[str, Any]:
 def _compute_priors(model: SegmentationModule, data, trainer: Trainer) -> torch.Tensor:
     """Pixel-wise priors from the training labels, saved (with figures) in the run folder.
 
-    They are computed once per data settings and kept in ``<save_dir>/priors_cache/`` (the
-    logger's folder, e.g. ``runs/``); delete a file there to count its labels again."""
+    They are counted once per dataset (its labels, :meth:`prior_key`, and the smoothing) and
+    kept in ``priors_cache/`` beside the runs folder (the logger's ``save_dir``, e.g.
+    ``runs/``), which every run under any ``save_dir`` there shares; delete a file there to
+    count its labels again."""
     from costseg.data.priors_cache import settings_key, training_priors
     from costseg.report.files import save_figure
     from costseg.report.priors import plot_priors, plot_roi_map
 
-    settings = {"data": type(data).__qualname__, **data.hparams}
+    settings = data.prior_key()
     save_dir = getattr(trainer.logger, "save_dir", None)
     with tempfile.TemporaryDirectory() as scratch:  # no logger folder (fast_dev_run): no cache
+        cache = priors_cache(save_dir) if save_dir else Path(scratch)
         found = training_priors(
             data.prior_labels,
-            Path(save_dir or scratch) / "priors_cache" / f"{settings_key(settings)}.pt",
+            cache / f"{settings_key(settings)}.pt",
             settings,
             num_classes=data.num_classes,
             sigma=model.hparams.prior_sigma,
@@ -295,3 +390,13 @@ def _compute_priors(model: SegmentationModule, data, trainer: Trainer) -> torch.
         save_figure(plot_priors(found.priors, data.class_names), run / "priors.png")
         save_figure(plot_roi_map(roi_map(found.priors, data.class_names)), run / "roi_map.png")
     return found.priors
+
+
+def priors_cache(save_dir: str | Path) -> Path:
+    """The folder of the training priors' cache: ``priors_cache/`` beside the runs folder
+    ``save_dir``, shared by the runs of every ``save_dir`` there.
+
+    >>> priors_cache("/work/runs")
+    PosixPath('/work/priors_cache')
+    """
+    return Path(save_dir).resolve().parent / "priors_cache"
