@@ -140,8 +140,11 @@ class DesignOutcome(Result):
             record["cost_file"] = "designed_cost.yaml"
         write_json(out / "design.json", record)
         write_csv(out / "design_candidates.csv", self._rows())
-        lines = [f"design ({own.candidates.space}): " + s.line(req, self.delta)
-                 for s in self.searches]  # fmt: skip
+        lines = [
+            f"design, {s.candidates.space} space{'' if s.designed else ' (to compare)'}: "
+            + s.line(req, self.delta)
+            for s in self.searches
+        ]
         return Section(
             json={"design": record},
             table=self._table(record),
