@@ -46,6 +46,7 @@ def _target(text):
     return ["--sweep", "0.5", "--target", text, "--maximize", "person:roi1:precision"]
 
 
+DESIGN = ["--target", "person:roi1:recall>=0.9", "--guarantee", "0.1", "--design", "lagrangian"]
 TESTS = Path(__file__).parent  # a folder that holds no record of scored images
 
 EVALUATE_CASES = {
@@ -133,6 +134,45 @@ EVALUATE_CASES = {
     "conformal roi out of range": (
         ["--conformal", "0.1", "--conformal_roi", "7"],
         ["--conformal_roi", "invalid choice: 7"],
+    ),
+    "several targets without a design": (
+        [
+            *_target("person:roi1:recall>=0.9")[:2],
+            "--maximize",
+            "person:roi1:precision",
+            "--target",
+            "person:roi1:recall>=0.9",
+            "rider:roi1:recall>=0.9",
+        ],
+        ["several --target", "--design"],
+    ),
+    "design without requirements": (["--design", "lagrangian"], ["--design needs", "--target"]),
+    "design without delta": (
+        ["--design", "triangle", "--target", "person:roi1:recall>=0.9"],
+        ["--guarantee"],
+    ),
+    "design space unknown": (["--design", "simplex"], ["--design", "invalid choice"]),
+    "design budget of one": (["--design", "triangle", "--design_budget", "1"], [">= 2"]),
+    "design share above one": (
+        [*DESIGN, "--design_pixels", "1.5"],
+        ["--design_pixels", "(0, 1]"],
+    ),
+    "lagrangian on coverage": (
+        ["--design", "lagrangian", "--guarantee", "0.1", "--target", "person:roi1:coverage>=0.9"],
+        ["coverage"],
+    ),
+    "aggregate template without aggregates": (
+        [*DESIGN[:-1], "aggregate", "--design_base", "robotistic"],
+        ["aggregate"],
+    ),
+    "design objective of segments": (
+        [*DESIGN, "--maximize", "person:roi1:fp_rate"],
+        ["pixel rate"],
+    ),
+    "minimize without design": (["--minimize", "person:roi1:recall"], ["--minimize goes with"]),
+    "design base of triangle": (
+        [*DESIGN[:-1], "triangle", "--design_base", "egoistic"],
+        ["--design_base goes with"],
     ),
 }
 

@@ -5,6 +5,7 @@ tests on every pixel."""
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import torch
@@ -33,7 +34,7 @@ def subsample(
     roi: torch.Tensor | None = None,
     priors: torch.Tensor | None = None,
     share: float = 0.1,
-    seed: int = 0,
+    seed: int | Sequence[int] = 0,
     ignore_index: int = IGNORE_INDEX,
 ) -> Subsample:
     """``ceil(share · L)`` of the L labelled pixels of each image, drawn at random without
@@ -43,7 +44,8 @@ def subsample(
         probs: (B, N, H, W); labels: (B, H, W); roi: None, (H, W) or (B, H, W);
         priors: None, (N,) or (N, H, W) (as in :func:`~.counts.prepare_counts`).
         share: the share of each image's labelled pixels kept, in (0, 1].
-        seed: the draw's seed.
+        seed: the draw's seed (the images drawn in turn), or one seed per image (each image's
+            draw then does not depend on the batch it comes in).
         ignore_index: the label of unlabelled pixels.
 
     Returns:
@@ -59,9 +61,14 @@ def subsample(
     b, _, h, w = probs.shape
     if labels.shape != (b, h, w):
         raise ValueError(f"labels must be ({b}, {h}, {w}), got {tuple(labels.shape)}")
-    gen = torch.Generator().manual_seed(seed)
+    seeds = [seed] * b if isinstance(seed, int) else list(seed)
+    if len(seeds) != b:
+        raise ValueError(f"seed must be one number or one per image ({b}), got {len(seeds)}")
+    gen = torch.Generator().manual_seed(seeds[0])
     picks = []
-    for image in labels.reshape(b, -1).cpu():
+    for i, image in enumerate(labels.reshape(b, -1).cpu()):
+        if not isinstance(seed, int):
+            gen.manual_seed(seeds[i])
         labelled = (image != ignore_index).nonzero()[:, 0]
         keep = math.ceil(share * len(labelled))
         picks.append(labelled[torch.randperm(len(labelled), generator=gen)[:keep]].sort().values)

@@ -119,15 +119,16 @@ class SearchImages:
             for seen in context.held_out_seen("design: search images (D1)"):
                 keep = max(0, min(len(seen.probs), n1 - seen_so_far))
                 seen_so_far += len(seen.probs)
-                if keep:
-                    found.add(seen, keep, share, req.label_maps, seed + seen_so_far)
+                if keep:  # each image's pixels drawn with a seed of its own: any batch size
+                    seeds = range(seed + seen_so_far - len(seen.probs), seed + seen_so_far)
+                    found.add(seen, keep, share, req.label_maps, list(seeds)[:keep])
         return found
 
-    def add(self, seen: Seen, keep: int, share: float, whole: bool, seed: int) -> None:
+    def add(self, seen: Seen, keep: int, share: float, whole: bool, seeds: list[int]) -> None:
         probs, labels = seen.probs[:keep].float(), seen.batch.labels[:keep]
         roi = None if seen.roi is None else seen.roi.expand_as(labels)
         if share < 1:
-            part = subsample(probs, labels, roi, share=share, seed=seed)
+            part = subsample(probs, labels, roi, share=share, seed=seeds)
             probs, labels, roi = part.probs, part.labels, part.roi
         self.inputs.append(prepare_counts(probs, labels, roi))
         if whole:

@@ -1,0 +1,102 @@
+"""``evaluate.py --design``: a matrix designed from several requirements on the held-out images,
+certified by Pareto Testing (docs/definitions.md §20); its cost file reproduces the rows the design
+reported, and the Python API gives the command line's design."""
+
+import csv
+import json
+from pathlib import Path
+
+import pytest
+import torch
+from conftest import write_cityscapes_item
+
+import costseg
+from costseg.checkpoints import find_checkpoint
+from costseg.cli import evaluate_main, predict_main
+from costseg.costs import load_cost
+from costseg.data.cityscapes import CityscapesSegmentation
+from costseg.networks import load_network
+
+REQUIREMENTS = ["person:roi0:recall>=0.05", "road:roi0:precision>=0.05"]
+ARGS = ["--no-progress", "--num_examples", "1", "--cost", "robotistic", "--design_budget", "20",
+        "--guarantee", "0.5", "--target", *REQUIREMENTS]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def ckpt(tiny_run) -> str:
+    return str(find_checkpoint(None, runs_dir=tiny_run[2]))
+
+
+def _rows(path: Path, rule: str) -> list[dict]:
+    """The rows of ``rule`` in RoIs 0-2 (those a sweep's file holds), without its name."""
+    with path.open() as f:
+        return [{k: v for k, v in r.items() if k != "matrix"} for r in csv.DictReader(f)
+                if r["matrix"] == rule and r["roi"] in "012"]  # fmt: skip
+
+
+def test_the_designed_cost_file_reproduces_the_rows_of_the_design(ckpt, tmp_path):
+    out = tmp_path / "design"
+    evaluate_main([*ARGS, "--ckpt_path", ckpt, "--output_dir", str(out), "--design",
+                   "lagrangian", "--calibration_split", "train"])  # fmt: skip
+    record = json.loads((out / "design.json").read_text())
+    own = record["searches"][0]
+    assert record["split"]["search (D1)"] == "the first 4 held-out images"
+    assert own["space"] == "lagrangian" and own["candidates"] == 16  # 4 multipliers per constraint
+    assert own["certified"] >= 1 and "chosen" in own
+    assert all(own["chosen"]["certification_pvalues"][t] <= 0.5 for t in REQUIREMENTS)
+    yaml_file = out / "designed_cost.yaml"
+    header = yaml_file.read_text().split("name:")[0]
+    assert "δ = 0.5" in header and "n1 = 4" in header and "n2 = 4" in header
+    matrix = load_cost(yaml_file)
+    mu = own["chosen"]["parameters"]
+    expected = load_cost("robotistic")
+    expected[:, 11] += mu["mu_1"] * (torch.arange(19) != 11)  # person recall: its column
+    expected[0, :] += mu["mu_2"] * (torch.arange(19) != 0)  # road precision: its row
+    torch.testing.assert_close(matrix, expected, rtol=0, atol=0)
+    again = tmp_path / "again"
+    evaluate_main(["--no-progress", "--num_examples", "1", "--ckpt_path", ckpt, "--output_dir",
+                   str(again), "--cost", str(yaml_file)])  # fmt: skip
+    assert _rows(again / "results.csv", "designed_cost") == _rows(out / "designed.csv", "designed")
+    images = out / "figures"
+    assert {"design_matrices.png", "design_front_lagrangian.png"} <= {
+        p.name for p in images.iterdir()
+    }
+    predicted = predict_main(["--ckpt_path", ckpt, "--cost", str(yaml_file), "--input",
+                              str(images / "masks_0.png"), "--output_dir", str(tmp_path / "p"),
+                              "--no-progress"])  # fmt: skip
+    assert any(predicted.rglob("*.png"))
+
+
+def test_nothing_certified_is_a_result_that_says_why(ckpt, tmp_path):
+    out = tmp_path / "none"
+    evaluate_main(["--no-progress", "--num_examples", "0", "--ckpt_path", ckpt, "--output_dir",
+                   str(out), "--design", "triangle", "--design_budget", "6", "--guarantee", "0.5",
+                   "--calibration_split", "train", "--target", "person:roi0:recall>=0.5",
+                   "road:roi0:precision>=0.5"])  # fmt: skip
+    record = json.loads((out / "design.json").read_text())
+    assert len(record["searches"]) == 1  # the triangle is its own comparison
+    found = record["searches"][0]
+    assert found["certified"] == 0 and not (out / "designed_cost.yaml").exists()
+    assert found["nothing_certified"]["failed_constraint"] in record["constraints"]
+    assert "Designed value system" in (out / "table.md").read_text()
+
+
+def test_the_python_api_designs_what_the_command_line_designs(ckpt, tmp_path):
+    root = tmp_path / "cs"
+    for item in range(8):
+        write_cityscapes_item(root, "val", f"frankfurt_000000_{item:06d}", item, (32, 64))
+    common = {"roi": "geometric", "design": "aggregate", "design_budget": 12, "seed": 3}
+    cli, api = tmp_path / "cli", tmp_path / "api"
+    evaluate_main([*ARGS, "--network", f"costseg:{ckpt}", "--data_root", str(root),
+                   "--roi", "geometric", "--design", "aggregate", "--design_budget", "12",
+                   "--seed", "3", "--output_dir", str(cli)])  # fmt: skip
+    costseg.evaluate(
+        load_network(f"costseg:{ckpt}"), CityscapesSegmentation(root, "val"), ["robotistic"],
+        target=REQUIREMENTS, guarantee=0.5, num_examples=1, progress=False, output_dir=str(api),
+        **common,
+    )  # fmt: skip
+    first, second = (json.loads((d / "design.json").read_text()) for d in (cli, api))
+    assert first == second
+    assert (cli / "design_candidates.csv").read_text() == (
+        api / "design_candidates.csv"
+    ).read_text()
