@@ -1,35 +1,109 @@
-"""`evaluate.py` under torchrun with 2 CPU processes (gloo) gives the single-process numbers."""
+"""`evaluate.py` under torchrun with 2 CPU processes (gloo) gives the single-process outputs:
+every analysis of the table, every results.json field, CSV and figure."""
 
+import csv
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from costseg.checkpoints import find_checkpoint
-from costseg.cli import evaluate_main
+from costseg.cli import evaluate_parser
+from costseg.evaluation.analyses import ANALYSES, wanted
+from costseg.options import EvalOptions
 
 ROOT = Path(__file__).resolve().parents[1]
 
+EVERY_ANALYSIS = {
+    "design": ["--cost", "robotistic", "ml", "--calibrate", "temperature", "--meta",
+               "--save-segments", "--save-probs", "--save-predictions", "--anomalies",
+               "--conformal", "0.3", "--explorer", "--design", "lagrangian", "--design_budget",
+               "9", "--target", "person:roi0:recall>=0.05", "road:roi0:precision>=0.05",
+               "--guarantee", "0.5"],
+    "guarantee": ["--cost", "robotistic", "egoistic", "--sweep", "0.5", "--target",
+                  "person:roi0:recall>=0.05", "--maximize", "person:roi0:precision",
+                  "--guarantee", "0.5", "--save-segments"],
+}  # fmt: skip
+"""Two evaluations that run every analysis of the table between them (--design and the
+Learn-then-Test guarantee exclude each other)."""
 
-def _arguments(ckpt: Path, out: Path) -> list[str]:
-    costs = ["--cost", "robotistic", "egoistic", "ml"]
-    rest = ["--num_examples", "0", "--batch_size", "1", "--no-progress"]
-    return ["--ckpt_path", str(ckpt), "--output_dir", str(out), *costs, *rest]
+VARYING = {"output_dir", "source", "timing"}
+"""results.json keys that name the run's own folder or time."""
 
 
-def test_two_processes_equal_one(tiny_run, tmp_path):
+def _arguments(ckpt: Path, out: Path, options: list[str]) -> list[str]:
+    rest = ["--num_examples", "2", "--batch_size", "1", "--calibration_split", "train"]
+    return ["--ckpt_path", str(ckpt), "--output_dir", str(out), "--no-progress", *options, *rest]
+
+
+def test_the_two_evaluations_run_every_analysis():
+    ran = set()
+    for options in EVERY_ANALYSIS.values():
+        opts = EvalOptions(**vars(evaluate_parser().parse_args(options)))
+        ran |= {e.module for e in wanted(opts)}
+    assert ran == {e.module for e in ANALYSES}
+
+
+@pytest.mark.parametrize("case", sorted(EVERY_ANALYSIS))
+def test_two_processes_equal_one(case, tiny_run, tmp_path):
     ckpt = find_checkpoint(None, runs_dir=tiny_run[2])
-    evaluate_main(_arguments(ckpt, tmp_path / "one"))  # the single process: this one
-    single = json.loads((tmp_path / "one" / "results.json").read_text())
+    one, two = tmp_path / "one", tmp_path / "two"
+    # one thread per process, as torchrun sets: the network's own float sums are then the same
+    env = os.environ | {"OMP_NUM_THREADS": "1"}
     torchrun = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2"]
-    command = [*torchrun, str(ROOT / "evaluate.py"), *_arguments(ckpt, tmp_path / "two")]
-    done = subprocess.run(command, capture_output=True, text=True, timeout=600)
-    assert done.returncode == 0, done.stderr[-3000:]
-    double = json.loads((tmp_path / "two" / "results.json").read_text())
-    assert single["rows"] == double["rows"]
-    assert single["confusion_matrix"] == double["confusion_matrix"]
-    assert single["miou"] == double["miou"]
+    for out, launch in ((one, [sys.executable]), (two, torchrun)):
+        command = [*launch, str(ROOT / "evaluate.py"), *_arguments(ckpt, out, EVERY_ANALYSIS[case])]
+        done = subprocess.run(command, capture_output=True, text=True, timeout=600, env=env)
+        assert done.returncode == 0, done.stderr[-3000:]
+    single, double = (json.loads((d / "results.json").read_text()) for d in (one, two))
+    assert single.keys() == double.keys()
+    for results in (single, double):
+        del results["options"]["output_dir"]
+    for key in single.keys() - VARYING:
+        _assert_equal(single[key], double[key], key)
+    files = [sorted(p.relative_to(d) for p in d.rglob("*") if p.is_file() and "events" not in
+                    p.name and p.suffix != ".html") for d in (one, two)]  # fmt: skip
+    assert files[0] == files[1]
+    for path in files[0]:
+        if path.suffix == ".csv":
+            _assert_equal(_cells(one / path), _cells(two / path), str(path))
+        elif path.suffix in (".md", ".yaml"):
+            assert (one / path).read_text() == (two / path).read_text(), path
+
+
+def _cells(path: Path) -> list[list]:
+    """A CSV file's cells, numbers as floats."""
+    with path.open() as f:
+        return [[_number(cell) for cell in row] for row in csv.reader(f)]
+
+
+def _number(cell: str):
+    try:
+        return float(cell)
+    except ValueError:
+        return cell
+
+
+def _assert_equal(a, b, where: str) -> None:
+    """Equal values, floats to float32 rounding (sums over processes), NaN equal to NaN."""
+    if isinstance(a, dict):
+        assert a.keys() == b.keys(), where
+        for k in a:
+            _assert_equal(a[k], b[k], f"{where}.{k}")
+    elif isinstance(a, list):
+        assert len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            _assert_equal(x, y, f"{where}[{i}]")
+    elif isinstance(a, float) and isinstance(b, float):
+        assert math.isclose(a, b, rel_tol=1e-5, abs_tol=1e-9) or (
+            math.isnan(a) and math.isnan(b)
+        ), where
+    else:
+        assert a == b, where
 
 
 def test_validation_metrics_with_two_ddp_processes_equal_one(tiny_run):
