@@ -77,7 +77,9 @@ class ParetoTestingResult:
         n_d1, n_d2: (L, K) int64 images with a defined loss behind each risk (of n1, n2).
         certified: int64 indices rejected by the fixed-sequence test on D2, in testing order.
         alphas: (K,) levels α_i. delta: δ.
-        best: when nothing is certified, the first candidate of ``order`` (else None).
+        best: when nothing is certified, the front's candidate closest to meeting every
+            constraint on D1 (the smallest largest excess ``R̂_i − α_i``; the first in ``order``
+            of ties), else None.
         failed: its constraint with the largest D2 p-value (the first of ties), else None.
         needed_n: the images with a defined loss at which its observed risk on ``failed`` would
             pass at δ (:func:`images_needed`); None when certified, or the risk is ≥ α.
@@ -162,7 +164,8 @@ def pareto_testing(
     )  # fmt: skip
     if len(certified):
         return result
-    best = int(order[0])
+    excess = np.nan_to_num(risks_d1[order] - levels, nan=np.inf).max(axis=1)
+    best = int(order[np.argmin(excess)])  # the first of ties
     failed = int(np.argmax(p_d2[best]))
     observed = risks_d2[best, failed] if n_d2[best, failed] else risks_d1[best, failed]
     needed = None
