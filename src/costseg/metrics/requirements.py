@@ -19,6 +19,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -117,3 +118,16 @@ class Requirements:
         m = self.objective
         part, whole_count = pixel_parts(confusion[m.roi], m.cls, m.metric).double().tolist()
         return part / whole_count if whole_count else math.nan
+
+
+def mean_risks(losses: np.ndarray) -> np.ndarray:
+    """The mean of per-image losses over the images where each is defined (NaN: undefined),
+    along the first axis; NaN where no image is.
+
+    >>> mean_risks(np.array([[0.5, np.nan], [0.0, np.nan]])).tolist()
+    [0.25, nan]
+    """
+    defined = ~np.isnan(losses)
+    count = defined.sum(0)
+    total = np.where(defined, losses, 0).sum(0)
+    return np.where(count > 0, total / np.maximum(count, 1), np.nan)

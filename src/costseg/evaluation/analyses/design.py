@@ -22,7 +22,7 @@ from costseg.classes import CLASS_NAMES
 from costseg.costs import cost_or_symmetric
 from costseg.decision import count_decisions, decide, prepare_counts, subsample
 from costseg.evaluation.analyses import Analysis, Context, Seen
-from costseg.metrics.requirements import Requirements
+from costseg.metrics.requirements import Requirements, mean_risks
 from costseg.report.design import DESIGNED_FAMILY, DesignOutcome, SearchOutcome
 from costseg.rules import Rule, RuleGroup, parse_rules, vertex_matrices
 from costseg.rules.design_spaces import (
@@ -150,7 +150,7 @@ class SearchImages:
                 agree = agree + counts.agree.sum()
             image_losses = torch.cat(losses).numpy()
             keep_losses(image_losses)
-            return _mean_risks(image_losses), req.value(confusion, agree)
+            return mean_risks(image_losses), req.value(confusion, agree)
 
         return score
 
@@ -161,14 +161,6 @@ def _losses(req: Requirements, confusion, matrix, whole=None) -> torch.Tensor:
         return req.losses(confusion)
     probs, labels, roi, ids = whole
     return req.losses(confusion, decide(probs, matrix), labels, roi, ids)
-
-
-def _mean_risks(losses: np.ndarray) -> np.ndarray:
-    """(K,) mean of each column over its defined (non-NaN) images; NaN where none is."""
-    defined = ~np.isnan(losses)
-    total = np.where(defined, losses, 0).sum(0)
-    count = defined.sum(0)
-    return np.where(count > 0, total / np.maximum(count, 1), np.nan)
 
 
 def _front(losses_d1: np.ndarray, objective, req: Requirements, delta: float) -> np.ndarray:
