@@ -14,8 +14,10 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 
 from costseg.cli import evaluate_parser, predict_parser, train_main
+from costseg.data.priors import save_priors
 from costseg.evaluation.checks import check_options
 from costseg.options import EvalOptions
 
@@ -51,7 +53,7 @@ def test_documented_evaluate_commands_pass_every_option_check(
 ):
     monkeypatch.chdir(tmp_path)  # the reader's own cost and priors files
     (tmp_path / "my_costs.yaml").write_text("off_diagonal: 1.0\n")
-    (tmp_path / "priors.pt").touch()  # only its existence is checked before the network loads
+    save_priors(tmp_path / "priors.pt", torch.full((19, 8, 16), 1 / 19))  # the reader's priors
     if "--probs" in args:  # the reader's saved probabilities (with --data_root: any folder)
         (tmp_path / args[args.index("--probs") + 1]).mkdir(parents=True)
     args = [str(cityscapes_root) if previous == "--data_root" else a
