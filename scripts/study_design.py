@@ -45,8 +45,8 @@ from costseg.networks.sources import batches, resolve_device
 from costseg.options import EvalOptions
 
 REQUIREMENTS = (
-    "person:roi1:recall>=0.8 building:roi3:precision>=0.7",
-    "person:roi1:recall>=0.85 building:roi3:precision>=0.85 rider:roi0:recall>=0.5",
+    "person:roi1:recall>=0.75 building:roi3:precision>=0.65",
+    "person:roi1:recall>=0.85 building:roi3:precision>=0.85",
     "person:roi1:recall>=0.99 building:roi3:precision>=0.99",
 )
 """Requirement sets of the demo model: one the triangle meets, one only the other spaces meet,
