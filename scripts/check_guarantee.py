@@ -98,7 +98,7 @@ class GuaranteeOptions:
     shift: list[str] = same_option(EvalOptions, "shift")
     sweep: float = same_option(EvalOptions, "sweep", 0.1)
     defer_sweep: list[float] | None = same_option(EvalOptions, "defer_sweep")
-    target: str = same_option(EvalOptions, "target", "person:roi1:recall>=0.95", nargs=None)
+    target: list[str] = same_option(EvalOptions, "target", ["person:roi1:recall>=0.95"])
     maximize: str = same_option(EvalOptions, "maximize", "person:roi1:precision")
     guarantee: float = same_option(EvalOptions, "guarantee", 0.1)
     guarantee_method: Literal["bonferroni", "fixed_sequence"] = same_option(
@@ -124,7 +124,8 @@ class GuaranteeOptions:
 
     def __post_init__(self) -> None:
         self.output_dir = Path(self.output_dir)
-        self.target_spec, self.max_spec = parse_target(self.target), parse_metric(self.maximize)
+        self.target_spec = parse_target(self.target[0])  # one: check_selection refuses more
+        self.max_spec = parse_metric(self.maximize)
         self.alpha = risk_level(self.target_spec)
         self.cal_pool = self.trials * self.n if self.cal_pool is None else self.cal_pool
         self.shifts = [parse_shift(text) for text in self.shift]

@@ -43,6 +43,7 @@ COMMANDS = {
     "src/costseg/calibration/": {"evaluate.py", "check_guarantee.py"},
     "src/costseg/data/shift.py": {"evaluate.py", "check_guarantee.py"},
     "src/costseg/training/": {"train.py"},
+    "src/costseg/models/adapter.py": {"train.py"},
     "src/costseg/export/": {"export.py"},
     "scripts/export.py": {"export.py"},
     "src/costseg/cli.py": {"train.py"},  # the messages of train.py's --help and --config

@@ -99,7 +99,7 @@ def test_sweep_points_equal_single_rule_evaluations(tiny_run, tmp_path):
         save_cost(files[-1], matrix, f"mix{i}")
     opts = EvalOptions(
         cost=["robotistic", "altruistic", "egoistic", *files],
-        ckpt_path=str(find_checkpoint(None, runs_dir=runs)),
+        ckpt_path=[str(find_checkpoint(None, runs_dir=runs))],
         output_dir=str(tmp_path / "out"),
         sweep=0.25,
         num_examples=0,

@@ -105,8 +105,9 @@ def cached_priors(
     >>> import tempfile, torch
     >>> folder = tempfile.mkdtemp()
     >>> make = lambda: [torch.tensor([[0, 1]])]
-    >>> first = cached_priors(make, f"{folder}/p.pt", {"split": "train"}, num_classes=2)
-    >>> again = cached_priors(make, f"{folder}/p.pt", {"split": "train"}, num_classes=2)
+    >>> two = {"num_classes": 2, "class_names": ["road", "sky"]}
+    >>> first = cached_priors(make, f"{folder}/p.pt", {"split": "train"}, **two)
+    >>> again = cached_priors(make, f"{folder}/p.pt", {"split": "train"}, **two)
     >>> first.reused, again.reused, torch.equal(first.priors, again.priors), again.num_labels
     (False, True, True, 1)
     """

@@ -133,7 +133,10 @@ def check_selection(opts: EvalOptions, groups: list[RuleGroup]) -> None:
     if not (opts.target and opts.maximize):
         raise ValueError("--target and --maximize go together")
     if len(opts.target) > 1:
-        raise ValueError("several --target constraints are requirements of --design (a space)")
+        raise ValueError(
+            "several --target constraints are the requirements of a design (evaluate.py "
+            "--design SPACE); a sweep's point is chosen for one"
+        )
     choosing = "--guarantee" if opts.guarantee is not None else "--target"
     candidates = [g.family for g in groups if g.candidates]
     if not candidates:
