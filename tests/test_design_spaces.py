@@ -9,6 +9,7 @@ import itertools
 import numpy as np
 import pytest
 import torch
+from test_costs import C_A, C_E
 
 from costseg.costs import barycentric_grid, load_cost, symmetric_cost
 from costseg.decision import decide_reference
@@ -27,23 +28,8 @@ from costseg.rules.design_spaces import (
 )
 from costseg.rules.triangle import vertex_matrices
 
-# The paper's 6×6 matrices (docs/definitions.md §2), retyped: the test must not read the files.
-ALTRUISTIC = [
-    [0, 1, 10, 100, 1000, 100],
-    [1, 0, 10, 100, 1000, 100],
-    [1, 1, 0, 100, 100, 10],
-    [1, 1, 1, 0, 1000, 100],
-    [1, 1, 1, 100, 0, 10],
-    [1, 1, 1, 100, 1000, 0],
-]
-EGOISTIC = [
-    [0, 1, 1000, 100, 10, 100],
-    [1, 0, 1000, 100, 10, 100],
-    [10, 1, 0, 1000, 1, 10],
-    [10, 1, 1000, 0, 1, 10],
-    [10, 1, 1000, 100, 0, 100],
-    [10, 10, 1000, 100, 100, 0],
-]
+# The paper's 6×6 matrices (definitions §2), retyped in test_costs: the tests read no file.
+ALTRUISTIC, EGOISTIC = C_A, C_E
 
 
 def entries(matrix: list[list[float]]) -> list[float]:

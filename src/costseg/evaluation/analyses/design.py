@@ -114,14 +114,14 @@ class SearchImages:
     def of(
         cls, context: Context, n1: int, share: float, req: Requirements, seed: int
     ) -> SearchImages:
-        found, seen_so_far = cls(), 0
+        found, first = cls(), 0
         with torch.inference_mode():
             for seen in context.held_out_seen("design: search images (D1)"):
-                keep = max(0, min(len(seen.probs), n1 - seen_so_far))
-                seen_so_far += len(seen.probs)
+                keep = max(0, min(len(seen.probs), n1 - first))
                 if keep:  # each image's pixels drawn with a seed of its own: any batch size
-                    seeds = range(seed + seen_so_far - len(seen.probs), seed + seen_so_far)
-                    found.add(seen, keep, share, req.label_maps, list(seeds)[:keep])
+                    seeds = list(range(seed + first, seed + first + keep))
+                    found.add(seen, keep, share, req.label_maps, seeds)
+                first += len(seen.probs)
         return found
 
     def add(self, seen: Seen, keep: int, share: float, whole: bool, seeds: list[int]) -> None:
