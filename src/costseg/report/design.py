@@ -179,6 +179,7 @@ class DesignOutcome(Result):
         for s in self.searches:
             c, t = s.candidates, s.testing
             tested = {int(i): rank for rank, i in enumerate(t.order)}
+            certified = set(t.certified.tolist())
             for k in range(len(c.objective)):
                 row = {"space": c.space, "candidate": k}
                 row |= dict(zip(c.names, c.parameters[k].tolist(), strict=True))
@@ -188,7 +189,7 @@ class DesignOutcome(Result):
                     "front": k in tested,
                     "test order": tested.get(k, ""),
                     "certification p": t.pvalues_d2[k].max() if k in tested else math.nan,
-                    "certified": k in set(t.certified.tolist()),
+                    "certified": k in certified,
                     "chosen": k == s.chosen,
                 }
                 rows.append(row)
