@@ -55,20 +55,20 @@ def design(context: Context, opts) -> DesignOutcome:
     n1 = n // 2
     share = 1.0 if req.label_maps else opts.design_pixels
     found = SearchImages.of(context, n1, share, req, opts.seed)
-    searched = []
+    searched = []  # (candidates, their (n1, L, K) per-image losses on D1)
     for space in spaces(opts, req):
         losses: list[np.ndarray] = []
         candidates = search(
             space, found.scorer(req, losses.append), req.alphas, opts.design_budget, opts.seed,
             req.maximize,
         )  # fmt: skip
-        searched.append((space, candidates, np.stack(losses, 1)))
-    fronts = [_front(losses, c.objective, req, opts.guarantee) for _, c, losses in searched]
+        searched.append((candidates, np.stack(losses, 1)))
+    fronts = [_front(losses, c.objective, req, opts.guarantee) for c, losses in searched]
     tested = _test_fronts(
-        context, n1, req, [(c, f) for (_, c, _), f in zip(searched, fronts, strict=True)]
+        context, n1, req, [(c, f) for (c, _), f in zip(searched, fronts, strict=True)]
     )
     outcomes = []
-    for i, ((_, candidates, losses_d1), (losses_d2, objective_all)) in enumerate(
+    for i, ((candidates, losses_d1), (losses_d2, objective_all)) in enumerate(
         zip(searched, tested, strict=True)
     ):
         result = pareto_testing(
