@@ -37,7 +37,7 @@ from costseg.cli import user_errors
 from costseg.data.from_config import build_dataset
 from costseg.data.prior_maps import PriorMaps
 from costseg.decision import count_decisions, prepare_counts, subsample
-from costseg.evaluation.analyses.design import spaces
+from costseg.evaluation.analyses.design import SearchImages, spaces
 from costseg.metrics.requirements import Requirements, mean_risks
 from costseg.networks.ensemble import open_sources
 from costseg.networks.protocols import Protocol
@@ -115,23 +115,13 @@ def scored(pool, matrices: torch.Tensor, req: Requirements):
 
 def aggregate_pool(opts, req: Requirements, search_images, seed: int, budget: int) -> torch.Tensor:
     """The candidates of one NSGA-II search of the aggregate space on ``search_images`` (10 % of
-    each image's pixels)."""
-    prepared = []
+    each image's pixels), scored as ``evaluate.py --design`` scores them."""
+    found = SearchImages()
     for i, (p, y, r) in enumerate(search_images):
         part = subsample(p, y, r, share=0.1, seed=[seed + i * 1000 + b for b in range(len(y))])
-        prepared.append(prepare_counts(part.probs, part.labels, part.roi))
-
-    def score(matrix):
-        losses, agree, labelled = [], 0, 0
-        for inputs in prepared:
-            counts = count_decisions(inputs, matrix)
-            losses.append(req.losses(counts.confusion))
-            agree += counts.agree.sum().item()
-            labelled += counts.confusion[:, 0].sum().item()
-        return mean_risks(torch.cat(losses).numpy()), agree / labelled
-
+        found.inputs.append(prepare_counts(part.probs, part.labels, part.roi))
     space = next(s for s in spaces(opts, req) if s.name == "aggregate")
-    return search(space, score, req.alphas, budget, seed, True).matrices
+    return search(space, found.scorer(req, lambda losses: None), req.alphas, budget, seed).matrices
 
 
 def main() -> None:

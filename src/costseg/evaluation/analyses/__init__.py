@@ -111,9 +111,7 @@ class Decisions(Sequence):
     def __len__(self) -> int:
         return len(self.seen.context.groups)
 
-    def __getitem__(self, index):
-        if isinstance(index, slice):
-            return [self[i] for i in range(len(self))[index]]
+    def __getitem__(self, index: int) -> torch.Tensor:
         if index not in self.maps:
             group = self.seen.context.groups[index]
             self.maps[index] = group.decide(self.seen.tempered(group.temperature), self.seen.priors)
