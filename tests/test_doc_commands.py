@@ -18,7 +18,7 @@ import torch
 
 from costseg.cli import evaluate_parser, predict_parser, train_main
 from costseg.data.priors import save_priors
-from costseg.evaluation.checks import check_options
+from costseg.evaluation.plan import checked_groups
 from costseg.options import EvalOptions
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -59,7 +59,7 @@ def test_documented_evaluate_commands_pass_every_option_check(
     args = [str(cityscapes_root) if previous == "--data_root" else a
             for previous, a in zip(["", *args[:-1]], args, strict=True)]  # fmt: skip
     opts = EvalOptions(**vars(evaluate_parser().parse_args(args[1:])))
-    check_options(opts)
+    checked_groups(opts)
 
 
 @pytest.mark.parametrize("args", [c for c in COMMANDS if _program(c.values[0]) == "predict.py"])

@@ -66,11 +66,11 @@ def evaluate(
         ValueError: an unknown option, a malformed item of ``dataset``, or what
             ``evaluate.py`` refuses.
     """
-    from costseg.evaluation.checks import check_options
+    from costseg.evaluation.plan import checked_groups
     from costseg.evaluation.run import evaluate as run_evaluation
 
     opts = _options(EvalOptions, network, costs, priors, options)
-    check_options(opts)  # evaluate.py's checks, before the network moves or data is read
+    checked_groups(opts)  # evaluate.py's checks, before the network moves or data is read
     _check_item(dataset)
     return run_evaluation(opts, _source(network, opts, mean, std, priors), dataset)
 

@@ -290,9 +290,9 @@ def evaluate_main(args: Sequence[str] | None = None) -> Any:
     """``python evaluate.py --cost egoistic`` (see ``--help``); returns the results."""
     with user_errors():
         opts = EvalOptions(**vars(evaluate_parser().parse_args(args)))
-        from costseg.evaluation.checks import check_options
+        from costseg.evaluation.plan import checked_groups
 
-        check_options(opts)  # every option, before the forkserver, a network or data is touched
+        checked_groups(opts)  # every option, before the forkserver, a network or data is touched
         workers.start()  # the workers' forkserver imports its modules while this one does
         from costseg.evaluation.run import evaluate
 

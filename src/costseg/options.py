@@ -331,15 +331,13 @@ class EvalOptions(SourceOptions):
         candidates=True,
     )
     target: list[str] | None = option(
-        help="constraint on the sweep, e.g. 'person:roi1:recall>=0.99' or "
-        "'person:roi1:handled_recall>=0.99'; several (each a requirement) with --design",
+        help="constraint that chooses a point of the sweep, e.g. 'person:roi1:recall>=0.99' or "
+        "'person:roi1:handled_recall>=0.99' (a design's requirements are --require)",
         nargs="+",
         metavar="CONSTRAINT",
     )
     maximize: str | None = option(
-        help="what to maximise under --target, e.g. person:roi1:precision or all:roi1:coverage; "
-        "with --design also agreement (the share of pixels decided as argmax, its default) or "
-        "miou"
+        help="what to maximise under --target, e.g. person:roi1:precision or all:roi1:coverage"
     )
     alpha_sweep: float | None = option(
         help="also sweep the prior-adapted rule from Bayes (α=0) to ML (α=1)",
@@ -364,6 +362,7 @@ class EvalOptions(SourceOptions):
     guarantee: float | None = option(
         help="choose the --sweep / --alpha_sweep / --defer_sweep point with P(risk > α) <= DELTA "
         "(Learn-then-Test); α comes from --target",
+        type=fraction,
         metavar="DELTA",
         group=CALIBRATION,
     )
@@ -454,13 +453,35 @@ class EvalOptions(SourceOptions):
     )
 
     design: Literal["triangle", "lagrangian", "aggregate"] | None = option(
-        help="design a cost matrix meeting every --target, jointly with probability 1 - δ "
-        "(--guarantee): searched in this space on half of the held-out images, certified on "
+        help="design a cost matrix meeting every --require, jointly with probability 1 - δ "
+        "(--design_delta): searched in this space on half of the held-out images, certified on "
         "the other half by Pareto Testing; writes designed_cost.yaml",
         group=DESIGN,
     )
-    minimize: str | None = option(
-        help="what --design minimises instead of maximising --maximize, e.g. building:roi1:recall",
+    require: list[str] | None = option(
+        help="the requirements of --design, e.g. 'person:roi1:recall>=0.8' "
+        "'building:roi3:precision>=0.8': each met with the others, jointly with probability "
+        "1 - --design_delta",
+        nargs="+",
+        metavar="CONSTRAINT",
+        group=DESIGN,
+        needs="design",
+    )
+    design_delta: float | None = option(
+        help="δ of --design: every --require met jointly with probability >= 1 - δ",
+        type=fraction,
+        metavar="DELTA",
+        group=DESIGN,
+        needs="design",
+    )
+    design_maximize: str | None = option(
+        help="what --design maximises among the certified matrices (default agreement, the "
+        "share of pixels decided as argmax), e.g. miou or person:roi1:precision",
+        group=DESIGN,
+        needs="design",
+    )
+    design_minimize: str | None = option(
+        help="what --design minimises instead, e.g. building:roi1:recall",
         group=DESIGN,
         needs="design",
     )

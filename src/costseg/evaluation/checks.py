@@ -1,7 +1,8 @@
-"""What the evaluation plan decides before any image: valid options, rule groups, priors.
+"""The refusals of an evaluation's options, before a network is loaded or data is read.
 
-Every check here fails with a ValueError whose one line says what was expected, so a user
-mistake is reported before a network is loaded.
+Every check here fails with a ValueError whose one line says what was expected; nothing here
+builds what the plan builds (:mod:`costseg.evaluation.plan`: rule groups, priors), though a
+check may be given them.
 """
 
 from __future__ import annotations
@@ -9,37 +10,26 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-import torch
-
 from costseg.calibration.guarantee import minimum_images, tests_sharing_delta
-from costseg.classes import CLASS_NAMES, INSTANCE_CLASSES, class_indices
-from costseg.data.from_config import same_data
+from costseg.classes import CLASS_NAMES, class_indices
 from costseg.data.priors import check_priors_file
 from costseg.evaluation.analyses import held_out_flags
+from costseg.evaluation.priors import no_priors
+from costseg.evaluation.settings import SweepChoice
 from costseg.metrics.requirements import Requirements
-from costseg.metrics.selection import parse_metric, parse_target, risk_level
+from costseg.metrics.selection import certifiable_level, parse_metric
 from costseg.networks.probs_files import DATA_RECORD, records_its_data
 from costseg.networks.protocols import OPTIONS, Protocol
 from costseg.networks.sources import resolve_device
 from costseg.options import EvalOptions, candidate_flags, changed, check_needs, check_values
 from costseg.report.outputs import check_free
-from costseg.rules import (
-    TEMPERATURES,
-    RuleGroup,
-    alpha_group,
-    defer_costs,
-    defer_group,
-    grid_group,
-    parse_rules,
-    rules_group,
-    temperature_group,
-    vertex_matrices,
-)
+from costseg.rules import RuleGroup, parse_rules, vertex_matrices
 from costseg.rules.design_spaces import aggregate_template, constraint_kind
 
 
-def check_options(opts: EvalOptions) -> list[RuleGroup]:
-    """Fail on malformed or contradictory options; returns the rule groups they ask for."""
+def check_options(opts: EvalOptions) -> None:
+    """Fail on malformed or contradictory options (those that need the rule groups:
+    :func:`check_groups`)."""
     check_values(opts)
     class_indices(opts.classes)
     resolve_device(opts.device)
@@ -62,26 +52,18 @@ def check_options(opts: EvalOptions) -> list[RuleGroup]:
     check_shifts(opts.shift)
     if opts.save_probs and opts.probs is not None:
         raise ValueError("--save-probs writes a network's probabilities; with --probs they exist")
-    rules = parse_rules(opts.cost, defer=opts.defer)  # the sweeps' rules never defer
-    groups = [rules_group(rules)]
-    if opts.defer_sweep is not None:  # first: the candidates of --target and --guarantee
-        groups.append(defer_group(opts.cost, defer_costs(*opts.defer_sweep)))
-    if opts.sweep is not None:
-        groups.append(grid_group(opts.vertices, opts.sweep, opts.vertex_scaling))
-    if opts.alpha_sweep is not None:
-        groups.append(alpha_group(opts.alpha_sweep, opts.alpha_cost))
-    if opts.temperature_sweep:
-        groups += [temperature_group(rules, t) for t in TEMPERATURES]
-    if opts.fuse:
-        groups.append(_fusion_group(opts))
     _check_meta(opts)
-    check_selection(opts, groups)
     check_design(opts)
     _check_calibration(opts)
-    _check_priors(opts, groups)
     if opts.output_dir is not None:
         check_free(opts.output_dir, opts.overwrite)
-    return groups
+
+
+def check_groups(opts: EvalOptions, groups: list[RuleGroup]) -> None:
+    """Fail on options that the rule groups they ask for cannot serve: a sweep's choice
+    without one sweep to choose from, rules that need priors the data cannot give."""
+    check_selection(opts, groups)
+    _check_priors(opts, groups)
 
 
 def check_shifts(shifts: list[str]) -> None:
@@ -107,35 +89,20 @@ def _check_priors(opts: EvalOptions, groups: list[RuleGroup]) -> None:
         raise ValueError(no_priors(opts.data_root, geometric=opts.roi != "geometric"))
 
 
-def no_priors(data: str, geometric: bool = True) -> str:
-    """The one line that refuses a run whose data has no priors to offer."""
-    return (
-        f"no pixel-wise priors for {data}: no train split to count them from (gtFine/train); "
-        "pass --priors FILE (a run's priors.pt, or scripts/count_priors.py's from a label folder)"
-        + (" or --roi geometric (then no ml, no --alpha_sweep)" if geometric else "")
-    )
-
-
-def check_selection(opts: EvalOptions, groups: list[RuleGroup]) -> None:
+def check_selection(opts, groups: list[RuleGroup]) -> None:
     """``--target`` and ``--guarantee`` choose among the rules of the one rule group that has
-    candidates (a sweep); δ and the target's risk level α lie in (0, 1). ``opts`` is any options
-    object with ``target``, ``maximize`` and ``guarantee`` (scripts/check_guarantee.py's too);
-    with ``--design`` they are the design's (:func:`check_design`)."""
-    if getattr(opts, "design", None):
-        return
-    if opts.guarantee is not None:
-        if not 0 < opts.guarantee < 1:
-            raise ValueError(f"--guarantee is δ and must lie in (0, 1), got {opts.guarantee}")
-        if not opts.target:
-            raise ValueError("--guarantee needs --target (what to certify) and --maximize")
-    if not (opts.target or opts.maximize or opts.guarantee is not None):
+    candidates (a sweep); the target's risk level α lies in (0, 1). ``opts`` is any options
+    object with ``target``, ``maximize`` and ``guarantee`` (scripts/check_guarantee.py's too)."""
+    if opts.guarantee is not None and not opts.target:
+        raise ValueError("--guarantee needs --target (what to certify) and --maximize")
+    if not (opts.target or opts.maximize):
         return
     if not (opts.target and opts.maximize):
         raise ValueError("--target and --maximize go together")
     if len(opts.target) > 1:
         raise ValueError(
-            "several --target constraints are the requirements of a design (evaluate.py "
-            "--design SPACE); a sweep's point is chosen for one"
+            "a sweep's point is chosen for one --target; several constraints are the "
+            "requirements of a design (--design SPACE --require ...)"
         )
     choosing = "--guarantee" if opts.guarantee is not None else "--target"
     candidates = [g.family for g in groups if g.candidates]
@@ -146,26 +113,25 @@ def check_selection(opts: EvalOptions, groups: list[RuleGroup]) -> None:
             f"{choosing} chooses among the points of one sweep; these options give "
             f"{len(candidates)} ({', '.join(candidates)}): keep one of {candidate_flags()}"
         )
-    target = parse_target(opts.target[0])
     parse_metric(opts.maximize)
-    if opts.guarantee is not None and not 0 < risk_level(target) < 1:
-        raise ValueError(f"--target {opts.target[0]} leaves no risk level α in (0, 1)")
+    if opts.guarantee is not None:
+        certifiable_level(opts.target[0], "--target")
 
 
 def check_design(opts: EvalOptions) -> None:
-    """``--design``: its requirements (``--target``, ``--maximize`` / ``--minimize``), δ, and a
-    space that can be built from them (docs/definitions.md §20)."""
+    """``--design``: its requirements (``--require``, ``--design_maximize`` /
+    ``--design_minimize``), δ, and a space that can be built from them (docs/definitions.md
+    §20)."""
     if opts.design is None:
         return
-    if not opts.target or opts.guarantee is None:
+    if not opts.require or opts.design_delta is None:
         raise ValueError(
-            "--design needs its requirements: --target (one or more) and --guarantee δ"
+            "--design needs its requirements: --require (one or more) and --design_delta δ "
+            "(--target, --maximize and --guarantee choose a point of a sweep)"
         )
-    if not 0 < opts.guarantee < 1:
-        raise ValueError(f"--guarantee is δ and must lie in (0, 1), got {opts.guarantee}")
     if opts.design_pixels > 1:
         raise ValueError(f"--design_pixels is a share in (0, 1], got {opts.design_pixels}")
-    req = Requirements.parse(opts.target, opts.maximize, opts.minimize)
+    req = Requirements.parse(opts.require, opts.design_maximize, opts.design_minimize)
     vertex_matrices(opts.vertices, opts.vertex_scaling)  # the triangle, searched to compare
     if opts.design == "lagrangian":
         for t in req.constraints:
@@ -182,17 +148,9 @@ def check_design(opts: EvalOptions) -> None:
         raise ValueError("--design_base goes with --design lagrangian or aggregate")
 
 
-def _fusion_group(opts: EvalOptions) -> RuleGroup:
-    from costseg.meta.fusion import fusion_group  # numba's segment passes: only with --fuse
-
-    base = parse_rules([opts.fuse_base])[0]
-    fused = parse_rules(opts.fuse)
-    if any(r.defers for r in (base, *fused)):
-        raise ValueError("--fuse and --fuse_base take rules that never defer")
-    return fusion_group(base, fused, opts.fuse_tau, class_indices(opts.fuse_classes))
-
-
 def _check_meta(opts: EvalOptions) -> None:
+    if opts.fuse and any(r.defers for r in parse_rules([opts.fuse_base, *opts.fuse])):
+        raise ValueError("--fuse and --fuse_base take rules that never defer")
     for lone, needed in (
         ([] if opts.fuse else changed(opts, ["fuse_base", "fuse_tau", "fuse_classes"]), "--fuse"),
         ([] if opts.meta or opts.fuse else changed(opts, ["meta_split", "meta_images"]),
@@ -229,91 +187,32 @@ def _check_calibration(opts: EvalOptions) -> None:
             )
 
 
-def check_calibration_size(opts: EvalOptions, n_images: int, candidates: RuleGroup) -> None:
+def check_calibration_size(
+    choice: SweepChoice, n_images: int, candidates: RuleGroup, own_split: bool
+) -> None:
     """Refuse a guarantee that cannot certify anything with ``n_images`` calibration images
-    among the rules of ``candidates`` (Bonferroni over them, or over its fixed-sequence paths)."""
-    if opts.guarantee is None:
-        return
-    if opts.design:  # too few images is a result of the design: it says how many it needs
-        return
-    alpha, family = risk_level(parse_target(opts.target[0])), len(candidates.names)
-    tests = tests_sharing_delta(opts.guarantee_method, family, len(candidates.paths))
-    needed = minimum_images(alpha, opts.guarantee, tests)
+    (of ``--calibration_split`` when ``own_split``) among the rules of ``candidates``
+    (Bonferroni over them, or over its fixed-sequence paths). A design is not refused: too few
+    images is its result (it says how many it needs)."""
+    alpha, family = certifiable_level(choice.target, "--target"), len(candidates.names)
+    tests = tests_sharing_delta(choice.method, family, len(candidates.paths))
+    needed = minimum_images(alpha, choice.delta, tests)
     if n_images < needed:
-        more = "" if opts.calibration_split else "--calibration_split (another split's images), "
+        more = "" if own_split else "--calibration_split (another split's images), "
         raise ValueError(
             f"{n_images} calibration images cannot certify anything at α = {alpha:.3g}, "
-            f"δ = {opts.guarantee} over {family} candidates: at least {needed} are needed; give "
+            f"δ = {choice.delta} over {family} candidates: at least {needed} are needed; give "
             f"{more}a looser --target, a larger --guarantee δ or a coarser sweep"
         )
 
 
-def instance_classes(dataset, opts: EvalOptions) -> tuple[list[int], str]:
-    """The instance classes among ``--classes`` whose misses are measured (none when the
-    dataset has no instance ids), and a line saying so for the outputs; ValueError when
-    ``--target`` / ``--maximize`` ask for an instance metric that cannot be measured."""
-    chosen = [c for c in class_indices(opts.classes) if c in INSTANCE_CLASSES]
-    note = f"instance metrics for {', '.join(CLASS_NAMES[c] for c in chosen)} (definitions §9)"
-    if not getattr(dataset, "has_instances", False):
-        missing = getattr(dataset, "missing_instances", None)
-        why = f"{missing} of {len(dataset)} images have" if missing else "the dataset has"
-        chosen, note = [], f"instance metrics absent: {why} no instance ids (*_instanceIds.png)"
-    elif not chosen:
-        note = "instance metrics absent: no instance class among --classes"
-    for text in (*(opts.target or ()), opts.maximize, opts.minimize):
+def check_instance_targets(opts: EvalOptions, measured: list[int], note: str) -> None:
+    """ValueError when a target, requirement or objective asks for an instance metric of a
+    class whose instances are not ``measured`` (``note`` says why)."""
+    texts = (*(opts.target or ()), *(opts.require or ()), opts.maximize, opts.design_maximize,
+             opts.design_minimize)  # fmt: skip
+    for text in texts:
         metric = parse_metric(re.split(r"[<>=]", text)[0]) if text else None
-        if metric and metric.metric == "instance_recall" and metric.cls not in chosen:
+        if metric and metric.metric == "instance_recall" and metric.cls not in measured:
             name = CLASS_NAMES[metric.cls]
             raise ValueError(f"{text} needs instance ids and {name!r} in --classes ({note})")
-    return chosen, note
-
-
-def source_priors(
-    source, opts: EvalOptions, data: dict | None, cache_dir: Path
-) -> torch.Tensor | None:
-    """The pixel-wise priors of the evaluated ``data`` (docs/definitions.md §3, §8): the
-    ``--priors`` file; the source's own when they were counted on this data (a checkpoint's,
-    or those saved beside probabilities; for a dataset given in Python, ``data`` None, those
-    given with it); else counted once from the data's train labels and cached in ``cache_dir``
-    (next to the outputs). None only with ``--roi geometric`` and no train labels; never
-    another dataset's priors."""
-    if opts.priors is not None:
-        from costseg.data.priors import read_priors_file
-
-        priors = read_priors_file(opts.priors, CLASS_NAMES)["priors"]
-        print(f"priors read from {opts.priors}")
-        source.description["priors"] = {"file": str(Path(opts.priors).resolve())}
-        return priors
-    if source.priors is not None and (data is None or same_data(source.data_config, data)):
-        return source.priors
-    if source.priors is not None:
-        print("the source's priors were counted on other data: not used for this data")
-    return _counted_priors(source, opts, data, cache_dir)
-
-
-def _counted_priors(
-    source, opts: EvalOptions, data: dict | None, cache_dir: Path
-) -> torch.Tensor | None:
-    from costseg.data.from_config import build_dataset, data_settings
-    from costseg.data.priors_cache import settings_key, training_priors
-
-    try:
-        if data is None:
-            raise FileNotFoundError("a dataset given in Python has no train split")
-        train = build_dataset(data, "train")
-    except FileNotFoundError:
-        if opts.roi == "geometric":
-            print("no training labels: no pixel-wise priors; RoIs from the geometric map")
-            source.description["priors"] = "none: no training labels"
-            return None
-        name = "the given dataset" if data is None else data_settings(data).root
-        raise ValueError(no_priors(name)) from None
-    read = getattr(train, "read_label", None) or (lambda i: train[i][1])
-    found = training_priors(
-        lambda: (read(i) for i in range(len(train))),
-        cache_dir / f"train_{settings_key(data)}.pt",
-        {"data": data, "split": "train", "images": len(train)},
-        progress=opts.progress,
-    )
-    source.description["priors"] = found.record | {"data": data, "split": "train"}
-    return found.priors

@@ -46,9 +46,7 @@ class HeldOut:
 
     def batches(self, what: str) -> Iterator[Batch]:
         """The held-out batches on the plan's device (a progress bar named ``what``)."""
-        desc = (
-            f"{what} ({len(self.indices)} held-out images)" if self.plan.options.progress else None
-        )
+        desc = f"{what} ({len(self.indices)} held-out images)" if self.plan.progress else None
         if self.kept is None:
             yield from self._score(desc)
             return
@@ -96,6 +94,19 @@ class HeldOut:
         if isinstance(batch.scores, Path):
             return replace(batch, scores=torch.from_numpy(np.load(batch.scores)).float())
         return batch
+
+
+def held_out_images(plan) -> tuple[HeldOut | None, HeldOut | None]:
+    """The calibration images and the meta models' images of ``plan`` (the same object when
+    they are the same images), each scored at its first use and kept for every shift."""
+    calibration = None
+    if plan.calibration is not None:
+        shared = plan.meta_images is plan.calibration
+        calibration = HeldOut(plan, *plan.calibration, entropy=shared)
+    meta = calibration if plan.meta_images is plan.calibration else None
+    if plan.meta_images is not None and meta is None:
+        meta = HeldOut(plan, *plan.meta_images, entropy=True)
+    return calibration, meta
 
 
 def _moved(batch: Batch, device: torch.device) -> Batch:

@@ -1,21 +1,25 @@
-"""What one evaluation will do, decided once before the first image: the checked options, the
-probability source, the data and its split into calibration and reported images, the rule
-groups, the priors, and a claimed output folder. Under ``torchrun`` each process gets its own
-share of the reported images."""
+"""What one evaluation will do, decided once before the first image: each wanted analysis with
+its settings, the probability source, the data and its split into calibration and reported
+images, the rule groups, the priors, and a claimed output folder. Under ``torchrun`` each
+process gets its own share of the reported images.
+
+The options end here: everything below the plan (the loop, the analyses, the reports) reads the
+plan and the analyses' settings (:mod:`costseg.evaluation.settings`), never the options."""
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import torch
 import torch.distributed as dist
 from torch.utils.data import Dataset
 
 from costseg import workers
-from costseg.classes import CLASS_NAMES, class_indices
+from costseg.classes import CLASS_NAMES, INSTANCE_CLASSES, class_indices
 from costseg.data.from_config import (
     StreetScenesSettings,
     build_dataset,
@@ -24,32 +28,48 @@ from costseg.data.from_config import (
 )
 from costseg.data.prior_maps import PriorMaps, heatmap_canvas
 from costseg.data.priors import note_priors
-from costseg.evaluation.analyses import held_out_flags
+from costseg.evaluation.analyses import Entry, held_out_flags, wanted
 from costseg.evaluation.checks import (
     check_calibration_size,
+    check_groups,
+    check_instance_targets,
     check_options,
-    instance_classes,
-    source_priors,
 )
+from costseg.evaluation.priors import evaluation_priors
 from costseg.evaluation.processes import on_rank0, share, world_size
+from costseg.evaluation.settings import certified_choice
 from costseg.networks.ensemble import open_sources
 from costseg.networks.protocols import Protocol
 from costseg.networks.sources import Source, resolve_device
 from costseg.options import EvalOptions
 from costseg.report.outputs import claim_output_dir
-from costseg.rules import RuleGroup, named_group, require_priors
+from costseg.rules import (
+    TEMPERATURES,
+    RuleGroup,
+    alpha_group,
+    defer_costs,
+    defer_group,
+    grid_group,
+    named_group,
+    parse_rules,
+    require_priors,
+    rules_group,
+    temperature_group,
+)
 
 if TYPE_CHECKING:
     from costseg.data.shift import Shift
 
 
-@dataclass
+@dataclass(frozen=True)
 class EvalPlan:
-    """What one evaluation will do, decided once before the first image."""
+    """What one evaluation will do, decided once before the first image; never changed."""
 
-    options: EvalOptions
+    analyses: tuple[tuple[Entry, Any], ...]  # each wanted analysis with its settings
+    record: dict  # the options as given, for results.json (a record: nothing reads it)
     device: torch.device
     source: Source
+    description: dict  # the source's description, with the record of the priors used
     dataset: Dataset  # the reported images (seen through the shift when there is one)
     indices: list[int]  # this process's share of the reported images
     positions: list[int]  # their positions among all reported images (the order of one process)
@@ -58,7 +78,7 @@ class EvalPlan:
     meta_images: tuple[Dataset, list[int]] | None  # images that fit the meta models, never reported
     batch_size: int
     num_workers: int
-    groups: list[RuleGroup]
+    groups: tuple[RuleGroup, ...]
     class_ids: list[int]
     output_dir: Path
     priors: PriorMaps
@@ -66,7 +86,10 @@ class EvalPlan:
     instance_classes: tuple[list[int], str]  # classes of the instance metrics; what the outputs say
     shifts: list[Shift]  # --shift: with several, evaluation/shifts.py runs one evaluation each
     data: dict | None  # the images' data configuration (None: a dataset given in Python)
-    held_out: dict = field(default_factory=dict)  # the held-out images, scored once (loop.py)
+    seed: int  # of the shifts' random corruptions
+    num_examples: int  # the first reported images, whose examples are kept
+    round_probs: bool  # the reported images' probabilities rounded to float16, as saved
+    progress: bool  # progress lines
 
 
 @dataclass
@@ -91,7 +114,7 @@ def plan(
 ) -> EvalPlan:
     """Check the options, open source and data, and claim the output folder; ``source`` and
     ``dataset`` replace the ones the options name (the Python API, :mod:`costseg.api`)."""
-    groups = check_options(opts)
+    groups = checked_groups(opts)
     shifts = _shifts(opts)
     device = resolve_device(opts.device)
     if world_size() > 1 and not dist.is_initialized():
@@ -115,26 +138,35 @@ def plan(
         if opts.meta_split is not None:
             held = images.split(opts.meta_split)
             meta_images = (held, list(range(min(opts.meta_images, len(held)))))
-    if calibration is not None:
+    choice = certified_choice(opts)
+    if calibration is not None and choice is not None:
         candidates = next((g for g in groups if g.candidates), named_group(groups))
-        check_calibration_size(opts, len(calibration[1]), candidates)
+        own_split = opts.calibration_split is not None
+        check_calibration_size(choice, len(calibration[1]), candidates, own_split)
     batch_size = opts.batch_size or images.batch_size
     base = source.default_output("evaluation", "eval")
     cache = (Path(opts.output_dir).resolve().parent if opts.output_dir else base.parent) / "priors"
     geometric = opts.roi == "geometric"
-    pixel_priors = source_priors(source, opts, images.config, cache)
-    note_priors(source.description, opts.priors, dataset)
+    pixel_priors, record = evaluation_priors(
+        source, opts.priors, geometric, images.config, cache, opts.progress
+    )
+    description = _description(source, record)
+    note_priors(description, opts.priors, dataset)
     priors = PriorMaps(pixel_priors, CLASS_NAMES, device, geometric)
     require_priors(groups, priors.priors)
+    measured, note = instance_classes(dataset, opts.classes)
+    check_instance_targets(opts, measured, note)
     reported_images = dataset
     if len(shifts) == 1:
         from costseg.data.shift import ShiftedDataset
 
         reported_images = ShiftedDataset(dataset, shifts[0], opts.seed)
     return EvalPlan(
-        options=opts,
+        analyses=tuple(wanted(opts)),
+        record=dataclasses.asdict(opts),
         device=device,
         source=source,
+        description=description,
         dataset=reported_images,
         indices=[reported[i] for i in share(len(reported))],
         positions=share(len(reported)),
@@ -143,15 +175,75 @@ def plan(
         meta_images=meta_images,
         batch_size=batch_size,
         num_workers=min(images.num_workers, -(-count // batch_size)),  # no idle workers
-        groups=groups,
+        groups=tuple(groups),
         class_ids=class_indices(opts.classes),
         priors=priors,
         canvas=heatmap_canvas(dataset),
-        instance_classes=instance_classes(dataset, opts),
+        instance_classes=(measured, note),
         output_dir=on_rank0(lambda: claim_output_dir(opts.output_dir, opts.overwrite, base)),
         shifts=shifts,
         data=images.config,
+        seed=opts.seed,
+        num_examples=opts.num_examples,
+        round_probs=opts.save_probs,
+        progress=opts.progress,
     )
+
+
+def checked_groups(opts: EvalOptions) -> list[RuleGroup]:
+    """The rule groups ``opts`` ask for, every option checked (:mod:`costseg.evaluation.checks`)
+    first: the checks of :func:`costseg.evaluate`, before a network moves or data is read."""
+    check_options(opts)
+    groups = rule_groups(opts)
+    check_groups(opts, groups)
+    return groups
+
+
+def rule_groups(opts: EvalOptions) -> list[RuleGroup]:
+    """The named rules (``--cost``) and every sweep's rule group, in the order the outputs show
+    them; the first group with candidates is the one ``--target`` and ``--guarantee`` choose
+    among."""
+    rules = parse_rules(opts.cost, defer=opts.defer)  # the sweeps' rules never defer
+    groups = [rules_group(rules)]
+    if opts.defer_sweep is not None:
+        groups.append(defer_group(opts.cost, defer_costs(*opts.defer_sweep)))
+    if opts.sweep is not None:
+        groups.append(grid_group(opts.vertices, opts.sweep, opts.vertex_scaling))
+    if opts.alpha_sweep is not None:
+        groups.append(alpha_group(opts.alpha_sweep, opts.alpha_cost))
+    if opts.temperature_sweep:
+        groups += [temperature_group(rules, t) for t in TEMPERATURES]
+    if opts.fuse:
+        from costseg.meta.fusion import fusion_group  # numba's segment passes: only with --fuse
+
+        base, fused = parse_rules([opts.fuse_base])[0], parse_rules(opts.fuse)
+        groups.append(fusion_group(base, fused, opts.fuse_tau, class_indices(opts.fuse_classes)))
+    return groups
+
+
+def instance_classes(dataset, classes: list[str]) -> tuple[list[int], str]:
+    """The instance classes among ``classes`` whose misses are measured (none when the dataset
+    has no instance ids), and a line saying so for the outputs."""
+    chosen = [c for c in class_indices(classes) if c in INSTANCE_CLASSES]
+    note = f"instance metrics for {', '.join(CLASS_NAMES[c] for c in chosen)} (definitions §9)"
+    if not getattr(dataset, "has_instances", False):
+        missing = getattr(dataset, "missing_instances", None)
+        why = f"{missing} of {len(dataset)} images have" if missing else "the dataset has"
+        chosen, note = [], f"instance metrics absent: {why} no instance ids (*_instanceIds.png)"
+    elif not chosen:
+        note = "instance metrics absent: no instance class among --classes"
+    return chosen, note
+
+
+def _description(source: Source, priors_record: Any) -> dict:
+    """The source's description for the outputs, with the record of the priors the plan
+    chose (a copy: the source's own is never changed)."""
+    description = dict(source.description)
+    if priors_record is not None:
+        description["priors"] = priors_record
+    elif isinstance(description.get("priors"), dict):
+        description["priors"] = dict(description["priors"])
+    return description
 
 
 def _named_images(opts: EvalOptions, source: Source) -> Images:

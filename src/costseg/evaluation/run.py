@@ -14,8 +14,9 @@ import torch.distributed as dist
 from torch.utils.data import Dataset
 
 from costseg import workers
-from costseg.evaluation.analyses import import_analyses
-from costseg.evaluation.loop import close_held_out, run
+from costseg.evaluation.analyses import import_analyses, wanted
+from costseg.evaluation.held_out import HeldOut, held_out_images
+from costseg.evaluation.loop import run
 from costseg.evaluation.plan import EvalPlan, plan
 from costseg.evaluation.processes import rank
 from costseg.networks.sources import Source
@@ -36,32 +37,38 @@ def evaluate(
     folder is marked ``INCOMPLETE`` until every file is written; an interrupt or a failed write
     says where the partial outputs are."""
     workers.start()
-    prepare = threading.Thread(target=import_analyses, args=(opts,), daemon=True)
+    entries = [entry for entry, _ in wanted(opts)]
+    prepare = threading.Thread(target=import_analyses, args=(entries,), daemon=True)
     prepare.start()  # their imports (torchmetrics, the reports) overlap the network's loading
     planned = plan(opts, source, dataset)
+    held_out = held_out_images(planned)
     try:
         if len(planned.shifts) > 1:
             from costseg.evaluation.shifts import evaluate_shifts
 
-            return evaluate_shifts(planned, evaluate_plan)
-        return evaluate_plan(planned)
+            return evaluate_shifts(planned, held_out, evaluate_plan)
+        return evaluate_plan(planned, held_out)
     finally:
-        close_held_out(planned)
+        for held in held_out:
+            if held is not None:
+                held.close()  # the held-out scores kept on disk, if any
 
 
-def evaluate_plan(planned: EvalPlan) -> EvalResults:
-    """Run ``planned`` and write its outputs into its output folder (see :func:`evaluate`)."""
-    opts, early = planned.options, None
-    out = planned.output_dir
+def evaluate_plan(
+    planned: EvalPlan, held_out: tuple[HeldOut | None, HeldOut | None]
+) -> EvalResults:
+    """Run ``planned`` on its reported images (fitting on ``held_out``, the calibration and meta
+    images) and write its outputs into its output folder (see :func:`evaluate`)."""
+    early, out = None, planned.output_dir
     try:
         if rank() == 0:
             from costseg.report.early_figures import EarlyFigures
             from costseg.report.results import figure_subject
 
             roi = planned.priors.roi_map()
-            subject = figure_subject(planned.source.description, opts.shift or [])
-            early = EarlyFigures(out, planned.groups, roi, opts.num_examples, subject)
-        results = run(planned, early)
+            subject = figure_subject(planned.description, [str(s) for s in planned.shifts])
+            early = EarlyFigures(out, planned.groups, roi, planned.num_examples, subject)
+        results = run(planned, held_out, early)
         if early:
             from costseg.report.evaluation import write_evaluation
 

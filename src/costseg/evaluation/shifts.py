@@ -10,6 +10,7 @@ import dataclasses
 from collections.abc import Callable
 
 from costseg.data.shift import Shift, ShiftedDataset
+from costseg.evaluation.held_out import HeldOut
 from costseg.evaluation.plan import EvalPlan
 from costseg.evaluation.processes import on_rank0, rank
 from costseg.report.outputs import claim_output_dir, mark_complete
@@ -22,7 +23,9 @@ def shift_folder(shift: Shift) -> str:
 
 
 def evaluate_shifts(
-    planned: EvalPlan, evaluate_plan: Callable[[EvalPlan], EvalResults]
+    planned: EvalPlan,
+    held_out: tuple[HeldOut | None, HeldOut | None],
+    evaluate_plan: Callable[[EvalPlan, tuple], EvalResults],
 ) -> list[EvalResults]:
     """``evaluate_plan`` once on the clean images (``<output_dir>/clean/``, unless a shift of
     severity 0, which leaves the images as they are, is among the shifts) and once per shift of
@@ -37,12 +40,12 @@ def evaluate_shifts(
         shifted = [] if shift is None else [shift]
         one = dataclasses.replace(
             planned,
-            options=dataclasses.replace(planned.options, shift=[str(s) for s in shifted]),
+            record=planned.record | {"shift": [str(s) for s in shifted]},
             dataset=_seen_through(planned, shift),
             output_dir=on_rank0(lambda f=out / folder: claim_output_dir(str(f), False, out)),
             shifts=shifted,
         )
-        results.append(evaluate_plan(one))
+        results.append(evaluate_plan(one, held_out))
         folders[name] = folder
     if rank() == 0:
         write_shift_summary(out, folders, planned.class_ids)
@@ -54,4 +57,4 @@ def _seen_through(planned: EvalPlan, shift: Shift | None):
     """The reported images seen through ``shift`` (None: as they are)."""
     if shift is None:
         return planned.dataset
-    return ShiftedDataset(planned.dataset, shift, planned.options.seed)
+    return ShiftedDataset(planned.dataset, shift, planned.seed)

@@ -25,7 +25,13 @@ from torch import Tensor
 
 from costseg.metrics.names import DEFER_RATES, INSTANCE_RATES, PIXEL_RATES, SEGMENT_RATES
 from costseg.metrics.per_image import per_image_counts, per_image_loss, pixel_parts
-from costseg.metrics.selection import Metric, Target, parse_metric, parse_target, risk_level
+from costseg.metrics.selection import (
+    Metric,
+    Target,
+    certifiable_level,
+    parse_metric,
+    parse_target,
+)
 
 OBJECTIVES = ("agreement", "miou")
 """The objectives that are no class rate: the share of pixels that agree with argmax, mIoU."""
@@ -52,15 +58,12 @@ class Requirements:
     def parse(
         cls, targets: Sequence[str], maximize: str | None = None, minimize: str | None = None
     ) -> Requirements:
-        """The requirements of ``--target`` and ``--maximize`` / ``--minimize`` (default:
-        maximise agreement); ValueError naming what is wrong."""
+        """The requirements of ``--require`` and ``--design_maximize`` / ``--design_minimize``
+        (default: maximise agreement); ValueError naming what is wrong."""
         constraints = tuple(parse_target(t) for t in targets)
-        alphas = tuple(risk_level(t) for t in constraints)
-        for text, alpha in zip(targets, alphas, strict=True):
-            if not 0 < alpha < 1:
-                raise ValueError(f"--target {text} leaves no risk level α in (0, 1)")
+        alphas = tuple(certifiable_level(t, "--require") for t in targets)
         if maximize and minimize:
-            raise ValueError("--maximize and --minimize: give one objective")
+            raise ValueError("--design_maximize and --design_minimize: give one objective")
         text = minimize or maximize or "agreement"
         objective = text if text in OBJECTIVES else parse_metric(text)
         if isinstance(objective, Metric) and objective.metric not in (*PIXEL_RATES, *DEFER_RATES):

@@ -206,8 +206,25 @@ def risk_level(target: Target) -> float:
     """
     if target.metric in HIGHER_IS_BETTER:
         if target.op not in (">=", ">"):
-            raise ValueError(f"--guarantee certifies {', '.join(HIGHER_IS_BETTER)} >= a value")
+            raise ValueError(f"a certificate bounds {', '.join(HIGHER_IS_BETTER)} >= a value")
         return 1 - target.value
     if target.op not in ("<=", "<"):
-        raise ValueError("--guarantee certifies fp_rate or fn_rate <= a value")
+        raise ValueError("a certificate bounds fp_rate or fn_rate <= a value")
     return target.value
+
+
+def certifiable_level(text: str, flag: str) -> float:
+    """α of the target ``text`` given to ``flag`` (``--target``, ``--require``); ValueError
+    naming both unless α lies in (0, 1), a level a certificate can reach.
+
+    >>> certifiable_level("person:roi1:recall>=1", "--require")
+    Traceback (most recent call last):
+    ValueError: --require person:roi1:recall>=1 leaves no risk level α in (0, 1)
+    """
+    try:
+        alpha = risk_level(parse_target(text))
+    except ValueError as err:
+        raise ValueError(f"{flag} {text}: {err}") from None
+    if not 0 < alpha < 1:
+        raise ValueError(f"{flag} {text} leaves no risk level α in (0, 1)")
+    return alpha

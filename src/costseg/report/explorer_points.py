@@ -4,6 +4,8 @@ named, target and certified points of the triangle (docs/definitions.md §11).""
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -11,12 +13,15 @@ import torch
 from costseg.classes import CLASS_NAMES
 from costseg.costs import cost_or_symmetric, rescale
 from costseg.metrics.names import PAPER_RATES, SEGMENT_RATES
-from costseg.metrics.selection import choose
 from costseg.report.explorer import ExplorerExample, Marks, SweepData, embedded, write_explorer
 from costseg.report.guarantee import Certificate
 from costseg.report.results import EvalResults, GroupResult
 from costseg.report.sections import Result, Section
+from costseg.report.sweep import SweepPoint
 from costseg.rules import Rule, vertex_matrices
+
+if TYPE_CHECKING:
+    from costseg.evaluation.settings import ExplorerSettings
 
 ROIS = (0, 1, 2, 3, 4)
 
@@ -66,12 +71,10 @@ def sweep_data(grid: GroupResult, class_ids: Sequence[int]) -> SweepData:
 
 
 def _marks(results: EvalResults, grid: GroupResult | None) -> Marks:
-    marks, opts = Marks(), results.options
-    if grid is not None and opts.get("target") and opts.get("maximize") and not opts.get("design"):
-        target = opts["target"][0]
-        choice = choose(grid.pixels, grid.segments, target, opts["maximize"], results.class_ids)
+    marks, point = Marks(), results.find(SweepPoint)
+    if grid is not None and point is not None:
         weights = grid.group.weights.tolist()
-        marks.targets = [(target, weights[k]) for k in choice.points]
+        marks.targets = [(point.target, weights[k]) for k in point.points(results, grid)]
     cert = results.find(Certificate)
     if cert is not None and cert.chosen is not None and cert.group.weights is not None:
         w = cert.group.weights[cert.chosen].tolist()
@@ -108,23 +111,25 @@ def evaluation_examples(results: EvalResults) -> list[ExplorerExample]:
     return out
 
 
+@dataclass
 class ExplorerPage(Result):
     """``explorer.html`` of an evaluation (``evaluate.py --explorer``)."""
 
+    settings: ExplorerSettings
+
     def write(self, results: EvalResults) -> Section:
-        write_evaluation_explorer(results)
+        write_evaluation_explorer(results, self.settings)
         return Section(console=[f"explorer: {results.output_dir / 'explorer.html'}"])
 
 
-def write_evaluation_explorer(results: EvalResults) -> None:
-    """Write ``explorer.html`` of an evaluation."""
-    opts = results.options
+def write_evaluation_explorer(results: EvalResults, settings: ExplorerSettings) -> None:
+    """Write ``explorer.html`` of an evaluation (the triangle and defer cost of ``settings``)."""
     grid = next((g for g in results.groups if g.group.weights is not None), None)
     if grid is not None:
         vertices = grid.group.vertices
     else:
-        vertices = vertex_matrices(opts["vertices"], opts["vertex_scaling"])
-    named = named_points(results.named.group.rules, vertices, opts["vertex_scaling"])
+        vertices = vertex_matrices(list(settings.vertices), settings.vertex_scaling)
+    named = named_points(results.named.group.rules, vertices, settings.vertex_scaling)
     source = results.source
     notes = [
         f"source: {source.get('network') or source}",
@@ -140,10 +145,10 @@ def write_evaluation_explorer(results: EvalResults) -> None:
         results.output_dir / "explorer.html",
         evaluation_examples(results),
         vertices,
-        opts["vertices"],
+        list(settings.vertices),
         named=named,
         sweep=None if grid is None else sweep_data(grid, results.class_ids),
         marks=_marks(results, grid),
         notes=notes,
-        defer=opts.get("defer"),
+        defer=settings.defer,
     )

@@ -16,7 +16,6 @@ from costseg.report.figures import heatmap_grid_figures
 from costseg.report.files import write_csv
 from costseg.report.results import EvalResults, GroupResult, GroupResults
 from costseg.report.sections import Result, Section, merge
-from costseg.report.sweep import write_choice
 from costseg.report.tables import (
     PAPER_COLUMNS,
     PAPER_ROIS,
@@ -57,7 +56,6 @@ class GroupOutputs(GroupResults, Result):
             tables={"evaluation/results": markdown_table(rows)},
             jobs=[("evaluation", _fp_fn_figures(results))],
         )
-        write_choice(results)
         return merge([section, *family_sections(results)])
 
     def _probability_note(self, results: EvalResults) -> str:

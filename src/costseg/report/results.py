@@ -130,7 +130,7 @@ class EvalResults:
 
     Attributes:
         output_dir: where the outputs go.
-        options: the options as given (for the JSON record).
+        options: the options as given: a record for results.json, read by no report.
         source: what produced the probabilities (network, checkpoint or folder).
         probabilities: which probabilities were used (raw, or the scaling and its parameters).
         class_ids: classes of the segment metrics and tables.
@@ -139,6 +139,7 @@ class EvalResults:
         analyses: the typed result of every analysis that ran, in the analyses' order
             (:mod:`costseg.evaluation.analyses`); each writes its own outputs.
         null_keys: the results.json keys of the analyses that did not run (written as null).
+        shifts: the shift the images were seen through (one at most; ``--shift``).
     """
 
     output_dir: Path
@@ -150,6 +151,7 @@ class EvalResults:
     num_images: int = 0
     analyses: list = field(default_factory=list)
     null_keys: tuple[str, ...] = ()
+    shifts: list[str] = field(default_factory=list)
 
     def find(self, kind: type[R]) -> R | None:
         """The result of type ``kind``, or None when that analysis did not run."""
@@ -174,7 +176,7 @@ class EvalResults:
     @property
     def subject(self) -> str:
         """What every figure of this evaluation shows, for its title (:func:`figure_subject`)."""
-        return figure_subject(self.source, self.options.get("shift") or [])
+        return figure_subject(self.source, self.shifts)
 
     def result_of(self, group: RuleGroup) -> GroupResult:
         """The result of ``group`` (the same family and rules)."""

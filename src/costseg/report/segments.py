@@ -5,6 +5,8 @@ table.md and TensorBoard, and their figures (:mod:`costseg.report.segment_figure
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from costseg.classes import CLASS_NAMES
@@ -85,15 +87,18 @@ def meta_console(segments: SegmentResults | None) -> str:
     return f"{what}\n{table}"
 
 
+@dataclass
 class SegmentOutputs(SegmentResults, Result):
-    """The segments of the reported images (``--save-segments``) and the meta models' scores on
-    them (``--meta``)."""
+    """The segments of the reported images (``--save-segments``: ``save``) and the meta models'
+    scores on them (``--meta``)."""
+
+    save: bool = False  # segments/<rule>.csv
 
     def write(self, results: EvalResults) -> Section:
         """``segments/<rule>.csv``, ``meta/models.joblib``, the scores in results.json, table.md,
         the terminal and TensorBoard, and the figures."""
         out, section = results.output_dir, Section(json={"meta": meta_json(self)})
-        if results.options.get("save_segments"):
+        if self.save:
             for rule, table in self.tables.items():
                 write_csv(out / "segments" / f"{rule}.csv", _csv_rows(self, rule, table))
         if not self.models:

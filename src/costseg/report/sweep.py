@@ -12,6 +12,7 @@ it over the first group of candidates.
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 
 from costseg.classes import CLASS_NAMES, roi_label
 from costseg.costs import save_cost
@@ -21,7 +22,7 @@ from costseg.report.curves import Curves, curve_figures
 from costseg.report.drawing import Job, job
 from costseg.report.files import write_csv, write_json
 from costseg.report.results import EvalResults, GroupResult
-from costseg.report.sections import Curve, Section
+from costseg.report.sections import Curve, Result, Section
 from costseg.report.tables import PAPER_ROIS
 from costseg.report.ternary import edge_tradeoff_figures, ternary_figures
 
@@ -67,13 +68,36 @@ def _tensorboard_curves(result: GroupResult, class_ids: Sequence[int]) -> Iterat
                 yield f"{prefix}/{metric}", CLASS_NAMES[cls], steps, values
 
 
-def write_choice(results: EvalResults) -> None:
-    """``best.json`` (and ``best_cost.yaml``): the answer to ``--target`` over the first group
-    of candidates, where asked."""
-    candidates = next((r for r in results.groups if r.group.candidates), None)
-    opts = results.options
-    if opts.get("target") and not opts.get("design") and candidates is not None:
-        _write_choice(results, candidates)
+@dataclass
+class SweepPoint(Result):
+    """``--target`` / ``--maximize``: the points of the first group of candidates that meet
+    the target on the reported images, the best of them by the objective."""
+
+    target: str
+    maximize: str
+
+    def write(self, results: EvalResults) -> Section:
+        """``best.json`` (and ``best_cost.yaml``) with the answer."""
+        candidates = next((r for r in results.groups if r.group.candidates), None)
+        if candidates is not None:
+            _write_choice(results, candidates, self)
+        return Section()
+
+    def points(self, results: EvalResults, result: GroupResult) -> list[int]:
+        """The indices of ``result``'s rules chosen (none when none meets the target)."""
+        return self.chosen(results, result).points
+
+    def chosen(self, results: EvalResults, result: GroupResult):
+        """The choice (:func:`costseg.metrics.selection.choose`) among ``result``'s rules."""
+        return choose(
+            result.pixels,
+            result.segments,
+            self.target,
+            self.maximize,
+            results.class_ids,
+            result.instances,
+            result.group.prefer,
+        )
 
 
 def _triangle_figures(results: EvalResults, grid: GroupResult) -> list[tuple[str, Job]]:
@@ -128,17 +152,9 @@ def _instance_ternaries(grid: GroupResult, cls: int) -> list[tuple]:
     ]  # fmt: skip
 
 
-def _write_choice(results: EvalResults, result: GroupResult) -> None:
-    opts, out, group = results.options, results.output_dir, result.group
-    choice = choose(
-        result.pixels,
-        result.segments,
-        opts["target"][0],
-        opts["maximize"],
-        results.class_ids,
-        result.instances,
-        group.prefer,
-    )
+def _write_choice(results: EvalResults, result: GroupResult, point: SweepPoint) -> None:
+    out, group = results.output_dir, result.group
+    choice = point.chosen(results, result)
     record = {
         "target": choice.target,
         "maximize": choice.maximize,

@@ -1,16 +1,19 @@
 """The analyses of an evaluation: one module per capability, all in :data:`ANALYSES`.
 
-The loop (:mod:`costseg.evaluation.loop`) knows none of them by name. It opens the analyses the
-options ask for (importing only their modules), lets each :meth:`Analysis.fit` on the held-out
-images (kept from their one pass through the network), shows each one every reported batch as a
-:class:`Seen` (:meth:`Analysis.process`), and collects their typed results
-(:class:`~costseg.report.sections.Result`), each of which writes its own files and returns its
-share of the shared outputs (results.json keys, a table.md section, figures as picklable jobs,
-TensorBoard). A new capability is its module here, its result in :mod:`costseg.report`, its
-options in :mod:`costseg.options` and one :class:`Entry` below.
+The loop (:mod:`costseg.evaluation.loop`) knows none of them by name. The plan resolves each
+wanted analysis's settings once (:mod:`costseg.evaluation.settings`); the loop opens the
+analyses (importing only their modules), lets each :meth:`Analysis.fit` on the held-out images
+(kept from their one pass through the network) in the order their declared dependencies give,
+applies what each fit provides (:class:`Provided`), freezes the rule groups, shows each analysis
+every reported batch as a :class:`Seen` (:meth:`Analysis.process`), and collects their typed
+results (:class:`~costseg.report.sections.Result`), each of which writes its own files and
+returns its share of the shared outputs (results.json keys, a table.md section, figures as
+picklable jobs, TensorBoard). A new capability is its module here, its settings in
+:mod:`costseg.evaluation.settings` (with its options in :mod:`costseg.options`), its result in
+:mod:`costseg.report` and one :class:`Entry` below.
 
 >>> from costseg.options import EvalOptions
->>> [e.module for e in wanted(EvalOptions(calibrate="temperature"))][:2]
+>>> [e.module for e, _ in wanted(EvalOptions(calibrate="temperature"))][:2]
 ['scaling', 'metrics']
 """
 
@@ -18,9 +21,11 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import cached_property
 from typing import TYPE_CHECKING, Any
+
+from costseg.evaluation import settings as s
 
 if TYPE_CHECKING:
     import torch
@@ -37,50 +42,77 @@ if TYPE_CHECKING:
 @dataclass(frozen=True)
 class Entry:
     """One analysis: its module (``costseg.evaluation.analyses.<module>``, which defines
-    ``ANALYSIS``, an :class:`Analysis` subclass), when the options want it, the results.json
-    keys it leaves null when not run, and the flag that asks for it where it fits on held-out
-    images (``--calibration_split``, or the first half of ``--split``)."""
+    ``ANALYSIS``, an :class:`Analysis` subclass), the resolver of its settings (None: the
+    options do not ask for it), the results.json keys it leaves null when not run, the flag
+    that asks for it where it fits on held-out images (``--calibration_split``, or the first
+    half of ``--split``), and the analyses whose fits must come before its own (it sees what
+    they provide: the scaled probabilities, the fused rules' meta models)."""
 
     module: str
-    wanted: Callable[[EvalOptions], bool]
+    settings: Callable[[EvalOptions], Any]
     absent: tuple[str, ...] = ()
     held_out: str | None = None
-
-
-def _always(opts: EvalOptions) -> bool:
-    return True
+    after: tuple[str, ...] = ()
 
 
 ANALYSES: tuple[Entry, ...] = (
-    # fit order: the scaling changes the probabilities every later analysis sees; the meta
-    # models decide the fused rules the guarantee may certify
-    Entry("scaling", lambda o: o.calibrate is not None, held_out="--calibrate"),
-    Entry("metrics", _always),
-    Entry("segments", lambda o: bool(o.meta or o.fuse or o.save_segments), absent=("meta",)),
-    Entry("guarantee", lambda o: o.guarantee is not None and not o.design, held_out="--guarantee"),
-    Entry("design", lambda o: o.design is not None, absent=("design",), held_out="--design"),
-    Entry("calibration", _always),
-    Entry("saved", lambda o: bool(o.save_probs or o.save_predictions)),
-    Entry("anomalies", lambda o: o.anomalies, absent=("anomalies",)),
+    Entry("scaling", s.scaling_settings, held_out="--calibrate"),
+    Entry("metrics", s.always),
+    Entry("segments", s.segment_settings, absent=("meta",), after=("scaling",)),
+    Entry("choice", s.sweep_choice),
+    Entry("guarantee", s.certified_choice, held_out="--guarantee", after=("scaling", "segments")),
+    Entry("design", s.design_settings, absent=("design",), held_out="--design", after=("scaling",)),
+    Entry("calibration", s.always),
+    Entry("saved", s.saved_settings),
+    Entry("anomalies", s.anomaly_settings, absent=("anomalies",)),
     Entry(
         "conformal",
-        lambda o: o.conformal is not None,
+        s.conformal_settings,
         absent=("conformal",),
         held_out="--conformal",
+        after=("scaling",),
     ),
-    Entry("examples", _always),
-    Entry("explorer", lambda o: o.explorer),
+    Entry("examples", s.example_settings),
+    Entry("explorer", s.explorer_settings),
 )
 
 
-def wanted(opts: EvalOptions) -> list[Entry]:
-    """The entries of :data:`ANALYSES` that ``opts`` ask for, in the table's order."""
-    return [entry for entry in ANALYSES if entry.wanted(opts)]
+def wanted(opts: EvalOptions) -> list[tuple[Entry, Any]]:
+    """The entries of :data:`ANALYSES` that ``opts`` ask for, each with its settings."""
+    resolved = ((entry, entry.settings(opts)) for entry in ANALYSES)
+    return [(entry, settings) for entry, settings in resolved if settings is not None]
+
+
+def fit_order(entries: Sequence[Entry]) -> list[Entry]:
+    """``entries`` in an order in which each fits after those it names in ``after`` (the table's
+    order among the rest); ValueError for a dependency on no analysis or a cycle.
+
+    >>> [e.module for e in fit_order([ANALYSES[3 + 1], ANALYSES[2], ANALYSES[0]])]
+    ['scaling', 'segments', 'guarantee']
+    """
+    known = {e.module for e in ANALYSES}
+    for entry in entries:
+        if unknown := set(entry.after) - known:
+            raise ValueError(f"analysis {entry.module} fits after unknown {sorted(unknown)}")
+    ordered: list[Entry] = []
+    waiting = list(entries)
+    while waiting:
+        present = {e.module for e in waiting}
+        ready = [e for e in waiting if not present & set(e.after)]
+        if not ready:
+            raise ValueError(f"analyses that wait on each other: {sorted(present)}")
+        ordered.append(ready[0])
+        waiting.remove(ready[0])
+    return ordered
 
 
 def held_out_flags(opts: EvalOptions | None = None) -> list[str]:
     """The flags of the analyses that fit on held-out images (those ``opts`` ask for)."""
-    return [e.held_out for e in ANALYSES if e.held_out and (opts is None or e.wanted(opts))]
+    return [
+        e.held_out
+        for e in ANALYSES
+        if e.held_out and (opts is None or e.settings(opts) is not None)
+    ]
 
 
 def null_keys(ran: dict[Entry, Result | None]) -> tuple[str, ...]:
@@ -94,10 +126,22 @@ def analysis_class(entry: Entry) -> type[Analysis]:
     return importlib.import_module(f"{__name__}.{entry.module}").ANALYSIS
 
 
-def import_analyses(opts: EvalOptions) -> None:
-    """Import the modules of the wanted analyses (and what they import)."""
-    for entry in wanted(opts):
+def import_analyses(entries: Sequence[Entry]) -> None:
+    """Import the modules of ``entries`` (and what they import)."""
+    for entry in entries:
         analysis_class(entry)
+
+
+@dataclass(frozen=True)
+class Provided:
+    """What a fit hands on to the analyses after it (the loop applies it): the fitted scaling
+    of the probabilities, rule groups that join the evaluation (the named rules at a fitted
+    temperature, the designed matrices), and rule groups that replace the plan's group of the
+    same family (the fused rules with their meta models)."""
+
+    scaling: Scaling | None = None
+    groups: tuple[RuleGroup, ...] = ()
+    replaced: tuple[RuleGroup, ...] = ()
 
 
 class Decisions(Sequence):
@@ -182,19 +226,31 @@ class Seen:
 @dataclass(eq=False)
 class Context:
     """What the analyses of one evaluation share: the plan (read, never changed), the fitted
-    scaling, the rule groups (the plan's, then what a fit hands on: the named rules at a fitted
-    temperature, the fused rules with their meta models), the held-out images (one pass of the
-    network, kept) and the figures drawn early."""
+    scaling, the rule groups (the plan's, then what fits provide; a tuple, frozen, once every
+    fit is done), the held-out images (one pass of the network, kept) and the figures drawn
+    early."""
 
-    plan: Any  # the EvalPlan (evaluation/plan.py, which imports this module's checks)
+    plan: Any  # the EvalPlan (evaluation/plan.py, which imports this module's table)
     scaling: Scaling
     held_out: HeldOut | None = None  # the calibration images
     meta_held_out: HeldOut | None = None  # the meta models' images (often the same object)
     early: EarlyFigures | None = None  # figures drawn while the images are evaluated
-    groups: list[RuleGroup] = field(default_factory=list)
 
     def __post_init__(self) -> None:
-        self.groups = self.groups or list(self.plan.groups)
+        self.groups: list[RuleGroup] | tuple[RuleGroup, ...] = list(self.plan.groups)
+
+    def apply(self, provided: Provided | None) -> None:
+        """Take on what a fit provides (:class:`Provided`)."""
+        if provided is None:
+            return
+        if provided.scaling is not None:
+            self.scaling = provided.scaling
+        families = {g.family: g for g in provided.replaced}
+        self.groups = [families.get(g.family, g) for g in self.groups] + list(provided.groups)
+
+    def freeze(self) -> None:
+        """Every fit is done: the rule groups of the reported images, fixed from now on."""
+        self.groups = tuple(self.groups)
 
     @property
     def named(self) -> int:
@@ -213,7 +269,7 @@ class Context:
         (for reported images with ``--save-probs``, rounded to float16 as saved), priors, RoIs
         and every group's decisions (each on first use)."""
         unrounded = self.probabilities(batch)
-        rounded = positions is not None and self.plan.options.save_probs
+        rounded = positions is not None and self.plan.round_probs
         probs = unrounded.half().float() if rounded else unrounded
         priors, roi = self.plan.priors.at(tuple(batch.labels.shape[-2:]))
         return Seen(batch, probs, priors, roi, unrounded, self, positions)
@@ -228,23 +284,26 @@ class Context:
 class Analysis:
     """One capability of an evaluation. Subclasses override what they need.
 
-    Construction happens after every option check and before the held-out images are seen;
-    :meth:`fit` runs in :data:`ANALYSES`' order (seeing the held-out images through
-    :meth:`Context.held_out_seen`, and handing what it fitted on through the context, never by
-    changing the plan), then :meth:`start`, then :meth:`process` for each reported batch (this
-    process's share under ``torchrun``), :meth:`gather` and :meth:`result` once at the end.
+    Construction (with the analysis's settings, :mod:`costseg.evaluation.settings`) happens
+    after every option check and before the held-out images are seen; :meth:`fit` runs after
+    the fits of the analyses its entry names in ``after`` (seeing held-out images through
+    :meth:`Context.held_out_seen`, the one step from scores to decisions) and returns what it
+    provides to the later ones, never changing the plan or the context itself; then
+    :meth:`start`, then :meth:`process` for each reported batch (this process's share under
+    ``torchrun``), :meth:`gather` and :meth:`result` once at the end.
     """
 
-    def __init__(self, context: Context) -> None:
+    def __init__(self, settings: Any, context: Context) -> None:
+        self.settings = settings
         self.context = context
-        self.opts = context.plan.options
 
     every_entropy: bool = False
     """Whether :meth:`process` needs the expected entropy of a source of several runs on every
     reported image (else on the first ``--num_examples``: each costs a pass per run)."""
 
-    def fit(self) -> None:
-        """Learn from the held-out images (``self.context.held_out``)."""
+    def fit(self) -> Provided | None:
+        """Learn from the held-out images; what this provides to the later analyses."""
+        return None
 
     def start(self) -> None:
         """Every fit is done: set up what :meth:`process` accumulates."""
@@ -270,8 +329,10 @@ __all__ = [
     "Context",
     "Decisions",
     "Entry",
+    "Provided",
     "Seen",
     "analysis_class",
+    "fit_order",
     "held_out_flags",
     "import_analyses",
     "null_keys",

@@ -8,16 +8,18 @@ from costseg.classes import CLASS_NAMES
 from costseg.evaluation.analyses import Analysis, Seen
 from costseg.evaluation.anomalies import AnomalyPass
 from costseg.evaluation.processes import in_image_order
+from costseg.evaluation.settings import ExampleSettings
 from costseg.report.anomalies import AnomalyOutputs
 from costseg.rules import named_group
 
 
 class Anomalies(Analysis):
+    settings: ExampleSettings
     every_entropy = True  # the mutual information score, on every image
 
     def start(self) -> None:
         rules = named_group(self.context.groups).rules
-        self.found = AnomalyPass(rules, len(CLASS_NAMES), self.opts.num_examples)
+        self.found = AnomalyPass(rules, len(CLASS_NAMES), self.settings.num_examples)
 
     def process(self, seen: Seen) -> None:
         batch = seen.batch

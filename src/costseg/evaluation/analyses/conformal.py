@@ -22,11 +22,14 @@ from costseg.calibration.conformal import (
 from costseg.classes import CLASS_NAMES, NUM_ROIS
 from costseg.evaluation.analyses import Analysis, Seen
 from costseg.evaluation.processes import in_image_order, summed
+from costseg.evaluation.settings import ConformalSettings
 from costseg.report.conformal import ConformalOutputs, RuleSets
 from costseg.rules import named_group
 
 
 class Conformal(Analysis):
+    settings: ConformalSettings
+
     def fit(self) -> None:
         self.rules = named_group(self.context.groups).rules
         self.grid = lambda_grid()
@@ -36,7 +39,7 @@ class Conformal(Analysis):
                 for k, loss in enumerate(self._held_out_losses(seen)):
                     losses[k].append(loss.cpu())
         self.control: list[RiskControl] = [
-            crc_threshold(torch.cat(mine).numpy(), self.grid.numpy(), self.opts.conformal)
+            crc_threshold(torch.cat(mine).numpy(), self.grid.numpy(), self.settings.alpha)
             for mine in losses
         ]
 
@@ -49,7 +52,7 @@ class Conformal(Analysis):
     def process(self, seen: Seen) -> None:
         labels, sizes = seen.batch.labels, []
         for k, (control, counts) in enumerate(zip(self.control, self.counts, strict=True)):
-            scores = conformity_scores(seen.probs, seen.named[:, k], self.opts.conformal_sets)
+            scores = conformity_scores(seen.probs, seen.named[:, k], self.settings.sets)
             counts.add(scores, labels, control.lam, seen.roi)
             lam = torch.tensor([control.lam], dtype=torch.float64)
             losses = self._loss(scores, labels, seen.roi, lam, k)[:, 0].cpu()
@@ -75,12 +78,12 @@ class Conformal(Analysis):
         ):
             rules.append(RuleSets(rule.name, control, counts, losses))
         return ConformalOutputs(
-            self.opts.conformal, self._describe(), self.grid, rules, self.example
+            self.settings.alpha, self._describe(), self.grid, rules, self.example
         )
 
     def _held_out_losses(self, seen: Seen) -> list[torch.Tensor]:
         """Per named rule, the (B, L) losses on the grid of a held-out batch's images."""
-        kind, labels, preds = self.opts.conformal_sets, seen.batch.labels, seen.named
+        kind, labels, preds = self.settings.sets, seen.batch.labels, seen.named
         return [
             self._loss(
                 conformity_scores(seen.probs, preds[:, k], kind), labels, seen.roi, self.grid, k
@@ -90,28 +93,28 @@ class Conformal(Analysis):
 
     def _loss(self, scores, labels, roi, grid, k: int) -> torch.Tensor:
         """(B, L) losses of rule k's sets (conformity ``scores``) at each λ of ``grid``."""
-        opts = self.opts
+        given = self.settings
         thresholds = label_thresholds(scores, labels)
-        mask = None if opts.conformal_roi is None or roi is None else roi == opts.conformal_roi
+        mask = None if given.roi is None or roi is None else roi == given.roi
         if mask is not None:
             mask = mask.expand_as(labels)
-        cost = self.rules[k].cost if opts.conformal_loss == "cost" else None
+        cost = self.rules[k].cost if given.loss == "cost" else None
         weights = class_weights(None if cost is None else cost.to(scores.device))
         grid = grid.to(scores.device)
-        if opts.conformal_loss == "binary":
-            return binary_losses(thresholds, labels, grid, opts.conformal_tau, mask)
+        if given.loss == "binary":
+            return binary_losses(thresholds, labels, grid, given.tau, mask)
         return image_losses(thresholds, labels, grid, weights.to(scores.device), mask)
 
     def _describe(self) -> str:
-        opts = self.opts
+        given = self.settings
         loss = {
             "uniform": "the share of labelled pixels whose class is not in the set",
             "cost": "the share of labelled pixels whose class is not in the set, each weighted "
             "by the anchor rule's mean cost of missing its class",
-            "binary": f"1 when less than {opts.conformal_tau:g} of the labelled pixels are covered",
-        }[opts.conformal_loss]
-        where = "" if opts.conformal_roi is None else f" in RoI {opts.conformal_roi}"
-        return f"{opts.conformal_sets.upper()} sets; loss of an image: {loss}{where}"
+            "binary": f"1 when less than {given.tau:g} of the labelled pixels are covered",
+        }[given.loss]
+        where = "" if given.roi is None else f" in RoI {given.roi}"
+        return f"{given.sets.upper()} sets; loss of an image: {loss}{where}"
 
 
 ANALYSIS = Conformal

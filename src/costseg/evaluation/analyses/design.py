@@ -21,7 +21,8 @@ from costseg.calibration.pareto_testing import choose, pareto_testing
 from costseg.classes import CLASS_NAMES
 from costseg.costs import cost_or_symmetric
 from costseg.decision import count_decisions, decide, prepare_counts, subsample
-from costseg.evaluation.analyses import Analysis, Context, Seen
+from costseg.evaluation.analyses import Analysis, Context, Provided, Seen
+from costseg.evaluation.settings import DesignSettings
 from costseg.metrics.requirements import Requirements, mean_risks
 from costseg.report.design import DESIGNED_FAMILY, DesignOutcome, SearchOutcome
 from costseg.rules import Rule, RuleGroup, parse_rules, vertex_matrices
@@ -38,32 +39,34 @@ Space = TriangleSpace | LagrangianSpace | AggregateSpace
 
 
 class Design(Analysis):
-    def fit(self) -> None:
-        self.outcome = design(self.context, self.opts)
+    settings: DesignSettings
+
+    def fit(self) -> Provided:
+        self.outcome = design(self.context, self.settings)
         group = designed_group(self.outcome)
-        if group is not None:
-            self.context.groups.append(group)
+        return Provided(groups=() if group is None else (group,))
 
     def result(self) -> DesignOutcome:
         return self.outcome
 
 
-def design(context: Context, opts) -> DesignOutcome:
+def design(context: Context, settings: DesignSettings) -> DesignOutcome:
     """Search every space of :func:`spaces` on D1, certify each one's Pareto front on D2."""
-    req = Requirements.parse(opts.target, opts.maximize, opts.minimize)
+    req = Requirements.parse(settings.requirements, settings.maximize, settings.minimize)
+    delta, seed = settings.delta, settings.seed
     n = len(context.held_out)
     n1 = n // 2
-    share = 1.0 if req.label_maps else opts.design_pixels
-    found = SearchImages.of(context, n1, share, req, opts.seed)
+    share = 1.0 if req.label_maps else settings.pixels
+    found = SearchImages.of(context, n1, share, req, seed)
     searched = []  # (candidates, their (n1, L, K) per-image losses on D1)
-    for space in spaces(opts, req):
+    for space in spaces(settings, req):
         losses: list[np.ndarray] = []
         candidates = search(
-            space, found.scorer(req, losses.append), req.alphas, opts.design_budget, opts.seed,
+            space, found.scorer(req, losses.append), req.alphas, settings.budget, seed,
             req.maximize,
         )  # fmt: skip
         searched.append((candidates, np.stack(losses, 1)))
-    fronts = [_front(losses, c.objective, req, opts.guarantee) for c, losses in searched]
+    fronts = [_front(losses, c.objective, req, delta) for c, losses in searched]
     tested = _test_fronts(
         context, n1, req, [(c, f) for (c, _), f in zip(searched, fronts, strict=True)]
     )
@@ -72,24 +75,25 @@ def design(context: Context, opts) -> DesignOutcome:
         zip(searched, tested, strict=True)
     ):
         result = pareto_testing(
-            losses_d1, losses_d2, req.alphas, opts.guarantee, candidates.objective, req.maximize
+            losses_d1, losses_d2, req.alphas, delta, candidates.objective, req.maximize
         )
         chosen = choose(result, objective_all, req.maximize)
         outcomes.append(SearchOutcome(candidates, result, chosen, objective_all, designed=i == 0))
-    return DesignOutcome(req, opts.guarantee, n1, n - n1, share, opts.seed, outcomes)
+    return DesignOutcome(req, delta, n1, n - n1, share, seed, outcomes)
 
 
-def spaces(opts, req: Requirements) -> list[Space]:
+def spaces(settings: DesignSettings, req: Requirements) -> list[Space]:
     """The space of ``--design`` and, when it is another, the triangle (the comparison)."""
-    defer = tuple(opts.design_defer or ())
+    defer = settings.defer
     grids = max(1, len(defer))
-    budget = opts.design_budget // grids
+    budget = settings.budget // grids
     n = max(1, int((math.sqrt(8 * budget + 1) - 3) / 2))  # (n + 1)(n + 2) / 2 <= budget
-    triangle = TriangleSpace(vertex_matrices(opts.vertices, opts.vertex_scaling), 1 / n, defer)
-    if opts.design == "triangle":
+    corners = vertex_matrices(list(settings.vertices), settings.vertex_scaling)
+    triangle = TriangleSpace(corners, 1 / n, defer)
+    if settings.space == "triangle":
         return [triangle]
-    if opts.design == "lagrangian":
-        base = parse_rules([opts.design_base or "robotistic"])[0]
+    if settings.space == "lagrangian":
+        base = parse_rules([settings.base or "robotistic"])[0]
         pairs = [(t.cls, t.metric) for t in req.constraints]
         size = max(2, int(budget ** (1 / len(pairs)) + 1e-9))
         base_cost = cost_or_symmetric(base.cost, len(CLASS_NAMES))
@@ -97,7 +101,7 @@ def spaces(opts, req: Requirements) -> list[Space]:
                               defer_costs=defer)  # fmt: skip
     else:
         box = (min(defer), max(defer)) if defer else None
-        own = AggregateSpace(aggregate_template(opts.design_base or "altruistic"), defer_box=box)
+        own = AggregateSpace(aggregate_template(settings.base or "altruistic"), defer_box=box)
     return [own, triangle]
 
 

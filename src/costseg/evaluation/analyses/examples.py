@@ -8,12 +8,15 @@ import torch
 
 from costseg.evaluation.analyses import Analysis, Seen
 from costseg.evaluation.processes import in_image_order
+from costseg.evaluation.settings import ExampleSettings
 from costseg.report.examples import ExampleOutputs
 from costseg.report.results import Example
 from costseg.rules import masked_groups
 
 
 class Examples(Analysis):
+    settings: ExampleSettings
+
     def start(self) -> None:
         groups = self.context.groups
         self.shown = [groups.index(g) for g in masked_groups(groups)]
@@ -21,12 +24,12 @@ class Examples(Analysis):
 
     def process(self, seen: Seen) -> None:
         batch = seen.batch
-        kept = [i for i, p in enumerate(seen.positions) if p < self.opts.num_examples]
+        kept = [i for i, p in enumerate(seen.positions) if p < self.settings.num_examples]
         if kept:
             preds = torch.cat([seen.preds[g] for g in self.shown], 1)
             maps = seen.uncertainty
         for i in kept:
-            probs = seen.probs[i].to("cpu", torch.float16) if self.opts.explorer else None
+            probs = seen.probs[i].to("cpu", torch.float16) if self.settings.keep_probs else None
             image, label = batch.images[i].cpu(), batch.labels[i].cpu()
             uncertainty = {k: v[i].to("cpu", torch.float16) for k, v in maps.items()}
             example = Example(image, label, preds[i].cpu(), batch.stems[i], probs, uncertainty)

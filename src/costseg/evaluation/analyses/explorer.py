@@ -5,12 +5,15 @@ under any mixture of the triangle's corners, next to the sweep's metrics (docs/d
 from __future__ import annotations
 
 from costseg.evaluation.analyses import Analysis
+from costseg.evaluation.settings import ExplorerSettings
 from costseg.report.explorer_points import ExplorerPage
 
 
 class Explorer(Analysis):
+    settings: ExplorerSettings
+
     def result(self) -> ExplorerPage:
-        return ExplorerPage()
+        return ExplorerPage(self.settings)
 
 
 ANALYSIS = Explorer

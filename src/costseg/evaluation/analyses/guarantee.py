@@ -8,7 +8,8 @@ import torch
 
 from costseg.calibration.guarantee import learn_then_test_paths
 from costseg.classes import CLASS_NAMES, NUM_ROIS
-from costseg.evaluation.analyses import Analysis
+from costseg.evaluation.analyses import Analysis, Context
+from costseg.evaluation.settings import SweepChoice
 from costseg.metrics.names import INSTANCE_RATES, SEGMENT_RATES
 from costseg.metrics.per_image import per_image_counts, per_image_loss
 from costseg.metrics.scoring import GroupMetrics
@@ -17,22 +18,24 @@ from costseg.report.guarantee import Certificate
 
 
 class Guarantee(Analysis):
+    settings: SweepChoice
+
     def fit(self) -> None:
-        self.certificate = certify(self.context, self.opts)
+        self.certificate = certify(self.context, self.settings)
 
     def result(self) -> Certificate:
         return self.certificate
 
 
-def certify(context, opts) -> Certificate:
+def certify(context: Context, choice: SweepChoice) -> Certificate:
     """Learn-then-Test on the calibration images: the certified rules of the candidates whose
     risk ``E[L_i]`` of the target's per-image loss is ≤ α (``--target``: α = 1 − 0.95 for
     ``recall>=0.95``; the segment rates' ``<=`` value as it is), and the best of them by
-    ``--maximize``; among certified rules of the same best value, the one of largest
+    ``--maximize`` (``choice``); among certified rules of the same best value, the one of largest
     ``group.prefer`` (the defer sweep: the larger defer cost)."""
     plan = context.plan
     index, group = next((i, g) for i, g in enumerate(context.groups) if g.candidates)
-    t, goal = parse_target(opts.target[0]), parse_metric(opts.maximize)
+    t, goal = parse_target(choice.target), parse_metric(choice.maximize)
     named = {t.cls} | ({goal.cls} if goal.metric in SEGMENT_RATES else set())
     segments = sorted({*plan.class_ids, *named} - {None})  # None: all classes (coverage)
     wanted = {m.cls for m in (t, goal) if m.metric in INSTANCE_RATES}
@@ -53,14 +56,14 @@ def certify(context, opts) -> Certificate:
             n += len(labels)
     losses = per_image_loss(torch.cat(counts), t.metric).numpy()
     alpha = risk_level(t)
-    ltt = learn_then_test_paths(losses, alpha, opts.guarantee, opts.guarantee_method, group.paths)
+    ltt = learn_then_test_paths(losses, alpha, choice.delta, choice.method, group.paths)
     pooled = metrics.compute()
     objective = metric_values(
         pooled["pixels"], pooled["segments"], goal, segments, pooled["instances"]
     )
     # None unless a certified λ has a finite value
     chosen = ltt.best(objective.cpu().numpy(), prefer=group.prefer)
-    return Certificate(group, ltt, chosen, objective, opts.target[0], opts.maximize, n)
+    return Certificate(group, ltt, chosen, objective, choice.target, choice.maximize, n)
 
 
 ANALYSIS = Guarantee

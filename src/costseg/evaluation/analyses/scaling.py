@@ -5,7 +5,8 @@
 from __future__ import annotations
 
 from costseg.calibration.sample import PixelSampler
-from costseg.evaluation.analyses import Analysis
+from costseg.evaluation.analyses import Analysis, Provided
+from costseg.evaluation.settings import ScalingSettings
 from costseg.rules import named_group, temperature_group
 
 PIXELS_PER_IMAGE = 4096
@@ -13,19 +14,21 @@ PIXELS_PER_IMAGE = 4096
 
 
 class Scaling(Analysis):
-    def fit(self) -> None:
-        plan = self.context.plan
+    settings: ScalingSettings
+
+    def fit(self) -> Provided:
+        source = self.context.plan.source
         sampler = PixelSampler(PIXELS_PER_IMAGE)
-        for batch in self.context.held_out.batches("fit scaling"):
-            sampler.update(plan.source.logits_of(batch.scores).cpu(), batch.labels.cpu())
+        for seen in self.context.held_out_seen("fit scaling"):
+            sampler.update(source.logits_of(seen.batch.scores).cpu(), seen.batch.labels.cpu())
         if sampler.num_images == 0:
             raise ValueError("no calibration image to fit the scaling on")
-        scaling = sampler.fit(self.opts.calibrate)
+        scaling = sampler.fit(self.settings.kind)
         print(f"calibration: {scaling.describe()}")
-        self.context.scaling = scaling
-        if self.opts.temperature_sweep and scaling.kind == "temperature":
-            named = named_group(self.context.groups)
-            self.context.groups.append(temperature_group(named.rules, scaling.temperature))
+        if not (self.settings.temperature_sweep and scaling.kind == "temperature"):
+            return Provided(scaling=scaling)
+        named = named_group(self.context.groups)
+        return Provided(scaling, groups=(temperature_group(named.rules, scaling.temperature),))
 
 
 ANALYSIS = Scaling

@@ -8,8 +8,9 @@ from dataclasses import replace
 
 import torch
 
-from costseg.evaluation.analyses import Analysis, Seen
+from costseg.evaluation.analyses import Analysis, Context, Provided, Seen
 from costseg.evaluation.processes import in_image_order
+from costseg.evaluation.settings import SegmentSettings
 from costseg.meta.collect import SegmentCollector
 from costseg.meta.fusion import FUSED_FAMILY
 from costseg.meta.models import MetaModels, fit_models
@@ -20,18 +21,24 @@ from costseg.rules import Rule, RuleGroup, apply_rules, named_group
 
 
 class Segments(Analysis):
+    settings: SegmentSettings
+
     @property
     def every_entropy(self) -> bool:  # the features' mutual information, on every image
-        return bool(self.opts.meta or self.opts.save_segments)
+        return self.settings.meta or self.settings.save
 
-    def fit(self) -> None:
-        self.models = _fit_meta(self.context) if self.context.plan.meta_images else None
+    def fit(self) -> Provided | None:
+        self.models = None
+        if self.context.meta_held_out is None:
+            return None
+        self.models, fused = _fit_meta(self.context, self.settings.meta)
+        return Provided(replaced=(fused,) if fused is not None else ())
 
     def start(self) -> None:
         self.collector = None
         if self.every_entropy:
             rules = named_group(self.context.groups).rules
-            self.collector = SegmentCollector(rules, self.opts.num_examples)
+            self.collector = SegmentCollector(rules, self.settings.num_examples)
 
     def process(self, seen: Seen) -> None:
         if self.collector is not None:
@@ -49,9 +56,11 @@ class Segments(Analysis):
         collector = self.collector
         if collector is None:
             return None
-        models = self.models if self.opts.meta else None
+        models = self.models if self.settings.meta else None
         tables = {r.name: collector.table(r.name) for r in collector.rules}
-        segments = SegmentOutputs(tables, collector.images, collector.maps, models)
+        segments = SegmentOutputs(
+            tables, collector.images, collector.maps, models, save=self.settings.save
+        )
         if models is not None:
             segments.scores = {r: meta_scores(models[r], tables[r]) for r in tables if tables[r]}
             segments.fitted_on = {
@@ -66,11 +75,10 @@ def _fusion(groups: list[RuleGroup]) -> int | None:
     return next((i for i, g in enumerate(groups) if g.family == FUSED_FAMILY), None)
 
 
-def _meta_rules(context) -> list[Rule]:
-    """The rules whose segments the meta models judge: the named ones (``--meta``) and the
+def _meta_rules(groups: list[RuleGroup], meta: bool) -> list[Rule]:
+    """The rules whose segments the meta models judge: the named ones (``meta``) and the
     fused ones (``--fuse``)."""
-    groups = context.groups
-    rules = list(named_group(groups).rules) if context.plan.options.meta else []
+    rules = list(named_group(groups).rules) if meta else []
     fusion = _fusion(groups)
     if fusion is not None:
         fused = groups[fusion].decide.fused
@@ -85,12 +93,12 @@ def _decided(seen: Seen, named: RuleGroup, rule: Rule) -> torch.Tensor:
     return apply_rules(seen.probs, [rule], seen.priors)
 
 
-def _fit_meta(context) -> dict[str, MetaModels]:
+def _fit_meta(context: Context, meta: bool) -> tuple[dict[str, MetaModels], RuleGroup | None]:
     """Fit the meta models of every rule of :func:`_meta_rules` on the segments of the held-out
-    images; hand the fused rules theirs (without MI: a rule decides from the probabilities) in
-    a fused group of the context that holds them."""
+    images; the fused rules get theirs (without MI: a rule decides from the probabilities) in
+    a fused group that holds them (None without ``--fuse``)."""
     plan, held = context.plan, context.meta_held_out
-    rules = _meta_rules(context)
+    rules = _meta_rules(context.groups, meta)
     named = named_group(context.groups)
     collector = SegmentCollector(rules)
     with torch.inference_mode():
@@ -100,24 +108,24 @@ def _fit_meta(context) -> dict[str, MetaModels]:
             collector.add(
                 seen.probs, preds, batch.labels, seen.priors, batch.expected_entropy, batch.stems
             )
-    fitting = "meta models, rule by rule" if plan.options.progress else None
+    fitting = "meta models, rule by rule" if plan.progress else None
     models = {
         r.name: fit_models(collector.table(r.name), collector.features(r.name), len(held))
         for r in progress(rules, fitting)
     }
-    fusion = _fusion(context.groups)
-    if fusion is not None:
-        group, own = context.groups[fusion], {}
-        for r in group.decide.fused:
-            features = [f for f in collector.features(r.name) if not f.startswith("MI")]
-            same = features == models[r.name].features
-            own[r.name] = (
-                models[r.name] if same else fit_models(collector.table(r.name), features, len(held))
-            )
-        context.groups[fusion] = replace(group, decide=group.decide.using(own))
     fitted = {r: m.num_segments for r, m in models.items()}
     print(f"meta models fitted on {len(held)} held-out images: segments {fitted}")
-    return models
+    fusion = _fusion(context.groups)
+    if fusion is None:
+        return models, None
+    group, own = context.groups[fusion], {}
+    for r in group.decide.fused:
+        features = [f for f in collector.features(r.name) if not f.startswith("MI")]
+        same = features == models[r.name].features
+        own[r.name] = (
+            models[r.name] if same else fit_models(collector.table(r.name), features, len(held))
+        )
+    return models, replace(group, decide=group.decide.using(own))
 
 
 ANALYSIS = Segments
