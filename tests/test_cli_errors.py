@@ -46,7 +46,7 @@ def _target(text):
     return ["--sweep", "0.5", "--target", text, "--maximize", "person:roi1:precision"]
 
 
-DESIGN = ["--target", "person:roi1:recall>=0.9", "--guarantee", "0.1", "--design", "lagrangian"]
+DESIGN = ["--require", "person:roi1:recall>=0.9", "--design_delta", "0.1", "--design", "lagrangian"]
 TESTS = Path(__file__).parent  # a folder that holds no record of scored images
 
 EVALUATE_CASES = {
@@ -144,12 +144,25 @@ EVALUATE_CASES = {
             "person:roi1:recall>=0.9",
             "rider:roi1:recall>=0.9",
         ],
-        ["several --target", "--design"],
+        ["a sweep's point is chosen for one --target", "--require"],
     ),
-    "design without requirements": (["--design", "lagrangian"], ["--design needs", "--target"]),
+    "design without requirements": (["--design", "lagrangian"], ["--design needs", "--require"]),
     "design without delta": (
-        ["--design", "triangle", "--target", "person:roi1:recall>=0.9"],
-        ["--guarantee"],
+        ["--design", "triangle", "--require", "person:roi1:recall>=0.9"],
+        ["--design_delta"],
+    ),
+    "design with the sweep's flags": (
+        ["--design", "triangle", "--target", "person:roi1:recall>=0.9", "--guarantee", "0.1"],
+        ["--design needs", "--require", "--design_delta", "choose a point of a sweep"],
+    ),
+    "design delta of one": ([*DESIGN, "--design_delta", "1"], ["--design_delta", "(0, 1)"]),
+    "requirement without design": (
+        ["--require", "person:roi1:recall>=0.9"],
+        ["--require goes with --design"],
+    ),
+    "requirement of no risk level": (
+        [*DESIGN[:-1], "triangle", "--require", "person:roi1:recall>=1"],
+        ["--require person:roi1:recall>=1", "α"],
     ),
     "design space unknown": (["--design", "simplex"], ["--design", "invalid choice"]),
     "design budget of one": (["--design", "triangle", "--design_budget", "1"], [">= 2"]),
@@ -158,7 +171,7 @@ EVALUATE_CASES = {
         ["--design_pixels", "(0, 1]"],
     ),
     "lagrangian on coverage": (
-        ["--design", "lagrangian", "--guarantee", "0.1", "--target", "person:roi1:coverage>=0.9"],
+        ["--design", "lagrangian", "--design_delta", "0.1", "--require", "person:roi1:coverage>=0.9"],
         ["coverage"],
     ),
     "aggregate template without aggregates": (
@@ -166,10 +179,13 @@ EVALUATE_CASES = {
         ["aggregate"],
     ),
     "design objective of segments": (
-        [*DESIGN, "--maximize", "person:roi1:fp_rate"],
+        [*DESIGN, "--design_maximize", "person:roi1:fp_rate"],
         ["pixel rate"],
     ),
-    "minimize without design": (["--minimize", "person:roi1:recall"], ["--minimize goes with"]),
+    "minimize without design": (
+        ["--design_minimize", "person:roi1:recall"],
+        ["--design_minimize goes with"],
+    ),
     "design base of triangle": (
         [*DESIGN[:-1], "triangle", "--design_base", "egoistic"],
         ["--design_base goes with"],

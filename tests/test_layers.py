@@ -149,3 +149,55 @@ def test_configs_live_once_at_the_top():
     top = SRC.parents[1] / "configs"
     assert (SRC / "configs").is_symlink() and (SRC / "configs").resolve() == top
     assert Path(str(CONFIGS)).resolve() == top and (top / "costs" / "egoistic.yaml").is_file()
+
+
+OPTIONS_READERS = {
+    "costseg.cli",  # the command lines
+    "costseg.api",  # the Python API: the options of its keywords
+    "costseg.options",
+    "costseg.evaluation.run",  # evaluate(opts): plans, then runs the plan
+    "costseg.evaluation.plan",
+    "costseg.evaluation.checks",
+    "costseg.evaluation.settings",  # each analysis's settings, resolved once by the plan
+    "costseg.evaluation.analyses",  # the table of the analyses and their resolvers
+    "costseg.networks.protocols",  # the inference protocol of every job's network options
+    "costseg.prediction.job",  # predict.py's own plan
+    "costseg.export.job",  # export.py's own plan
+}
+"""The modules that may read an options object of :mod:`costseg.options`: the command lines,
+the checks and the plans. Below the plan, the loop, the analyses and the reports read the plan,
+the analyses' settings and the results."""
+
+
+def _reads_options(path: Path) -> list[str]:
+    """Where the module at ``path`` names an options dataclass or reads an ``opts`` /
+    ``options`` object."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.module == "costseg.options":
+            found += [f"imports {a.name}" for a in node.names if a.name.endswith("Options")]
+        elif isinstance(node, ast.Name) and node.id == "opts":
+            found.append(f"line {node.lineno}: opts")
+        elif isinstance(node, ast.Attribute) and node.attr in ("opts", "options"):
+            if isinstance(node.ctx, ast.Store):  # PyAV's stream options, set
+                continue
+            found.append(f"line {node.lineno}: .{node.attr}")
+    return found
+
+
+def test_nothing_below_the_plan_reads_the_options():
+    readers = {}
+    for path in SRC.rglob("*.py"):
+        module = ".".join(path.relative_to(SRC.parent).with_suffix("").parts)
+        module = module.removesuffix(".__init__")
+        if module in OPTIONS_READERS or module.startswith(("costseg.training",)):
+            continue
+        if found := _reads_options(path):
+            readers[module] = found
+    assert not readers
+
+
+def test_the_options_check_finds_a_reader(tmp_path):
+    reader = tmp_path / "reader.py"
+    reader.write_text("def f(plan):\n    return plan.options.seed\n")
+    assert _reads_options(reader) == ["line 2: .options"]

@@ -17,7 +17,7 @@ from costseg.evaluation.analyses import held_out_flags
 from costseg.evaluation.priors import no_priors
 from costseg.evaluation.settings import SweepChoice
 from costseg.metrics.requirements import Requirements
-from costseg.metrics.selection import certifiable_level, parse_metric
+from costseg.metrics.selection import certifiable_level, parse_metric, parse_target
 from costseg.networks.probs_files import DATA_RECORD, records_its_data
 from costseg.networks.protocols import OPTIONS, Protocol
 from costseg.networks.sources import resolve_device
@@ -113,6 +113,7 @@ def check_selection(opts, groups: list[RuleGroup]) -> None:
             f"{choosing} chooses among the points of one sweep; these options give "
             f"{len(candidates)} ({', '.join(candidates)}): keep one of {candidate_flags()}"
         )
+    parse_target(opts.target[0])
     parse_metric(opts.maximize)
     if opts.guarantee is not None:
         certifiable_level(opts.target[0], "--target")

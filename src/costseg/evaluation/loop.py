@@ -52,7 +52,7 @@ def run(
     ran = {e: a.result() for e, a in analyses.items()}
     return EvalResults(
         output_dir=plan.output_dir,
-        options=plan.record,
+        options_record=plan.record,
         source=plan.description,
         probabilities=_describe_probabilities(plan, context.scaling),
         class_ids=plan.class_ids,

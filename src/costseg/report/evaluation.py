@@ -55,7 +55,7 @@ def write_evaluation(results: EvalResults, early: EarlyFigures) -> None:
 def _json(results: EvalResults) -> dict:
     """What results.json says of every evaluation (each analysis adds its keys)."""
     return {
-        "options": results.options,
+        "options": results.options_record,
         "source": results.source,
         "probabilities": results.probabilities,
         "images": results.num_images,

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -19,9 +18,6 @@ from costseg.report.results import EvalResults, GroupResult
 from costseg.report.sections import Result, Section
 from costseg.report.sweep import SweepPoint
 from costseg.rules import Rule, vertex_matrices
-
-if TYPE_CHECKING:
-    from costseg.evaluation.settings import ExplorerSettings
 
 ROIS = (0, 1, 2, 3, 4)
 
@@ -113,23 +109,27 @@ def evaluation_examples(results: EvalResults) -> list[ExplorerExample]:
 
 @dataclass
 class ExplorerPage(Result):
-    """``explorer.html`` of an evaluation (``evaluate.py --explorer``)."""
+    """``explorer.html`` of an evaluation (``evaluate.py --explorer``): the triangle of
+    ``vertices`` (rescaled by ``vertex_scaling``) that the page mixes, and the defer cost of
+    the named rules."""
 
-    settings: ExplorerSettings
+    vertices: tuple[str, ...]
+    vertex_scaling: str
+    defer: float | None
 
     def write(self, results: EvalResults) -> Section:
-        write_evaluation_explorer(results, self.settings)
+        write_evaluation_explorer(results, self)
         return Section(console=[f"explorer: {results.output_dir / 'explorer.html'}"])
 
 
-def write_evaluation_explorer(results: EvalResults, settings: ExplorerSettings) -> None:
-    """Write ``explorer.html`` of an evaluation (the triangle and defer cost of ``settings``)."""
+def write_evaluation_explorer(results: EvalResults, page: ExplorerPage) -> None:
+    """Write ``explorer.html`` of an evaluation."""
     grid = next((g for g in results.groups if g.group.weights is not None), None)
     if grid is not None:
         vertices = grid.group.vertices
     else:
-        vertices = vertex_matrices(list(settings.vertices), settings.vertex_scaling)
-    named = named_points(results.named.group.rules, vertices, settings.vertex_scaling)
+        vertices = vertex_matrices(list(page.vertices), page.vertex_scaling)
+    named = named_points(results.named.group.rules, vertices, page.vertex_scaling)
     source = results.source
     notes = [
         f"source: {source.get('network') or source}",
@@ -145,10 +145,10 @@ def write_evaluation_explorer(results: EvalResults, settings: ExplorerSettings) 
         results.output_dir / "explorer.html",
         evaluation_examples(results),
         vertices,
-        list(settings.vertices),
+        list(page.vertices),
         named=named,
         sweep=None if grid is None else sweep_data(grid, results.class_ids),
         marks=_marks(results, grid),
         notes=notes,
-        defer=settings.defer,
+        defer=page.defer,
     )

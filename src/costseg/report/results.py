@@ -130,7 +130,7 @@ class EvalResults:
 
     Attributes:
         output_dir: where the outputs go.
-        options: the options as given: a record for results.json, read by no report.
+        options_record: the options as given, for results.json (read by no report).
         source: what produced the probabilities (network, checkpoint or folder).
         probabilities: which probabilities were used (raw, or the scaling and its parameters).
         class_ids: classes of the segment metrics and tables.
@@ -143,7 +143,7 @@ class EvalResults:
     """
 
     output_dir: Path
-    options: dict
+    options_record: dict
     source: dict
     probabilities: str
     class_ids: list[int]

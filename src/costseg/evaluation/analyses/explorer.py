@@ -13,7 +13,8 @@ class Explorer(Analysis):
     settings: ExplorerSettings
 
     def result(self) -> ExplorerPage:
-        return ExplorerPage(self.settings)
+        given = self.settings
+        return ExplorerPage(given.vertices, given.vertex_scaling, given.defer)
 
 
 ANALYSIS = Explorer
