@@ -21,10 +21,10 @@ and ``study.json`` in --output_dir.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import time
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -33,16 +33,17 @@ import torch
 from costseg.calibration.design_search import search
 from costseg.calibration.pareto_testing import choose, pareto_testing
 from costseg.classes import CLASS_NAMES
-from costseg.cli import user_errors
+from costseg.cli import build_parser, user_errors
 from costseg.data.from_config import build_dataset
 from costseg.data.prior_maps import PriorMaps
-from costseg.decision import count_decisions, prepare_counts, subsample
-from costseg.evaluation.analyses.design import SearchImages, spaces
+from costseg.decision import count_decisions, prepare_counts
+from costseg.evaluation.analyses.design import SearchImages, image_losses, pixel_seeds, spaces
+from costseg.evaluation.settings import DesignSettings, design_settings
 from costseg.metrics.requirements import Requirements, mean_risks
 from costseg.networks.ensemble import open_sources
 from costseg.networks.protocols import Protocol
 from costseg.networks.sources import batches, resolve_device
-from costseg.options import EvalOptions
+from costseg.options import EvalOptions, option, same_option, whole_number
 
 REQUIREMENTS = (
     "person:roi1:recall>=0.75 building:roi3:precision>=0.65",
@@ -54,31 +55,31 @@ one no space can certify at δ = 0.1 with 50 certification images."""
 SPACES = ("triangle", "lagrangian", "aggregate")
 
 
-def parse_args() -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
-        description=__doc__.split("\n\n")[0],
-        epilog=__doc__.split("\n\n", 2)[2],
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+@dataclass
+class StudyOptions:
+    """Everything ``scripts/study_design.py`` can be told."""
+
+    ckpt_path: list[str] | None = same_option(EvalOptions, "ckpt_path", required=True)
+    output_dir: str = option("study_design", "the study's folder")
+    requirements: list[str] = option(
+        list(REQUIREMENTS), "requirement sets, each its constraints separated by spaces"
     )
-    parser.add_argument("--ckpt_path", required=True, nargs="+")
-    parser.add_argument("--output_dir", default="study_design")
-    parser.add_argument(
-        "--requirements",
-        nargs="+",
-        default=list(REQUIREMENTS),
-        help="requirement sets, each its constraints separated by spaces",
-    )
-    parser.add_argument("--pool", default="test", help="the split D1 and D2 are drawn from")
-    parser.add_argument("--test", default="val", help="the split of the realised risks")
-    parser.add_argument("--search", default="train", help="the split the aggregate search sees")
-    parser.add_argument("--search_images", type=int, default=50)
-    parser.add_argument("--budget", type=int, default=100)
-    parser.add_argument("--delta", type=float, default=0.1)
-    parser.add_argument("--splits", type=int, default=100)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--device", default="auto")
-    parser.add_argument("--batch_size", type=int, default=8)  # fmt: skip
-    return parser.parse_args()
+    pool: str = option("test", "the split D1 and D2 are drawn from")
+    test: str = option("val", "the split of the realised risks")
+    search: str = option("train", "the split the aggregate search sees")
+    search_images: int = option(50, "images of --search the aggregate search sees",
+                                type=whole_number(1))  # fmt: skip
+    budget: int = same_option(EvalOptions, "design_budget", 100)
+    delta: float = same_option(EvalOptions, "design_delta", 0.1)
+    splits: int = option(100, "random D1 / D2 splits of the pool", type=whole_number(1))
+    seed: int = same_option(EvalOptions, "seed")
+    device: str = same_option(EvalOptions, "device")
+    batch_size: int = same_option(EvalOptions, "batch_size", 8)
+
+
+def parse_args() -> StudyOptions:
+    parser = build_parser(StudyOptions, "study_design.py", __doc__.split("\n\n")[0])
+    return StudyOptions(**vars(parser.parse_args()))
 
 
 def probabilities(source, config, split: str, count: int | None, device, batch_size: int):
@@ -105,7 +106,7 @@ def scored(pool, matrices: torch.Tensor, req: Requirements):
         mine, ours = [], []
         for inputs in prepared:
             counts = count_decisions(inputs, matrix)
-            mine.append(req.losses(counts.confusion))
+            mine.append(image_losses(req, counts, matrix))
             ours.append(counts.agree)
         losses.append(torch.cat(mine).numpy())
         agree.append(torch.cat(ours).numpy())
@@ -113,14 +114,17 @@ def scored(pool, matrices: torch.Tensor, req: Requirements):
     return np.stack(losses, 1), np.stack(agree, 1).astype(float), labelled.astype(float)
 
 
-def aggregate_pool(opts, req: Requirements, search_images, seed: int, budget: int) -> torch.Tensor:
-    """The candidates of one NSGA-II search of the aggregate space on ``search_images`` (10 % of
-    each image's pixels), scored as ``evaluate.py --design`` scores them."""
-    found = SearchImages()
-    for i, (p, y, r) in enumerate(search_images):
-        part = subsample(p, y, r, share=0.1, seed=[seed + i * 1000 + b for b in range(len(y))])
-        found.inputs.append(prepare_counts(part.probs, part.labels, part.roi))
-    space = next(s for s in spaces(opts, req) if s.name == "aggregate")
+def aggregate_pool(
+    settings: DesignSettings, req: Requirements, search_images, seed: int, budget: int
+) -> torch.Tensor:
+    """The candidates of one NSGA-II search of the aggregate space on ``search_images``,
+    scored as ``evaluate.py --design`` scores them (its share of each image's pixels, each
+    image drawn with its own seed)."""
+    found, first = SearchImages(), 0
+    for p, y, r in search_images:
+        found.add_pixels(p, y, r, settings.pixels, pixel_seeds(seed, first, len(y)))
+        first += len(y)
+    space = next(s for s in spaces(settings, req) if s.name == "aggregate")
     return search(space, found.scorer(req, lambda losses: None), req.alphas, budget, seed).matrices
 
 
@@ -136,18 +140,20 @@ def main() -> None:
     n = sum(len(y) for _, y, _ in pool)
     rng = np.random.default_rng(args.seed)
     halves = [rng.permutation(n) for _ in range(args.splits)]
-    rows, record = [], {"args": vars(args), "sets": []}
+    rows, record = [], {"args": asdict(args), "sets": []}
     for text in args.requirements:
         req = Requirements.parse(text.split())
         alphas = np.array(req.alphas)
         found = {}
         for name in SPACES:
-            opts = EvalOptions(design=name, target=list(req.texts), design_budget=args.budget,
-                               seed=args.seed)  # fmt: skip
+            settings = design_settings(  # as evaluate.py --design resolves them
+                EvalOptions(design=name, require=list(req.texts), design_delta=args.delta,
+                            design_budget=args.budget, seed=args.seed)
+            )  # fmt: skip
             if name == "aggregate":
-                matrices = aggregate_pool(opts, req, seen, args.seed, args.budget)
+                matrices = aggregate_pool(settings, req, seen, args.seed, args.budget)
             else:
-                space = spaces(opts, req)[0]
+                space = spaces(settings, req)[0]
                 matrices = torch.stack([space.matrix(p) for p in space.grid()])
             losses, agree, labelled = scored(pool, matrices, req)
             t_losses, t_agree, t_labelled = scored(test, matrices, req)

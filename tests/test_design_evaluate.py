@@ -19,7 +19,7 @@ from costseg.networks import load_network
 
 REQUIREMENTS = ["person:roi0:recall>=0.05", "road:roi0:precision>=0.05"]
 ARGS = ["--no-progress", "--num_examples", "1", "--cost", "robotistic", "--design_budget", "20",
-        "--guarantee", "0.5", "--target", *REQUIREMENTS]  # fmt: skip
+        "--design_delta", "0.5", "--require", *REQUIREMENTS]  # fmt: skip
 
 
 @pytest.fixture(scope="module")
@@ -70,8 +70,8 @@ def test_the_designed_cost_file_reproduces_the_rows_of_the_design(ckpt, tmp_path
 def test_nothing_certified_is_a_result_that_says_why(ckpt, tmp_path):
     out = tmp_path / "none"
     evaluate_main(["--no-progress", "--num_examples", "0", "--ckpt_path", ckpt, "--output_dir",
-                   str(out), "--design", "triangle", "--design_budget", "6", "--guarantee", "0.5",
-                   "--calibration_split", "train", "--target", "person:roi0:recall>=0.5",
+                   str(out), "--design", "triangle", "--design_budget", "6", "--design_delta",
+                   "0.5", "--calibration_split", "train", "--require", "person:roi0:recall>=0.5",
                    "road:roi0:precision>=0.5"])  # fmt: skip
     record = json.loads((out / "design.json").read_text())
     assert len(record["searches"]) == 1  # the triangle is its own comparison
@@ -92,7 +92,7 @@ def test_the_python_api_designs_what_the_command_line_designs(ckpt, tmp_path):
                    "--seed", "3", "--output_dir", str(cli)])  # fmt: skip
     costseg.evaluate(
         load_network(f"costseg:{ckpt}"), CityscapesSegmentation(root, "val"), ["robotistic"],
-        target=REQUIREMENTS, guarantee=0.5, num_examples=1, progress=False, output_dir=str(api),
+        require=REQUIREMENTS, design_delta=0.5, num_examples=1, progress=False, output_dir=str(api),
         **common,
     )  # fmt: skip
     first, second = (json.loads((d / "design.json").read_text()) for d in (cli, api))

@@ -105,6 +105,38 @@ def spaces(settings: DesignSettings, req: Requirements) -> list[Space]:
     return [own, triangle]
 
 
+def d1_images(first: int, size: int, n1: int) -> int:
+    """How many images of a batch of ``size`` held-out images, the first at position ``first``,
+    belong to D1 (the first ``n1`` held-out images); the rest belong to D2.
+
+    >>> d1_images(0, 4, 6), d1_images(4, 4, 6), d1_images(8, 4, 6)
+    (4, 2, 0)
+    """
+    return max(0, min(size, n1 - first))
+
+
+def pixel_seeds(seed: int, first: int, count: int) -> list[int]:
+    """The seeds of the search's pixel draws of ``count`` images, the first at position
+    ``first`` among the held-out images: one per image, so any batch size draws the same."""
+    return list(range(seed + first, seed + first + count))
+
+
+class Pooled:
+    """One matrix's decision counts pooled over images: the (N, N) confusion and the pixels
+    decided as argmax, from which the objective is computed (:meth:`Requirements.value`)."""
+
+    def __init__(self) -> None:
+        self.confusion, self.agree = 0, 0
+
+    def add(self, counts) -> None:
+        """Add a batch's counts (:func:`costseg.decision.count_decisions`)."""
+        self.confusion = self.confusion + counts.confusion.sum(0)
+        self.agree = self.agree + counts.agree.sum()
+
+    def value(self, req: Requirements) -> float:
+        return req.value(self.confusion, self.agree)
+
+
 class SearchImages:
     """D1, kept for the search: each held-out batch's pixels prepared for the fused count pass
     (a seeded ``share`` of each image's labelled pixels), and the whole images where a
@@ -121,23 +153,29 @@ class SearchImages:
         found, first = cls(), 0
         with torch.inference_mode():
             for seen in context.held_out_seen("design: search images (D1)"):
-                keep = max(0, min(len(seen.probs), n1 - first))
-                if keep:  # each image's pixels drawn with a seed of its own: any batch size
-                    seeds = list(range(seed + first, seed + first + keep))
-                    found.add(seen, keep, share, req.label_maps, seeds)
+                keep = d1_images(first, len(seen.probs), n1)
+                if keep:
+                    found.add(seen, keep, share, req.label_maps, pixel_seeds(seed, first, keep))
                 first += len(seen.probs)
         return found
 
     def add(self, seen: Seen, keep: int, share: float, whole: bool, seeds: list[int]) -> None:
-        probs, labels = seen.probs[:keep].float(), seen.batch.labels[:keep]
+        """The first ``keep`` images of a held-out batch (the whole images too with ``whole``)."""
+        labels = seen.batch.labels[:keep]
         roi = None if seen.roi is None else seen.roi.expand_as(labels)
+        self.add_pixels(seen.probs[:keep], labels, roi, share, seeds)
+        if whole:
+            ids = None if seen.batch.instances is None else seen.batch.instances[:keep]
+            self.whole.append((seen.probs[:keep], seen.batch.labels[:keep], seen.roi, ids))
+
+    def add_pixels(self, probs, labels, roi, share: float, seeds: list[int]) -> None:
+        """(B, N, H, W) ``probs``, (B, H, W) ``labels`` and RoIs of B search images: a share of
+        each image's labelled pixels (drawn with its seed of :func:`pixel_seeds`), prepared."""
+        probs = probs.float()
         if share < 1:
             part = subsample(probs, labels, roi, share=share, seed=seeds)
             probs, labels, roi = part.probs, part.labels, part.roi
         self.inputs.append(prepare_counts(probs, labels, roi))
-        if whole:
-            ids = None if seen.batch.instances is None else seen.batch.instances[:keep]
-            self.whole.append((seen.probs[:keep], seen.batch.labels[:keep], seen.roi, ids))
 
     def scorer(
         self, req: Requirements, keep_losses: Callable[[np.ndarray], None]
@@ -146,25 +184,26 @@ class SearchImages:
         go to ``keep_losses``, in the order the search scores them."""
 
         def score(matrix: torch.Tensor) -> tuple[np.ndarray, float]:
-            losses, confusion, agree = [], 0, 0
+            losses, pooled = [], Pooled()
             for i, inputs in enumerate(self.inputs):
                 counts = count_decisions(inputs, matrix)
-                losses.append(_losses(req, counts.confusion, matrix, *self.whole[i : i + 1]))
-                confusion = confusion + counts.confusion.sum(0)
-                agree = agree + counts.agree.sum()
-            image_losses = torch.cat(losses).numpy()
-            keep_losses(image_losses)
-            return mean_risks(image_losses), req.value(confusion, agree)
+                losses.append(image_losses(req, counts, matrix, *self.whole[i : i + 1]))
+                pooled.add(counts)
+            per_image = torch.cat(losses).numpy()
+            keep_losses(per_image)
+            return mean_risks(per_image), pooled.value(req)
 
         return score
 
 
-def _losses(req: Requirements, confusion, matrix, whole=None) -> torch.Tensor:
-    """(B, K) per-image losses from a batch's counts (and its label maps where needed)."""
+def image_losses(req: Requirements, counts, matrix, whole=None) -> torch.Tensor:
+    """(B, K) per-image constraint losses from a batch's decision ``counts`` (and, where a
+    constraint counts segments or instances, ``whole``: the batch's probabilities, labels,
+    RoIs and instance ids, decided again under ``matrix``)."""
     if whole is None:
-        return req.losses(confusion)
+        return req.losses(counts.confusion)
     probs, labels, roi, ids = whole
-    return req.losses(confusion, decide(probs, matrix), labels, roi, ids)
+    return req.losses(counts.confusion, decide(probs, matrix), labels, roi, ids)
 
 
 def _front(losses_d1: np.ndarray, objective, req: Requirements, delta: float) -> np.ndarray:
@@ -181,33 +220,30 @@ def _test_fronts(context: Context, n1: int, req: Requirements, searches) -> list
     out = []
     for candidates, front in searches:
         length, k = len(candidates.objective), len(req.alphas)
-        sums = {int(c): [0, 0] for c in front}  # candidate → [confusion, agreements]
-        out.append((np.full((n2, length, k), np.nan), sums))
-    seen_so_far = 0
+        out.append((np.full((n2, length, k), np.nan), {int(c): Pooled() for c in front}))
+    first = 0
     with torch.inference_mode():
         for seen in context.held_out_seen("design: certify (D2)"):
             labels = seen.batch.labels
             roi = None if seen.roi is None else seen.roi.expand_as(labels)
             inputs = prepare_counts(seen.probs.float(), labels, roi)
-            first = max(0, n1 - seen_so_far)  # the batch's first D2 image
-            rows = slice(seen_so_far + first - n1, seen_so_far + len(labels) - n1)
-            for (candidates, _), (losses_d2, sums) in zip(searches, out, strict=True):
-                for c, pooled in sums.items():
+            in_d1 = d1_images(first, len(labels), n1)
+            rows = slice(first + in_d1 - n1, first + len(labels) - n1)  # D2's, in D2's order
+            whole = (seen.probs, labels, seen.roi, seen.batch.instances) if req.label_maps else None
+            for (candidates, _), (losses_d2, pooled) in zip(searches, out, strict=True):
+                for c, counted in pooled.items():
                     matrix = candidates.matrices[c]
                     counts = count_decisions(inputs, matrix)
-                    pooled[0] = pooled[0] + counts.confusion.sum(0)
-                    pooled[1] = pooled[1] + counts.agree.sum()
-                    if first < len(labels):
-                        whole = (seen.probs, labels, seen.roi, seen.batch.instances)
-                        losses = _losses(req, counts.confusion, matrix, whole if req.label_maps
-                                         else None)  # fmt: skip
-                        losses_d2[rows, c] = losses[first:].numpy()
-            seen_so_far += len(labels)
+                    counted.add(counts)
+                    if in_d1 < len(labels):
+                        losses = image_losses(req, counts, matrix, whole)
+                        losses_d2[rows, c] = losses[in_d1:].numpy()
+            first += len(labels)
     results = []
-    for (candidates, _), (losses_d2, sums) in zip(searches, out, strict=True):
+    for (candidates, _), (losses_d2, pooled) in zip(searches, out, strict=True):
         objective = np.full(len(candidates.objective), np.nan)
-        for c, (confusion, agree) in sums.items():
-            objective[c] = req.value(confusion, agree)
+        for c, counted in pooled.items():
+            objective[c] = counted.value(req)
         results.append((losses_d2, objective))
     return results
 
