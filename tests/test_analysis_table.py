@@ -45,8 +45,8 @@ def test_the_sweep_choice_and_the_design_are_their_own_settings():
     design = given["design"]
     assert design.requirements == ("person:roi1:recall>=0.8", "car:roi1:recall>=0.7")
     assert (design.delta, design.space, design.maximize) == (0.1, "lagrangian", None)
-    choice_only = dict((e.module, v) for e, v in wanted(dataclasses.replace(EVERYTHING,
-                                                                          guarantee=None)))  # fmt: skip
+    unguaranteed = dataclasses.replace(EVERYTHING, guarantee=None)
+    choice_only = {e.module: v for e, v in wanted(unguaranteed)}
     assert "guarantee" not in choice_only and choice_only["choice"].delta is None
 
 

@@ -171,7 +171,7 @@ EVALUATE_CASES = {
         ["--design_pixels", "(0, 1]"],
     ),
     "lagrangian on coverage": (
-        ["--design", "lagrangian", "--design_delta", "0.1", "--require", "person:roi1:coverage>=0.9"],
+        [*DESIGN[2:], "--require", "person:roi1:coverage>=0.9"],
         ["coverage"],
     ),
     "aggregate template without aggregates": (
