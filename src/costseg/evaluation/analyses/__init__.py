@@ -25,7 +25,19 @@ from dataclasses import dataclass
 from functools import cached_property
 from typing import TYPE_CHECKING, Any
 
-from costseg.evaluation import settings as s
+from costseg.evaluation.settings import (
+    always,
+    anomaly_settings,
+    certified_choice,
+    conformal_settings,
+    design_settings,
+    example_settings,
+    explorer_settings,
+    saved_settings,
+    scaling_settings,
+    segment_settings,
+    sweep_choice,
+)
 
 if TYPE_CHECKING:
     import torch
@@ -56,24 +68,24 @@ class Entry:
 
 
 ANALYSES: tuple[Entry, ...] = (
-    Entry("scaling", s.scaling_settings, held_out="--calibrate"),
-    Entry("metrics", s.always),
-    Entry("segments", s.segment_settings, absent=("meta",), after=("scaling",)),
-    Entry("choice", s.sweep_choice),
-    Entry("guarantee", s.certified_choice, held_out="--guarantee", after=("scaling", "segments")),
-    Entry("design", s.design_settings, absent=("design",), held_out="--design", after=("scaling",)),
-    Entry("calibration", s.always),
-    Entry("saved", s.saved_settings),
-    Entry("anomalies", s.anomaly_settings, absent=("anomalies",)),
+    Entry("scaling", scaling_settings, held_out="--calibrate"),
+    Entry("metrics", always),
+    Entry("segments", segment_settings, absent=("meta",), after=("scaling",)),
+    Entry("choice", sweep_choice),
+    Entry("guarantee", certified_choice, held_out="--guarantee", after=("scaling", "segments")),
+    Entry("design", design_settings, absent=("design",), held_out="--design", after=("scaling",)),
+    Entry("calibration", always),
+    Entry("saved", saved_settings),
+    Entry("anomalies", anomaly_settings, absent=("anomalies",)),
     Entry(
         "conformal",
-        s.conformal_settings,
+        conformal_settings,
         absent=("conformal",),
         held_out="--conformal",
         after=("scaling",),
     ),
-    Entry("examples", s.example_settings),
-    Entry("explorer", s.explorer_settings),
+    Entry("examples", example_settings),
+    Entry("explorer", explorer_settings),
 )
 
 
