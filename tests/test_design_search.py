@@ -82,3 +82,43 @@ def test_aggregate_search_refuses_bad_settings() -> None:
         search_aggregate(space, toy_score, [0.1, 0.1], 0)
     with pytest.raises(ValueError, match="2 risks for 1 alphas"):
         search_aggregate(space, toy_score, [0.1], 2)
+
+
+def test_pooled_counts_and_image_losses_equal_a_loop_over_the_images() -> None:
+    """The design's scorer pools a matrix's counts batch by batch (``Pooled``) and takes each
+    image's constraint losses from them (``image_losses``): equal to deciding each image alone
+    with ``decide_reference`` and counting by hand."""
+    from costseg.decision import decide_reference, prepare_counts
+    from costseg.decision.counts import count_decisions
+    from costseg.evaluation.analyses.design import Pooled, d1_images, image_losses
+    from costseg.metrics.requirements import Requirements
+
+    g = torch.Generator().manual_seed(0)
+    probs = (3 * torch.randn(5, 19, 8, 16, generator=g)).softmax(1)
+    labels = probs.argmax(1)
+    labels[torch.rand(labels.shape, generator=g) < 0.3] = 11  # persons, some of them missed
+    labels[:, 0] = 255
+    roi = torch.randint(0, 5, labels.shape, generator=g)
+    req = Requirements.parse(["person:roi1:recall>=0.5", "car:roi0:precision>=0.5"])
+    cost = symmetric_cost(19)
+    cost[:, 11] *= 3  # a person missed costs more
+    pooled, losses = Pooled(), []
+    for batch in (slice(0, 2), slice(2, 5)):
+        first = batch.start
+        assert d1_images(first, batch.stop - first, 2) == (2 if first == 0 else 0)
+        inputs = prepare_counts(probs[batch], labels[batch], roi[batch])
+        counts = count_decisions(inputs, cost)
+        pooled.add(counts)
+        losses.append(image_losses(req, counts, cost))
+    decided = decide_reference(probs, cost)
+    labelled = labels != 255
+    assert pooled.agree == (labelled & (decided == probs.argmax(1))).sum()
+    want = []
+    for i in range(5):
+        person, street = labels[i] == 11, roi[i] == 1
+        recall = (person & street & (decided[i] == 11)).sum() / (person & street).sum()
+        car = (decided[i] == 13) & labelled[i]
+        precision = (car & (labels[i] == 13)).sum() / car.sum()
+        want.append([1 - recall.item(), 1 - precision.item()])
+    torch.testing.assert_close(torch.cat(losses).double(), torch.tensor(want).double(),
+                               equal_nan=True)  # fmt: skip
