@@ -53,7 +53,7 @@ def run(
     return EvalResults(
         output_dir=plan.output_dir,
         options_record=plan.record,
-        source=plan.description,
+        source=_describe_source(plan),
         probabilities=_describe_probabilities(plan, context.scaling),
         class_ids=plan.class_ids,
         roi=plan.priors.roi_map(),
@@ -73,6 +73,12 @@ def _reported_batches(plan: EvalPlan, analyses: list[Analysis]):
         plan.source, plan.dataset, plan.indices, plan.batch_size, plan.device, plan.num_workers,
         desc, entropy,
     )  # fmt: skip
+
+
+def _describe_source(plan: EvalPlan) -> dict:
+    """The source's description of the plan, with what scoring met (the sizes resized)."""
+    resized = plan.source.resized_to_labels
+    return plan.description | ({"resized_to_labels": list(resized)} if resized else {})
 
 
 def _describe_probabilities(plan: EvalPlan, scaling: Scaling) -> str:

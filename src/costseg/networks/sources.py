@@ -8,7 +8,7 @@ the probabilities the rules see (softmax, calibration, float16 rounding for ``--
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -40,6 +40,8 @@ class Source:
         run_dir: the training run's folder of a costseg checkpoint (default output place).
         probabilities: what the scores are when not a network's logits (saved probabilities,
             Monte-Carlo dropout), for every output.
+        resized_to_labels: the size pairs met while scoring where the scores were resized to
+            the labels' size (``at_label_size``), for every output.
     """
 
     kind: str
@@ -50,6 +52,7 @@ class Source:
     data_config: dict[str, Any] | None = None
     run_dir: Path | None = None
     probabilities: str | None = None
+    resized_to_labels: list[str] = field(default_factory=list)
 
     def default_output(self, job: str, elsewhere: str) -> Path:
         """Where a job's numbered output folders go by default: ``<run>/<job>`` beside a costseg
@@ -104,16 +107,15 @@ class Source:
         """``scores`` (and the expected entropy) brought to the labels' ``size`` (H, W) as the
         official evaluators score, at label resolution: bilinear on logits, or on probabilities
         where the source gives probabilities (a convex combination, so they still sum to 1).
-        The first time a size pair is met it is said on the terminal and in the description
-        (results.json)."""
+        The first time a size pair is met it is said on the terminal and kept in
+        ``resized_to_labels`` (results.json)."""
         if tuple(scores.shape[-2:]) == tuple(size):
             return scores, expected_entropy
         pair = f"{scores.shape[-2]}x{scores.shape[-1]} -> {size[0]}x{size[1]}"
-        resized = self.description.setdefault("resized_to_labels", [])
-        if pair not in resized:
+        if pair not in self.resized_to_labels:
             what = "logits" if self.kind == "network" else "probabilities"
             print(f"images and labels differ in size: {what} resized bilinearly {pair}")
-            resized.append(pair)
+            self.resized_to_labels.append(pair)
         scores = resize_bilinear(scores, size)
         if expected_entropy is not None:
             expected_entropy = resize_bilinear(expected_entropy[:, None], size)[:, 0]
