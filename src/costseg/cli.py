@@ -251,11 +251,11 @@ def build_parser(options: type, prog: str | None, description: str) -> argparse.
         if title not in groups:
             groups[title] = parser.add_argument_group(title)
         flag = meta.pop("flag", f"--{f.name}")
-        if flag.startswith("-"):
-            meta["dest"] = f.name
-        else:  # a positional argument, shown as its flag
+        names = {"dest": f.name} if flag.startswith("-") else {}
+        if not names:  # a positional argument, shown as its flag
             flag, meta["metavar"] = f.name, meta.get("metavar", flag)
-        groups[title].add_argument(flag, **_argument(field_default(f), hints[f.name], meta))
+        argument = _argument(field_default(f), hints[f.name], meta)
+        groups[title].add_argument(flag, **names, **argument)
     return parser
 
 
