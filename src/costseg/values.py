@@ -117,5 +117,20 @@ def fraction(text: str) -> float:
 
 
 fraction.__name__ = "number in (0, 1)"
+
+
+def share(text: str) -> float:
+    """Value type: a share in (0, 1] (1: all of it).
+
+    >>> share("1"), share("0.25")
+    (1.0, 0.25)
+    """
+    value = number_above(0, False, "a share", "0.5")(text)
+    if value > 1:
+        raise argparse.ArgumentTypeError(f"expected a share in (0, 1] such as 0.5, got {text!r}")
+    return value
+
+
+share.__name__ = "number in (0, 1]"
 positive_number = number_above(0, False, "a number", "0.75")
 defer_cost = number_above(0, True, "a defer cost", "0.3")
