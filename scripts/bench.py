@@ -16,9 +16,9 @@ scripts/bench_pipeline.py.
 
 from __future__ import annotations
 
-import argparse
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -26,7 +26,17 @@ import yaml
 from bench_decision import best_time  # the same timer as the decision benchmark
 
 from costseg import CONFIGS
+from costseg.cli import parse_options
 from costseg.models.entries import network_from_entry
+from costseg.options import option
+
+
+@dataclass
+class BenchOptions:
+    """What ``bench.py`` can be told (``--help``)."""
+
+    network: bool = option(True, "skip section 1 (a network and the rules)", flag="--skip-network")
+    train: bool = option(True, "skip section 2 (training throughput)", flag="--skip-train")
 
 
 def bench_network_and_rules(steps: int = 2) -> None:
@@ -132,14 +142,11 @@ def _batches(data):
     return data.train_dataloader()
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--skip-network", action="store_true")
-    parser.add_argument("--skip-train", action="store_true")
-    args = parser.parse_args()
-    if not args.skip_network:
+def main(args: Sequence[str] | None = None) -> None:
+    opts = parse_options(BenchOptions, args, "bench.py", __doc__.splitlines()[0])
+    if opts.network:
         bench_network_and_rules()
-    if not args.skip_train:
+    if opts.train:
         bench_training()
         if torch.cuda.is_available():
             bench_training_cuda()

@@ -6,19 +6,30 @@ Run ``python scripts/bench_data.py``; prints one line such as
 
 from __future__ import annotations
 
-import argparse
 import time
+from collections.abc import Sequence
+from dataclasses import dataclass
 
 import torch
 
+from costseg.cli import parse_options
 from costseg.data.toy import StreetScenes
+from costseg.options import option
+from costseg.values import whole_number
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--images", type=int, default=200, help="scenes to generate")
-    parser.add_argument("--size", type=int, nargs=2, default=(256, 512), metavar=("H", "W"))
-    args = parser.parse_args()
+@dataclass
+class DataBenchOptions:
+    """What ``bench_data.py`` can be told (``--help``)."""
+
+    images: int = option(200, "scenes to generate", type=whole_number(1))
+    size: list[int] = option(
+        [256, 512], "the scenes' size", type=whole_number(1), nargs=2, metavar=("H", "W")
+    )
+
+
+def main(args: Sequence[str] | None = None) -> None:
+    args = parse_options(DataBenchOptions, args, "bench_data.py", __doc__.splitlines()[0])
     torch.set_num_threads(1)
     ds = StreetScenes(split="train", length=args.images + 1, size=tuple(args.size), seed=0)
     ds[args.images]  # warm-up: imports, noise bank, caches

@@ -23,13 +23,15 @@ ones of the same shape), on ``--share`` of each image's labelled pixels.
 
 from __future__ import annotations
 
-import argparse
 import statistics
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Literal
 
 import torch
 
+from costseg.cli import parse_options
 from costseg.costs import barycentric_grid, load_cost, with_defer
 from costseg.decision import (
     DEFERRED,
@@ -39,6 +41,8 @@ from costseg.decision import (
     prepare_counts,
     subsample,
 )
+from costseg.options import option
+from costseg.values import share, whole_number
 
 VERTICES = torch.stack([load_cost(n) for n in ("robotistic", "altruistic", "egoistic")])
 DEFER = 0.5  # × the egoistic matrix's mean off-diagonal cost: about 5 % of pixels deferred
@@ -218,19 +222,28 @@ def bench_candidates(count: int, share: float, ckpt: str | None) -> None:
     )
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--size", type=int, nargs=2, default=(1024, 2048), metavar=("H", "W"))
-    parser.add_argument("--threads", type=int, help="CPU threads (default: torch's choice)")
-    parser.add_argument("--devices", nargs="+", default=["cpu", "cuda"], choices=["cpu", "cuda"])
-    parser.add_argument("--counts", action="store_true", help="the fused count pass (CPU)")
-    parser.add_argument("--candidates", type=int, help="time this many candidates (CPU)")
-    parser.add_argument("--share", type=float, default=1.0, help="of the labelled pixels")
-    parser.add_argument("--ckpt", help="the demo model's checkpoint, for --candidates")
-    args = parser.parse_args()
-    if not 0 < args.share <= 1:
-        parser.error("--share must lie in (0, 1]")
+@dataclass
+class DecisionBenchOptions:
+    """What ``bench_decision.py`` can be told (``--help``)."""
+
+    repeats: int = option(5, "timed repeats of each path", type=whole_number(1))
+    size: list[int] = option(
+        [1024, 2048], "the probabilities' size", type=whole_number(1), nargs=2, metavar=("H", "W")
+    )
+    threads: int | None = option(help="CPU threads (default: torch's choice)", type=whole_number(1))
+    devices: list[Literal["cpu", "cuda"]] = option(["cpu", "cuda"], "the devices timed")
+    counts: bool = option(False, "the fused count pass (CPU)")
+    candidates: int | None = option(
+        help="time this many candidates (CPU)", type=whole_number(1), metavar="K"
+    )
+    pixel_share: float = option(
+        1.0, "of the labelled pixels, for --candidates", type=share, flag="--share"
+    )
+    ckpt: str | None = option(help="the demo model's checkpoint, for --candidates", metavar="PATH")
+
+
+def main(args: Sequence[str] | None = None) -> None:
+    args = parse_options(DecisionBenchOptions, args, "bench_decision.py", __doc__.splitlines()[0])
     if args.threads:
         torch.set_num_threads(args.threads)
     shape = (1, 19, *args.size)
@@ -239,7 +252,7 @@ def main() -> None:
             bench_counts(shape, args.repeats)
             bench_counts((8, 19, 128, 256), args.repeats)
         if args.candidates:
-            bench_candidates(args.candidates, args.share, args.ckpt)
+            bench_candidates(args.candidates, args.pixel_share, args.ckpt)
         return
     for device in args.devices:
         if device == "cpu" or torch.cuda.is_available():

@@ -22,16 +22,17 @@ frames of a Cityscapes-layout tree (``scripts/toy_as_cityscapes.py ROOT --size 1
 
 from __future__ import annotations
 
-import argparse
 import json
 import statistics
 import time
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 
 from costseg.checkpoints import find_checkpoint
-from costseg.cli import user_errors
+from costseg.cli import parse_options, user_errors
 from costseg.costs import load_cost, symmetric_cost, with_defer
 from costseg.data.from_config import build_dataset
 from costseg.data.priors import resize_priors
@@ -41,9 +42,26 @@ from costseg.export.parity import parity
 from costseg.export.runtime import run_graph
 from costseg.networks import load_costseg_checkpoint
 from costseg.networks.onnx import onnx_session
-from costseg.options import ExportOptions
+from costseg.options import ExportOptions, option
+from costseg.values import whole_number
 
 SPEED_RULE = "egoistic"
+
+
+@dataclass
+class ExportBenchOptions:
+    """What ``bench_export.py`` can be told (``--help``)."""
+
+    ckpt_path: str | None = option(
+        help="a train.py checkpoint (default: the newest)", metavar="PATH"
+    )
+    cityscapes: Path | None = option(
+        help="a 1024 x 2048 tree (scripts/toy_as_cityscapes.py)", type=Path, required=True
+    )
+    toy_images: int = option(8, "toy validation images", type=whole_number(1))
+    frames: int = option(2, "Cityscapes validation frames", type=whole_number(1))
+    repeats: int = option(3, "timed frames after a warm-up (their median)", type=whole_number(1))
+    output_dir: Path = option(Path("/tmp/export/bench"), "the graph and bench.json", type=Path)
 
 
 def rules(priors: torch.Tensor) -> dict[str, tuple[torch.Tensor, torch.Tensor | None]]:
@@ -139,15 +157,8 @@ def table(results: dict) -> str:
     return "\n".join(lines)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--ckpt_path", help="a train.py checkpoint (default: the newest)")
-    parser.add_argument("--cityscapes", required=True, type=Path, help="a 1024 x 2048 tree")
-    parser.add_argument("--toy_images", type=int, default=8)
-    parser.add_argument("--frames", type=int, default=2, help="Cityscapes validation frames")
-    parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--output_dir", type=Path, default=Path("/tmp/export/bench"))
-    args = parser.parse_args()
+def main(args: Sequence[str] | None = None) -> None:
+    args = parse_options(ExportBenchOptions, args, "bench_export.py", __doc__.splitlines()[0])
     with user_errors():
         plan = plan_export(ExportOptions(
             ckpt_path=[args.ckpt_path] if args.ckpt_path else None,

@@ -13,10 +13,10 @@ of a shared machine hits all of them alike; the median step time is reported.
 
 from __future__ import annotations
 
-import argparse
 import os
 import statistics
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import torch
@@ -25,7 +25,19 @@ from torch.nn import functional as F
 
 from costseg import CONFIGS
 from costseg.classes import IGNORE_INDEX, NUM_CLASSES
+from costseg.cli import parse_options
 from costseg.models.deeplabv3plus import DeepLabV3Plus
+from costseg.options import option
+from costseg.values import whole_number
+
+
+@dataclass
+class ModelBenchOptions:
+    """What ``bench_model.py`` can be told (``--help``)."""
+
+    threads: int = option(2, "torch intra-op threads", type=whole_number(1))
+    steps: int = option(3, "timed steps per configuration", type=whole_number(1))
+    bf16: bool = option(True, "skip the bf16 autocast step", flag="--no-bf16")
 
 
 @dataclass(frozen=True)
@@ -89,17 +101,13 @@ class Step:
         return time.perf_counter() - start
 
 
-def main() -> None:
+def main(args: Sequence[str] | None = None) -> None:
     """Time every recipe and print one line each, with its speed relative to the first."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--threads", type=int, default=2, help="torch intra-op threads")
-    parser.add_argument("--steps", type=int, default=3, help="timed steps per configuration")
-    parser.add_argument("--no-bf16", action="store_true", help="skip the bf16 autocast step")
-    args = parser.parse_args()
+    args = parse_options(ModelBenchOptions, args, "bench_model.py", __doc__.splitlines()[0])
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     recipes = [Recipe.read("toy_long"), Recipe.read("toy")]
-    if not args.no_bf16:
+    if args.bf16:
         recipes.insert(0, Recipe.read("toy_long", bf16=True))
     print(
         f"threads {args.threads}, {args.steps} timed steps, "

@@ -18,24 +18,40 @@ Sections:
 
 from __future__ import annotations
 
-import argparse
 import re
 import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal, get_args
 
 import torch
 
 import costseg.report.evaluation as report
 from costseg.checkpoints import find_checkpoint
+from costseg.cli import parse_options, user_errors
 from costseg.evaluation.run import evaluate
-from costseg.options import EvalOptions
+from costseg.options import EvalOptions, option
 from costseg.report.evaluation import write_evaluation
+from costseg.values import whole_number
 
 ROOT = Path(__file__).resolve().parents[1]
-SECTIONS = ["startup", "sweep", "figures", "full-resolution"]
+Section = Literal["startup", "sweep", "figures", "full-resolution"]
+SECTIONS = list(get_args(Section))
+
+
+@dataclass
+class PipelineBenchOptions:
+    """What ``bench_pipeline.py`` can be told (``--help``)."""
+
+    ckpt_path: str | None = option(
+        help="a train.py checkpoint (default: the newest runs/**/last.ckpt)", metavar="PATH"
+    )
+    sections: list[Section] = option(SECTIONS, "the sections timed")
+    images: int = option(3, "full-resolution stand-in images", type=whole_number(1))
 
 
 def process_seconds(args: list[str], repeats: int = 3) -> float:
@@ -141,18 +157,10 @@ def bench_figures(ckpt: str, out: Path) -> None:
         )
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--ckpt_path", default=None)
-    parser.add_argument(
-        "--sections", nargs="+", default=SECTIONS, choices=SECTIONS, help="default: all"
-    )
-    parser.add_argument("--images", type=int, default=3, help="full-resolution stand-in images")
-    args = parser.parse_args()
-    try:
+def main(args: Sequence[str] | None = None) -> None:
+    args = parse_options(PipelineBenchOptions, args, "bench_pipeline.py", __doc__.splitlines()[0])
+    with user_errors():
         ckpt = str(find_checkpoint(args.ckpt_path))
-    except FileNotFoundError as err:
-        sys.exit(f"error: {err}")
     print(f"checkpoint {ckpt}; {torch.get_num_threads()} threads")
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp)

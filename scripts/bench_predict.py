@@ -12,13 +12,14 @@ Chromium (the best of 5 loads, each after 3 recomputations) and the page's size.
 
 from __future__ import annotations
 
-import argparse
 import re
 import shutil
 import statistics
 import subprocess
 import tempfile
 import time
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -26,14 +27,16 @@ import torch
 from PIL import Image
 
 from costseg.classes import CLASS_NAMES
+from costseg.cli import parse_options
 from costseg.data.prior_maps import PriorMaps
 from costseg.models.deeplabv3plus import DeepLabV3Plus
 from costseg.networks.base import ImageNetwork
 from costseg.networks.sources import Source
-from costseg.options import PredictOptions
+from costseg.options import PredictOptions, option
 from costseg.prediction.inputs import find_inputs
 from costseg.prediction.job import PredictPlan, run
 from costseg.rules import parse_rules
+from costseg.values import whole_number
 
 RULES = ["robotistic", "altruistic", "egoistic", "ml"]
 
@@ -95,11 +98,20 @@ def page_ms(page: Path, runs: int = 5) -> float:
     return min(found)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--images", type=int, default=3)
-    parser.add_argument("--explorer", type=Path, help="an explorer.html to time in Chromium")
-    args = parser.parse_args()
+@dataclass
+class PredictBenchOptions:
+    """What ``bench_predict.py`` can be told (``--help``)."""
+
+    images: int = option(
+        3, "1024 x 2048 images timed (ten times as many at 128 x 256)", type=whole_number(1)
+    )
+    explorer: Path | None = option(
+        help="an explorer.html to time in Chromium", type=Path, metavar="PAGE"
+    )
+
+
+def main(args: Sequence[str] | None = None) -> None:
+    args = parse_options(PredictBenchOptions, args, "bench_predict.py", __doc__.splitlines()[0])
     net = ImageNetwork(
         DeepLabV3Plus(num_classes=19, backbone="resnet18", decoder_channels=128), channels_last=True
     )

@@ -15,23 +15,38 @@ all of them alike, and the median is reported.
 
 from __future__ import annotations
 
-import argparse
 import os
 import statistics
 import time
+from collections.abc import Sequence
+from dataclasses import dataclass
 
 import torch
 import yaml
 
 from costseg import CONFIGS
 from costseg.classes import NUM_CLASSES
+from costseg.cli import parse_options
 from costseg.models.entries import network_from_entry
 from costseg.networks.base import ImageNetwork
 from costseg.networks.protocols import Protocol, with_protocol
 from costseg.networks.sources import Source
+from costseg.options import option
 from costseg.rules import apply_rules, parse_rules
+from costseg.values import whole_number
 
 RULES = ["robotistic", "altruistic", "egoistic"]
+
+
+@dataclass
+class ProtocolBenchOptions:
+    """What ``bench_protocols.py`` can be told (``--help``)."""
+
+    threads: int = option(2, "torch intra-op threads", type=whole_number(1))
+    repeats: int = option(5, "timed calls per protocol", type=whole_number(1))
+    size: list[int] = option(
+        [128, 256], "the image's size", type=whole_number(1), nargs=2, metavar=("H", "W")
+    )
 
 
 def demo_network() -> ImageNetwork:
@@ -73,13 +88,9 @@ def timed(function) -> tuple[float, object]:
     return time.perf_counter() - start, value
 
 
-def main() -> None:
+def main(args: Sequence[str] | None = None) -> None:
     """Time every protocol, then print one line each with its ratios to the whole image."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--threads", type=int, default=2, help="torch intra-op threads")
-    parser.add_argument("--repeats", type=int, default=5, help="timed calls per protocol")
-    parser.add_argument("--size", type=int, nargs=2, default=[128, 256], metavar=("H", "W"))
-    args = parser.parse_args()
+    args = parse_options(ProtocolBenchOptions, args, "bench_protocols.py", __doc__.splitlines()[0])
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     size = tuple(args.size)

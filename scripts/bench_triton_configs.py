@@ -11,9 +11,13 @@ alone summing in float64 and in float32 (with the pairs each leaves open); and `
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import dataclass
+
 import torch
 from bench_decision import VERTICES, best_time, probabilities
 
+from costseg.cli import parse_options
 from costseg.costs import barycentric_grid
 from costseg.decision import decide, decide_mixtures
 from costseg.decision.certificate import reference_eps
@@ -24,7 +28,13 @@ from costseg.decision.gpu import triton_kernel
 CANDIDATES = [((128, 4), (64, 2)), ((256, 2), (128, 4)), ((256, 4), (128, 8)), ((512, 4), (32, 1))]
 
 
-def main() -> None:
+@dataclass
+class TritonBenchOptions:
+    """``bench_triton_configs.py`` takes no options but ``--help``."""
+
+
+def main(args: Sequence[str] | None = None) -> None:
+    parse_options(TritonBenchOptions, args, "bench_triton_configs.py", __doc__.splitlines()[0])
     p, sync = probabilities((1, 19, 1024, 2048), "cuda"), torch.cuda.synchronize
     grid = barycentric_grid(0.1)
     print(f"p.sum() {1e3 * best_time(lambda: p.sum(), 20, sync):.4f} ms, "

@@ -12,8 +12,9 @@ evaluated images themselves).
 
 from __future__ import annotations
 
-import argparse
 import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -21,9 +22,30 @@ import torch
 from PIL import Image
 
 from costseg.classes import CLASS_NAMES, LABEL_ID_TO_TRAIN_ID, ROI_NAMES
-from costseg.cli import user_errors
+from costseg.cli import parse_options, user_errors
 from costseg.data.cityscapes import LABEL_SUFFIX
 from costseg.data.priors import default_sigma, pixel_priors, priors_note, roi_map, save_priors
+from costseg.options import option
+from costseg.values import number_above
+
+
+@dataclass
+class CountOptions:
+    """What ``count_priors.py`` can be told (``--help``)."""
+
+    labels: Path | None = option(
+        help="folder searched recursively for label PNGs", type=Path, flag="LABELS"
+    )
+    output: Path | None = option(
+        help="the priors file to write", type=Path, required=True, metavar="FILE"
+    )
+    sigma: float | None = option(
+        help="smoothing in pixels, 0: none (default 80 per 1024 rows)",
+        type=number_above(0, True, "a smoothing in pixels", "80"),
+        metavar="PX",
+    )
+    train_ids: bool = option(False, "the PNGs hold train ids")
+    overwrite: bool = option(False, "replace an existing --output")
 
 
 def label_files(folder: Path, train_ids: bool) -> list[Path]:
@@ -43,16 +65,8 @@ def read_train_ids(path: Path, train_ids: bool) -> torch.Tensor:
     return torch.from_numpy((ids if train_ids else LABEL_ID_TO_TRAIN_ID[ids]).astype(np.int64))
 
 
-def main(args: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("labels", type=Path, help="folder searched recursively for label PNGs")
-    parser.add_argument("--output", type=Path, required=True, help="the priors file to write")
-    parser.add_argument(
-        "--sigma", type=float, help="smoothing in pixels (default 80 per 1024 rows)"
-    )
-    parser.add_argument("--train_ids", action="store_true", help="the PNGs hold train ids")
-    parser.add_argument("--overwrite", action="store_true", help="replace an existing --output")
-    opts = parser.parse_args(args)
+def main(args: Sequence[str] | None = None) -> None:
+    opts = parse_options(CountOptions, args, "count_priors.py", __doc__.splitlines()[0])
     with user_errors():
         if opts.output.exists() and not opts.overwrite:
             raise ValueError(f"{opts.output} exists: pass --overwrite to replace it")

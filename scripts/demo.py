@@ -9,13 +9,24 @@ the wall time of both and the folder of results. A failing step ends the demo wi
 
 from __future__ import annotations
 
-import argparse
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
+from costseg.cli import parse_options
+from costseg.options import option
+
 EVALUATE = ["--cost", "robotistic", "altruistic", "egoistic", "ml", "--sweep", "0.1"]
+
+
+@dataclass
+class DemoOptions:
+    """What ``demo.py`` can be told (``--help``)."""
+
+    runs: Path = option(Path("runs"), "the runs folder (train.py's save_dir)", type=Path)
 
 
 def _run(args: list[str]) -> float:
@@ -35,10 +46,8 @@ def _newest(pattern: str, runs: Path) -> Path:
     return max(runs.glob(pattern), key=lambda p: p.stat().st_mtime)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--runs", default="runs", help="the runs folder (train.py's save_dir)")
-    runs = Path(parser.parse_args().runs)
+def main(args: Sequence[str] | None = None) -> None:
+    runs = parse_options(DemoOptions, args, "demo.py", __doc__.splitlines()[0]).runs
     try:
         train = _run(["train.py", f"--trainer.logger.init_args.save_dir={runs}"])
         checkpoint = _newest("*/version_*/checkpoints/last.ckpt", runs)

@@ -6,26 +6,37 @@ pixel-wise ML sends the person pixels of the street RoI.
 
 from __future__ import annotations
 
-import argparse
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
 
 import torch
 
 from costseg.checkpoints import find_checkpoint
 from costseg.classes import CLASS_NAMES, class_index
+from costseg.cli import parse_options, user_errors
 from costseg.data.from_config import build_dataset
 from costseg.data.prior_maps import PriorMaps
 from costseg.decision import decide
 from costseg.metrics import RoIPrecisionRecall
 from costseg.networks import load_costseg_checkpoint
+from costseg.options import SourceOptions, option, same_option
 
 RULES = ("bayes", "ml, pixel-wise priors", "ml, global priors")
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--ckpt_path")
-    parser.add_argument("--split", default="val", choices=("train", "val", "test"))
-    args = parser.parse_args()
+@dataclass
+class PriorsOptions:
+    """What ``ml_priors.py`` can be told (``--help``)."""
+
+    ckpt_path: str | None = option(
+        help="a train.py checkpoint (default: the newest runs/**/last.ckpt)", metavar="PATH"
+    )
+    split: Literal["train", "val", "test"] = same_option(SourceOptions, "split")
+
+
+def main(args: Sequence[str] | None = None) -> None:
+    args = parse_options(PriorsOptions, args, "ml_priors.py", __doc__.splitlines()[0])
     ckpt = load_costseg_checkpoint(find_checkpoint(args.ckpt_path))
     dataset = build_dataset(ckpt.data_config, args.split)
     maps, person = PriorMaps(ckpt.priors), class_index("person")
@@ -66,4 +77,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    with user_errors():
+        main()

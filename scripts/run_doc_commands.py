@@ -13,17 +13,32 @@ line per command (exit status, wall time) and exits 1 if any failed.
 
 from __future__ import annotations
 
-import argparse
 import re
 import shlex
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
+
+from costseg.cli import parse_options, user_errors
+from costseg.options import option
 
 ROOT = Path(__file__).resolve().parents[1]
 COMMAND = re.compile(r"^\s*(python3? (?:\S+/)?\S+\.py\b.*)$")
 BACKSLASH = "\\"
+
+
+@dataclass
+class CommandsOptions:
+    """What ``run_doc_commands.py`` can be told (``--help``)."""
+
+    ckpt_path: str | None = option(
+        help="the model (default: the newest runs/**/last.ckpt)", metavar="PATH"
+    )
+    output_dir: Path = option(Path("runs/doc_commands"), "a new folder for the runs", type=Path)
+    only: str | None = option(help="run only the commands that contain this text", metavar="TEXT")
 
 
 def documented_commands(text: str) -> list[str]:
@@ -86,17 +101,13 @@ def stand_ins(folder: Path, ckpt: str) -> dict[str, str]:
     }
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--ckpt_path", help="the model (default: the newest runs/**/last.ckpt)")
-    parser.add_argument("--output_dir", type=Path, default=Path("runs/doc_commands"))
-    parser.add_argument("--only", help="run only the commands that contain this text")
-    args = parser.parse_args()
+def main(args: Sequence[str] | None = None) -> None:
+    args = parse_options(CommandsOptions, args, "run_doc_commands.py", __doc__.splitlines()[0])
     from costseg.checkpoints import find_checkpoint
 
     ckpt = str(find_checkpoint(args.ckpt_path))
     if args.output_dir.exists():
-        sys.exit(f"error: {args.output_dir} exists: choose another --output_dir")
+        raise ValueError(f"{args.output_dir} exists: choose another --output_dir")
     readme = documented_commands((ROOT / "README.md").read_text())
     commands = [c for c in readme if c.split()[1] != "train.py" and (args.only or "") in c]
     replace = stand_ins(args.output_dir / "inputs", ckpt)
@@ -123,4 +134,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    with user_errors():
+        main()

@@ -21,9 +21,11 @@ bound (else λ̂ = 1: every class). Writes ``study.md`` and ``study.json`` in --
 
 from __future__ import annotations
 
-import argparse
 import json
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import torch
@@ -33,51 +35,54 @@ from costseg.calibration.conformal import (
     class_weights,
     conformity_scores,
     crc_threshold,
-    image_losses,
-    label_thresholds,
     lambda_grid,
+    set_losses,
     set_size_curves,
 )
 from costseg.classes import CLASS_NAMES, IGNORE_INDEX
-from costseg.cli import user_errors
+from costseg.cli import parse_options, user_errors
 from costseg.data.from_config import build_dataset
 from costseg.data.prior_maps import PriorMaps
 from costseg.networks.ensemble import open_sources
 from costseg.networks.protocols import Protocol
 from costseg.networks.sources import batches, resolve_device
+from costseg.options import NetworkOptions, SourceOptions, option, same_option
 from costseg.rules import apply_rules, parse_rules
+from costseg.values import fraction, whole_number
 
 RULES = ("robotistic", "altruistic", "egoistic")
 PERSON = CLASS_NAMES.index("person")
 STREET = 1
 
 
-def parse_args() -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
-        description=__doc__.split("\n\n")[0],
-        epilog=__doc__.split("\n\n", 2)[2],
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+@dataclass
+class StudyOptions:
+    """What the study can be told (``--help``)."""
+
+    ckpt_path: str | None = option(
+        help="the network (a costseg checkpoint)", required=True, metavar="PATH"
     )
-    parser.add_argument("--ckpt_path", required=True, help="the network (a costseg checkpoint)")
-    parser.add_argument("--output_dir", type=Path, default=Path("study_conformal"), help="new")
-    parser.add_argument("--split", default="val", help="the images (default: val)")
-    parser.add_argument("--alpha", type=float, nargs="+", default=[0.1, 0.05, 0.01], help="α")
-    parser.add_argument("--splits", type=int, default=100, help="calibration / test halves")
-    parser.add_argument("--steps", type=int, default=1000, help="the λ grid: 0, 1/STEPS, ..., 1")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the halves")
-    parser.add_argument("--batch_size", type=int, default=8)
-    parser.add_argument("--device", default="auto")
-    args = parser.parse_args()
-    if args.output_dir.exists():
-        raise ValueError(f"{args.output_dir} exists: choose another --output_dir")
-    if not Path(args.ckpt_path).is_file():
-        raise ValueError(f"checkpoint not found: {args.ckpt_path}")
-    if not all(0 < a < 1 for a in args.alpha) or args.splits < 1 or args.steps < 1:
-        raise ValueError("need every --alpha in (0, 1), --splits >= 1 and --steps >= 1")
-    return args
+    output_dir: Path = option(Path("study_conformal"), "a new folder for the study", type=Path)
+    split: Literal["train", "val", "test"] = same_option(SourceOptions, "split", help="the images")
+    alpha: list[float] = option([0.1, 0.05, 0.01], "the risk levels α", type=fraction)
+    splits: int = option(100, "calibration / test halves", type=whole_number(1))
+    steps: int = option(1000, "the λ grid: 0, 1/STEPS, ..., 1", type=whole_number(1))
+    seed: int = option(0, "seed of the halves", type=whole_number(0))
+    batch_size: int = same_option(SourceOptions, "batch_size", 8)
+    device: str = same_option(NetworkOptions, "device")
 
 
-def collect(args: argparse.Namespace, grid: torch.Tensor) -> tuple[dict, dict, set]:
+def parse_args(args: Sequence[str] | None = None) -> StudyOptions:
+    """The study's options; ValueError for a folder that exists or a checkpoint that does not."""
+    opts = parse_options(StudyOptions, args, "study_conformal.py", __doc__.split("\n\n")[0])
+    if opts.output_dir.exists():
+        raise ValueError(f"{opts.output_dir} exists: choose another --output_dir")
+    if not Path(opts.ckpt_path).is_file():
+        raise ValueError(f"checkpoint not found: {opts.ckpt_path}")
+    return opts
+
+
+def collect(args: StudyOptions, grid: torch.Tensor) -> tuple[dict, dict, set]:
     """One pass of the network: per (rule, set) the per-image curves on ``grid`` (numpy); per
     rule its own person recall in the street RoI (the set {d(x)}); the rules whose matrix
     weighs every class alike."""
@@ -87,7 +92,7 @@ def collect(args: argparse.Namespace, grid: torch.Tensor) -> tuple[dict, dict, s
         raise ValueError(f"{args.ckpt_path} has no priors or data: the street RoI needs them")
     dataset = build_dataset(source.data_config, args.split)
     rules = parse_rules(RULES)
-    weights = {r.name: class_weights(r.cost).to(device) for r in rules}
+    weights = {r.name: class_weights(r.cost) for r in rules}
     maps = PriorMaps(source.priors, CLASS_NAMES, device)
     parts: dict[tuple[str, str], dict[str, list]] = {}
     recall = {r.name: [0, 0] for r in rules}
@@ -102,7 +107,7 @@ def collect(args: argparse.Namespace, grid: torch.Tensor) -> tuple[dict, dict, s
                 recall[rule.name][1] += int(person.sum())
                 for kind in KINDS:
                     scores = conformity_scores(probs, decisions[:, k], kind)
-                    curves = image_curves(scores, labels, person, grid, weights[rule.name])
+                    curves = image_curves(scores, labels, person, grid, rule.cost)
                     for key, value in curves.items():
                         parts.setdefault((rule.name, kind), {}).setdefault(key, []).append(value)
     curves = {key: {k: np.concatenate(v) for k, v in c.items()} for key, c in parts.items()}
@@ -110,15 +115,15 @@ def collect(args: argparse.Namespace, grid: torch.Tensor) -> tuple[dict, dict, s
     return curves, {name: hit / total for name, (hit, total) in recall.items()}, alike
 
 
-def image_curves(scores, labels, person, grid, weights) -> dict[str, np.ndarray]:
-    """Per image of one batch: the losses (uniform and cost-weighted) and the set statistics on
-    ``grid``; person pixels of the street RoI and their missed share."""
-    thresholds = label_thresholds(scores, labels)
+def image_curves(scores, labels, person, grid, cost) -> dict[str, np.ndarray]:
+    """Per image of one batch: the losses (uniform, and weighted by the rule's matrix
+    ``cost``: evaluate.py's --conformal_loss) and the set statistics on ``grid``; person pixels
+    of the street RoI and their missed share."""
     sizes = set_size_curves(scores, grid, labels != IGNORE_INDEX)
     found = {
-        "uniform": image_losses(thresholds, labels, grid),
-        "cost": image_losses(thresholds, labels, grid, weights),
-        "person_missed": image_losses(thresholds, labels, grid, None, person).nan_to_num(0),
+        "uniform": set_losses(scores, labels, grid),
+        "cost": set_losses(scores, labels, grid, "cost", cost),
+        "person_missed": set_losses(scores, labels, grid, mask=person).nan_to_num(0),
         "person_pixels": person.flatten(1).sum(1),
         "pixels": sizes.pixels,
         "sizes": sizes.sizes,
@@ -166,8 +171,8 @@ def table(results: list[dict], recall: dict[str, float], n: int) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main() -> None:
-    args = parse_args()
+def main(args: Sequence[str] | None = None) -> None:
+    args = parse_args(args)
     grid = lambda_grid(args.steps)
     curves, recall, alike = collect(args, grid)
     images = len(next(iter(curves.values()))["pixels"])
@@ -182,7 +187,7 @@ def main() -> None:
     text = table(results, recall, images // 2)
     args.output_dir.mkdir(parents=True)
     (args.output_dir / "study.md").write_text(text)
-    settings = {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()}
+    settings = {k: str(v) if isinstance(v, Path) else v for k, v in asdict(args).items()}
     summary = {"settings": settings, "images": images, "person_recall": recall, "rows": results}
     (args.output_dir / "study.json").write_text(json.dumps(summary, indent=2))
     print(text)

@@ -17,14 +17,16 @@ coverage; one curve per rule) in ``--output_dir``, and each rule's evaluation in
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import subprocess
 import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
-from costseg.cli import user_errors
+from costseg.cli import parse_options, user_errors
+from costseg.options import option
 
 RANGES = {
     "robotistic": ("0", "1", "0.02"),
@@ -36,6 +38,16 @@ COVERAGES = (0.90, 0.95, 0.99)
 """The street RoI's coverage over all classes at which the table reads each curve."""
 STREET = "1"
 ROOT = Path(__file__).resolve().parents[1]
+
+
+@dataclass
+class DeferStudyOptions:
+    """What ``study_defer.py`` can be told (``--help``)."""
+
+    ckpt_path: str | None = option(
+        help="the network (a costseg checkpoint)", required=True, metavar="PATH"
+    )
+    output_dir: Path = option(Path("study_defer"), "a new folder for the study", type=Path)
 
 
 def sweep(ckpt_path: str, rule: str, output_dir: Path) -> tuple[list[dict], dict]:
@@ -136,11 +148,8 @@ def figure(curves: dict[str, tuple[list[dict], dict]], path: Path) -> None:
     plt.close(fig)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--ckpt_path", required=True, help="the network (a costseg checkpoint)")
-    parser.add_argument("--output_dir", type=Path, default=Path("study_defer"))
-    args = parser.parse_args()
+def main(args: Sequence[str] | None = None) -> None:
+    args = parse_options(DeferStudyOptions, args, "study_defer.py", __doc__.splitlines()[0])
     if args.output_dir.exists():
         raise ValueError(f"{args.output_dir} exists: choose another --output_dir")
     for path in [args.ckpt_path]:

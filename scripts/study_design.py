@@ -24,6 +24,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -31,15 +32,16 @@ import numpy as np
 import torch
 
 from costseg.calibration.design_search import search
+from costseg.calibration.guarantee import defined_risks
 from costseg.calibration.pareto_testing import choose, pareto_testing
 from costseg.classes import CLASS_NAMES
-from costseg.cli import build_parser, user_errors
+from costseg.cli import parse_options, user_errors
 from costseg.data.from_config import build_dataset
 from costseg.data.prior_maps import PriorMaps
 from costseg.decision import count_decisions, prepare_counts
 from costseg.evaluation.analyses.design import SearchImages, image_losses, pixel_seeds, spaces
 from costseg.evaluation.settings import DesignSettings, design_settings
-from costseg.metrics.requirements import Requirements, mean_risks
+from costseg.metrics.requirements import Requirements
 from costseg.networks.ensemble import open_sources
 from costseg.networks.protocols import Protocol
 from costseg.networks.sources import batches, resolve_device
@@ -75,11 +77,6 @@ class StudyOptions:
     seed: int = same_option(EvalOptions, "seed")
     device: str = same_option(EvalOptions, "device")
     batch_size: int = same_option(EvalOptions, "batch_size", 8)
-
-
-def parse_args() -> StudyOptions:
-    parser = build_parser(StudyOptions, "study_design.py", __doc__.split("\n\n")[0])
-    return StudyOptions(**vars(parser.parse_args()))
 
 
 def probabilities(source, config, split: str, count: int | None, device, batch_size: int):
@@ -128,8 +125,8 @@ def aggregate_pool(
     return search(space, found.scorer(req, lambda losses: None), req.alphas, budget, seed).matrices
 
 
-def main() -> None:
-    args = parse_args()
+def main(args: Sequence[str] | None = None) -> None:
+    args = parse_options(StudyOptions, args, "study_design.py", __doc__.split("\n\n")[0])
     start = time.perf_counter()
     device = resolve_device(args.device)
     source = open_sources(args.ckpt_path, None, None, device, Protocol(), None, 0)
@@ -157,7 +154,7 @@ def main() -> None:
                 matrices = torch.stack([space.matrix(p) for p in space.grid()])
             losses, agree, labelled = scored(pool, matrices, req)
             t_losses, t_agree, t_labelled = scored(test, matrices, req)
-            test_risk = mean_risks(t_losses)  # (L, K)
+            test_risk = defined_risks(t_losses)[0]  # (L, K)
             test_objective = t_agree.sum(0) / t_labelled.sum()
             chosen = []
             for order in halves:

@@ -17,17 +17,36 @@ models were trained reuses them when run again with the same ``--output_dir``.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
-from costseg.cli import user_errors
+from costseg.cli import parse_options, user_errors
+from costseg.options import option
+from costseg.values import whole_number
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+@dataclass
+class LossStudyOptions:
+    """What ``study_losses.py`` can be told (``--help``)."""
+
+    output_dir: Path = option(
+        Path("study_losses"),
+        "the study's folder (an unfinished study's models are reused)",
+        type=Path,
+    )
+    max_steps: int | None = option(
+        help="training steps of each model (default: the recipe's)", type=whole_number(1)
+    )
+
+
 RULES = ["robotistic", "altruistic", "egoistic", "ml"]
 TEMPERATURE = ["--calibrate", "temperature", "--calibration_split", "test"]
 # name in the tables → the configs/losses/ file composed with toy.yaml (None: its cross-entropy),
@@ -126,15 +145,10 @@ def table(models: dict[str, dict], which: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--output_dir", type=Path, default=Path("study_losses"))
-    parser.add_argument("--max_steps", type=int, default=None, help="default: the recipe's")
-    args = parser.parse_args()
+def main(args: Sequence[str] | None = None) -> None:
+    args = parse_options(LossStudyOptions, args, "study_losses.py", __doc__.splitlines()[0])
     if (args.output_dir / "study.md").exists():
         raise ValueError(f"{args.output_dir} holds a finished study: choose another --output_dir")
-    if args.max_steps is not None and args.max_steps < 1:
-        raise ValueError(f"--max_steps must be >= 1, got {args.max_steps}")
     out = args.output_dir.resolve()
     models = {}
     for name in LOSSES:

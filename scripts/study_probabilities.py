@@ -21,21 +21,24 @@ each source's evaluation in a subfolder.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import statistics
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 
-from costseg.cli import user_errors
+from costseg.cli import parse_options, user_errors
 from costseg.data.from_config import build_dataset, image_stems
 from costseg.networks.ensemble import open_sources
 from costseg.networks.protocols import Protocol
+from costseg.options import option
+from costseg.values import whole_number
 
 RULES = ["robotistic", "altruistic", "egoistic", "ml"]
 TEMPERATURE = ["--calibrate", "temperature", "--calibration_split", "test"]
@@ -143,12 +146,21 @@ def table(rows: dict[str, dict], ratios: dict[str, float]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--ckpt_path", nargs="+", required=True, help="the ensemble's members")
-    parser.add_argument("--output_dir", type=Path, default=Path("study_probabilities"))
-    parser.add_argument("--rounds", type=int, default=10, help="images timed per source")
-    args = parser.parse_args()
+@dataclass
+class ProbabilityStudyOptions:
+    """What ``study_probabilities.py`` can be told (``--help``)."""
+
+    ckpt_path: list[str] | None = option(
+        help="the ensemble's members (costseg checkpoints)", required=True, metavar="PATH"
+    )
+    output_dir: Path = option(Path("study_probabilities"), "a new folder for the study", type=Path)
+    rounds: int = option(10, "images timed per source", type=whole_number(1))
+
+
+def main(args: Sequence[str] | None = None) -> None:
+    args = parse_options(
+        ProbabilityStudyOptions, args, "study_probabilities.py", __doc__.splitlines()[0]
+    )
     if args.output_dir.exists():
         raise ValueError(f"{args.output_dir} exists: choose another --output_dir")
     for path in args.ckpt_path:

@@ -24,15 +24,17 @@ Writes ``study.md`` and ``study.json`` in ``--output_dir``; the fusion curves ar
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import subprocess
 import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 from costseg.classes import CLASS_NAMES
-from costseg.cli import user_errors
+from costseg.cli import parse_options, user_errors
+from costseg.options import option
 
 RULES = ("robotistic", "altruistic", "egoistic", "ml")
 FUSED = ("ml", "altruistic")
@@ -42,6 +44,16 @@ META_IMAGES = "200"
 STREET = "1"
 PERSON = CLASS_NAMES.index("person")
 ROOT = Path(__file__).resolve().parents[1]
+
+
+@dataclass
+class SegmentStudyOptions:
+    """What ``study_segments.py`` can be told (``--help``)."""
+
+    ckpt_path: str | None = option(
+        help="the network (a costseg checkpoint)", required=True, metavar="PATH"
+    )
+    output_dir: Path = option(Path("study_segments"), "a new folder for the study", type=Path)
 
 
 def evaluate(ckpt_path: str, output_dir: Path, *options: str) -> dict:
@@ -129,11 +141,8 @@ def fusion_table(plain: dict[str, dict], curves: dict[str, list[dict]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--ckpt_path", required=True, help="the network (a costseg checkpoint)")
-    parser.add_argument("--output_dir", type=Path, default=Path("study_segments"))
-    args = parser.parse_args()
+def main(args: Sequence[str] | None = None) -> None:
+    args = parse_options(SegmentStudyOptions, args, "study_segments.py", __doc__.splitlines()[0])
     if args.output_dir.exists():
         raise ValueError(f"{args.output_dir} exists: choose another --output_dir")
     if not Path(args.ckpt_path).is_file():

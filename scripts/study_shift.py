@@ -24,19 +24,22 @@ a run whose results exist is not repeated.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import subprocess
 import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 from matplotlib.figure import Figure
 
-from costseg.cli import user_errors
+from costseg.cli import parse_options, user_errors
 from costseg.data.shift import parse_shift
 from costseg.evaluation.shifts import shift_folder
+from costseg.options import SourceOptions, option, same_option
 from costseg.report.files import save_figure
+from costseg.values import whole_number
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIFTS = ("fog", "night", "gaussian_noise", "motion_blur", "jpeg")
@@ -46,6 +49,24 @@ DEFER = "robotistic_defer"
 RULES = ("robotistic", "altruistic", "egoistic", DEFER)
 TARGET = ["--sweep", "0.1", "--target", "person:roi1:recall>=0.9"]
 TARGET += ["--maximize", "person:roi1:precision", "--guarantee", "0.1"]
+
+
+@dataclass
+class ShiftStudyOptions:
+    """What ``study_shift.py`` can be told (``--help``)."""
+
+    ckpt_path: list[str] | None = option(
+        help="the ensemble's members (costseg checkpoints)", required=True, metavar="PATH"
+    )
+    output_dir: Path = option(
+        Path("study_shift"), "the study's folder (runs with results are kept)", type=Path
+    )
+    n: int = option(50, "images per calibration set", type=whole_number(1))
+    trials: int = option(40, "calibration sets", type=whole_number(1))
+    test: int = option(300, "test images per shift", type=whole_number(1))
+    limit: int | None = same_option(
+        SourceOptions, "limit", help="validation images per evaluation (all: 100)"
+    )
 
 
 def all_shifts() -> list[str]:
@@ -81,7 +102,7 @@ def anomaly_rows(ckpt: str, out: Path, limit: int | None) -> dict[str, dict]:
     return found
 
 
-def guarantee(ckpts: list[str], out: Path, args: argparse.Namespace) -> dict:
+def guarantee(ckpts: list[str], out: Path, args: ShiftStudyOptions) -> dict:
     """Violation rates of Learn-then-Test and of the naive choice, clean and per shift."""
     options = ["--ckpt_path", ckpts[0], *TARGET, "--n", str(args.n), "--trials", str(args.trials)]
     options += ["--test", str(args.test), "--output_dir", str(out), "--shift", *all_shifts()[1:]]
@@ -154,15 +175,8 @@ def plot(rows: list[dict], path: Path) -> None:
     save_figure(fig, path)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--ckpt_path", nargs="+", required=True, help="the ensemble's members")
-    parser.add_argument("--output_dir", type=Path, default=Path("study_shift"))
-    parser.add_argument("--n", type=int, default=50, help="images per calibration set")
-    parser.add_argument("--trials", type=int, default=40, help="calibration sets")
-    parser.add_argument("--test", type=int, default=300, help="test images per shift")
-    parser.add_argument("--limit", type=int, help="validation images per evaluation (all: 100)")
-    args = parser.parse_args()
+def main(args: Sequence[str] | None = None) -> None:
+    args = parse_options(ShiftStudyOptions, args, "study_shift.py", __doc__.splitlines()[0])
     if (args.output_dir / "study.md").exists():
         raise ValueError(f"{args.output_dir} holds a finished study: choose another --output_dir")
     for path in args.ckpt_path:

@@ -15,8 +15,9 @@ encoding (``label_id · 1000 + k``; below 1000 the plain label id) as 16-bit PNG
 
 from __future__ import annotations
 
-import argparse
+from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
@@ -25,11 +26,33 @@ from PIL import Image
 
 from costseg import workers
 from costseg.classes import TRAIN_ID_TO_LABEL_ID
+from costseg.cli import parse_options
 from costseg.data.cityscapes import IMAGE_SUFFIX, INSTANCE_SUFFIX, LABEL_SUFFIX
 from costseg.data.toy import StreetScenes
+from costseg.options import option
+from costseg.values import positive_number, whole_number
 
 _TO_LABEL_ID = np.zeros(256, dtype=np.uint8)  # everything else, incl. 255, is "unlabeled" (0)
 _TO_LABEL_ID[: len(TRAIN_ID_TO_LABEL_ID)] = TRAIN_ID_TO_LABEL_ID
+
+
+@dataclass
+class TreeOptions:
+    """What ``toy_as_cityscapes.py`` can be told (``--help``)."""
+
+    root: Path | None = option(help="folder to create", type=Path, flag="ROOT")
+    train: int = option(160, "training images", type=whole_number(0))
+    val: int = option(16, "validation images", type=whole_number(0))
+    size: list[int] = option(
+        [1024, 2048], "the scenes' size", type=whole_number(1), nargs=2, metavar=("H", "W")
+    )
+    seed: int = option(0, "the scenes' seed", type=whole_number(0))
+    workers: int | None = option(help="processes (default: all)", type=whole_number(1))
+    image_scale: float = option(
+        1.0,
+        "images resized by this factor beside full-size labels (0.5: half-resolution)",
+        type=positive_number,
+    )
 
 
 def write_item(scenes: StreetScenes, root: Path, index: int, image_scale: float = 1.0) -> None:
@@ -51,27 +74,14 @@ def write_item(scenes: StreetScenes, root: Path, index: int, image_scale: float 
         picture.save(path, compress_level=1)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("root", type=Path, help="folder to create")
-    parser.add_argument("--train", type=int, default=160, help="training images")
-    parser.add_argument("--val", type=int, default=16, help="validation images")
-    parser.add_argument("--size", type=int, nargs=2, default=(1024, 2048), metavar=("H", "W"))
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--workers", type=int, default=None, help="processes (default: all)")
-    parser.add_argument(
-        "--image_scale",
-        type=float,
-        default=1.0,
-        help="images resized by this factor beside full-size labels (0.5: half-resolution)",
-    )
-    args = parser.parse_args()
-    with ProcessPoolExecutor(args.workers, mp_context=workers.CONTEXT) as pool:
-        for split, count in (("train", args.train), ("val", args.val)):
-            scenes = StreetScenes(split, count, tuple(args.size), args.seed)
-            write = partial(write_item, scenes, args.root, image_scale=args.image_scale)
+def main(args: Sequence[str] | None = None) -> None:
+    opts = parse_options(TreeOptions, args, "toy_as_cityscapes.py", __doc__.splitlines()[0])
+    with ProcessPoolExecutor(opts.workers, mp_context=workers.CONTEXT) as pool:
+        for split, count in (("train", opts.train), ("val", opts.val)):
+            scenes = StreetScenes(split, count, tuple(opts.size), opts.seed)
+            write = partial(write_item, scenes, opts.root, image_scale=opts.image_scale)
             list(pool.map(write, range(count), chunksize=4))
-    print(f"wrote {args.train} train and {args.val} val scenes of {args.size} to {args.root}")
+    print(f"wrote {opts.train} train and {opts.val} val scenes of {opts.size} to {opts.root}")
 
 
 if __name__ == "__main__":

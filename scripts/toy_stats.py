@@ -10,20 +10,35 @@ and the ground-truth instances of person per owning RoI over the validation scen
 
 from __future__ import annotations
 
-import argparse
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 
 from costseg.classes import CLASS_NAMES, IGNORE_INDEX, NUM_CLASSES, ROI_NAMES, class_index
+from costseg.cli import parse_options
 from costseg.data.priors import pixel_priors, roi_map
 from costseg.data.toy.dataset import StreetScenes
 from costseg.metrics.functional.instances import instance_misses
+from costseg.options import option
+from costseg.values import whole_number
 
 # Cityscapes' pixel frequencies (%) over the labelled pixels of the fine training annotations.
 CITYSCAPES = {"road": 36.9, "building": 22.8, "vegetation": 15.9, "car": 7.0, "sidewalk": 6.1,
               "sky": 4.0, "person": 1.2}  # fmt: skip
+
+
+@dataclass
+class StatsOptions:
+    """What ``toy_stats.py`` can be told (``--help``)."""
+
+    size: list[int] = option(
+        [128, 256], "the scenes' size", type=whole_number(1), nargs=2, metavar=("H", "W")
+    )
+    prior_images: int = option(2000, "training labels", type=whole_number(1))
+    val: int = option(100, "validation scenes", type=whole_number(1))
+    seed: int = option(0, "the scenes' seed", type=whole_number(0))
 
 
 def class_frequencies(labels: Iterator[torch.Tensor]) -> np.ndarray:
@@ -56,13 +71,8 @@ def persons_per_roi(scenes: StreetScenes, roi: torch.Tensor) -> list[int]:
     return total.tolist()
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--size", type=int, nargs=2, default=(128, 256), metavar=("H", "W"))
-    parser.add_argument("--prior_images", type=int, default=2000, help="training labels")
-    parser.add_argument("--val", type=int, default=100, help="validation scenes")
-    parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args()
+def main(args: Sequence[str] | None = None) -> None:
+    args = parse_options(StatsOptions, args, "toy_stats.py", __doc__.splitlines()[0])
     size = tuple(args.size)
     train = StreetScenes("train", args.prior_images, size, args.seed)
     labels = [train[i][1] for i in range(len(train))]

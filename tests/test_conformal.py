@@ -23,6 +23,7 @@ from costseg.calibration.conformal import (
     image_losses,
     lambda_grid,
     prediction_sets,
+    set_losses,
     set_size_curves,
     set_sizes,
 )
@@ -185,6 +186,25 @@ def test_image_losses_match_a_loop_over_lambda_and_pixels(kind, weighted):
     got = binary_losses(thresholds, labels, LAMBDAS, 0.8)
     want = reference_losses(probs, decision, labels, LAMBDAS, kind, [1.0] * 19, None, tau=0.8)
     np.testing.assert_array_equal(got.numpy(), want)
+
+
+@pytest.mark.parametrize("loss", ["uniform", "cost", "binary"])
+def test_set_losses_of_each_loss_match_the_loop(loss):
+    """The loss ``evaluate.py --conformal_loss`` controls, from one rule's scores, as the loop
+    over λ and pixels builds it (the cost loss weighted by the anchor rule's matrix)."""
+    probs = dyadic_probs(2, 19, 3, 4, seed=20)
+    decision = decisions(probs, seed=21)
+    labels = torch.randint(0, 19, (2, 3, 4), generator=torch.Generator().manual_seed(22))
+    mask = labels % 3 != 0
+    cost = load_cost("egoistic")
+    scores = conformity_scores(probs, decision, "aps")
+    got = set_losses(scores, labels, LAMBDAS, loss, cost, 0.7, mask)
+    weights = class_weights(cost if loss == "cost" else None).tolist()
+    tau = 0.7 if loss == "binary" else None
+    want = reference_losses(probs, decision, labels, LAMBDAS, "aps", weights, mask, tau)
+    np.testing.assert_allclose(got.numpy(), want, rtol=1e-12, atol=0)
+    with pytest.raises(ValueError, match="uniform, cost or binary"):
+        set_losses(scores, labels, LAMBDAS, "hinge")
 
 
 def reference_crc(losses: np.ndarray, lambdas: list[float], alpha: float, bound: float):

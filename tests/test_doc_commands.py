@@ -29,6 +29,7 @@ PLACEHOLDERS = ("[--config", "toy]", "[--KEY", "VALUE", "...]")  # README's syno
 def _script(name: str):
     spec = importlib.util.spec_from_file_location(name, ROOT / "scripts" / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # where its options dataclass resolves its annotations
     spec.loader.exec_module(module)
     return module
 

@@ -11,6 +11,7 @@ import torch
 from scipy.stats import binom
 
 from costseg.calibration.guarantee import (
+    defined_risks,
     hoeffding_bentkus_pvalue,
     hoeffding_pvalue,
     learn_then_test,
@@ -119,6 +120,24 @@ def test_bonferroni_and_fixed_sequence_mechanics() -> None:
     assert learn_then_test(stops, 0.2, 0.1, method="fixed_sequence").valid.tolist() == [0]
     back = learn_then_test(stops, 0.2, 0.1, method="fixed_sequence", order=[2, 0, 1])
     assert back.valid.tolist() == [2, 0]
+
+
+def test_defined_risks_against_a_loop() -> None:
+    """The risk over the images with a defined loss, column by column, as a plain loop."""
+    rng = np.random.default_rng(4)
+    losses = rng.random((30, 4, 2))
+    losses[rng.random(losses.shape) < 0.3] = np.nan
+    losses[:, 2, 1] = np.nan  # no image defined
+    risks, counts = defined_risks(losses)
+    assert risks.shape == counts.shape == (4, 2) and counts.dtype == np.int64
+    for j in range(4):
+        for k in range(2):
+            kept = [x for x in losses[:, j, k].tolist() if not math.isnan(x)]
+            assert counts[j, k] == len(kept)
+            if kept:
+                assert risks[j, k] == pytest.approx(sum(kept) / len(kept), abs=1e-15)
+            else:
+                assert math.isnan(risks[j, k])
 
 
 def test_undefined_losses_are_left_out_and_counted() -> None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +32,7 @@ def _toy_as_cityscapes():
         "toy_as_cityscapes", ROOT / "scripts" / "toy_as_cityscapes.py"
     )
     module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # where its options dataclass resolves its annotations
     spec.loader.exec_module(module)
     return module
 

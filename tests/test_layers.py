@@ -6,14 +6,16 @@ from pathlib import Path
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "costseg"
 # Packages (and top-level modules), lower layers first; each may import its own layer or lower.
+# The command-line options (``options``) belong to the jobs: nothing below them imports them
+# (the value types the lower layers check with are ``values``).
 CHAIN = [
-    {"atomic", "classes", "checkpoints", "options", "progress", "workers"},
+    {"atomic", "classes", "checkpoints", "progress", "values", "workers"},
     {"costs"},
     {"decision"},
     {"rules", "calibration"},
     {"data", "metrics", "models", "networks", "meta"},
     {"report", "compile_kernels"},
-    {"evaluation", "prediction", "training", "export"},
+    {"evaluation", "prediction", "training", "export", "options"},
     {"cli", "api"},
 ]
 NO_LIGHTNING = {"costs", "decision", "rules", "calibration", "metrics", "networks", "meta",
@@ -138,8 +140,10 @@ def test_evaluation_imports_no_lightning_at_run_time():
 
 
 def test_few_modules_at_the_top_level():
+    """The lowest layer's modules, the command line's (options, cli, api) and the kernels'
+    compiler; a package for anything more."""
     top = sorted(p.name for p in SRC.glob("*.py") if p.name != "__init__.py")
-    assert len(top) <= 10, top
+    assert len(top) <= 11, top
 
 
 def test_configs_live_once_at_the_top():

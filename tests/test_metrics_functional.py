@@ -14,8 +14,10 @@ from scipy import ndimage
 
 from costseg.metrics.functional import (
     iou_from_confusion,
+    mean_iou,
     precision_recall,
     roi_confusion,
+    roi_metrics,
     segment_errors,
 )
 from costseg.metrics.functional import roi as functional_roi
@@ -84,6 +86,35 @@ def test_precision_recall_iou_hand_case_and_nan() -> None:
     np.testing.assert_allclose(recall[[0, 1]], [3 / 4, 4 / 7])
     np.testing.assert_allclose(iou[[0, 1, 3]], [3 / 6, 4 / 8, 0.0])
     assert precision[2].isnan() and recall[2].isnan() and recall[3].isnan() and iou[2].isnan()
+
+
+def test_mean_iou_against_a_pixel_loop_with_deferred_pixels() -> None:
+    """mIoU of counts (deferred pixels: misses of their class) = the mean, over the classes
+    present in the labels or the decisions, of |decided c and labelled c| / |either|."""
+    g = torch.Generator().manual_seed(3)
+    target = torch.randint(0, 4, (200,), generator=g)
+    preds = torch.randint(0, 5, (200,), generator=g)  # 4: deferred
+    preds[target == 2] = 0  # class 2 labelled, never decided
+    target[target == 3] = 1  # class 3 decided, never labelled
+    cm = torch.zeros(4, 4, dtype=torch.long)
+    deferred = torch.zeros(4, dtype=torch.long)
+    for t, d in zip(target.tolist(), preds.tolist(), strict=True):
+        if d == 4:
+            deferred[t] += 1
+        else:
+            cm[t, d] += 1
+    ious = []
+    for c in range(4):
+        both = ((preds == c) & (target == c)).sum().item()
+        either = ((preds == c) | (target == c)).sum().item()
+        if either:
+            ious.append(both / either)
+    assert mean_iou(cm, deferred).item() == pytest.approx(sum(ious) / len(ious), abs=1e-15)
+    assert mean_iou(torch.zeros(2, 2, 2, dtype=torch.long)).isnan().all()  # nothing counted
+    assert (
+        roi_metrics(cm[None, None], deferred[None, None])["miou"].item()
+        == mean_iou(cm, deferred).item()
+    )
 
 
 def test_undefined_ratios_are_nan_not_zero_or_one() -> None:

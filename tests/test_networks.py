@@ -206,7 +206,7 @@ def test_unknown_spec_lists_the_valid_prefixes(spec: str) -> None:
 
 def test_every_network_source_has_a_loader_and_its_help():
     from costseg.cli import evaluate_parser
-    from costseg.options import NETWORK_SPECS
+    from costseg.values import NETWORK_SPECS
 
     assert LOADERS.keys() == NETWORK_SPECS.keys()
     helps = {a.dest: a.help for a in evaluate_parser()._actions}

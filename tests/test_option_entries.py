@@ -5,6 +5,7 @@ option, before any heavy work (the network moved, the forkserver, data read)."""
 import argparse
 import contextlib
 import dataclasses
+import sys
 import typing
 
 import pytest
@@ -81,7 +82,8 @@ def test_the_walk_covers_the_options_of_a_value():
 
 @pytest.fixture
 def nothing_heavy(monkeypatch):
-    """Heavy work fails the test: the forkserver, a module's source, the evaluation itself."""
+    """Heavy work fails the test: the forkserver, a module's source or a named one, the
+    evaluation itself, the prediction's pass over the images."""
 
     def heavy(*args, **kwargs):
         raise AssertionError("heavy work began before the options were checked")
@@ -89,7 +91,8 @@ def nothing_heavy(monkeypatch):
     monkeypatch.setattr(workers, "start", heavy)
     monkeypatch.setattr(api, "module_source", heavy)
     monkeypatch.setattr("costseg.evaluation.run.evaluate", heavy)
-    monkeypatch.setattr("costseg.prediction.job.predict", heavy)
+    monkeypatch.setattr("costseg.prediction.job.open_sources", heavy)
+    monkeypatch.setattr("costseg.prediction.job.run", heavy)
 
 
 NETWORK = nn.Conv2d(3, 19, 1)
@@ -133,3 +136,44 @@ def test_booleans_and_lists_of_the_wrong_kind_are_refused_from_python(nothing_he
     ):
         with pytest.raises(ValueError, match=flag):
             costseg.evaluate(NETWORK, DATASET, **{name: value})
+
+
+def test_predict_checks_the_values_once_then_opens_the_module(monkeypatch, tmp_path):
+    """The Python API and the command line pass the predict job's one check of every value;
+    the module given in Python is opened after it, on the plan's device."""
+    from PIL import Image
+
+    from costseg.prediction import job
+
+    Image.new("RGB", (16, 8)).save(tmp_path / "photo.png")
+    checked, opened = [], []
+    check = job.check_values
+    monkeypatch.setattr(job, "check_values", lambda opts: checked.append(check(opts)))
+    open_module = api.module_source
+    monkeypatch.setattr(
+        api, "module_source", lambda *a, **k: opened.append(len(checked)) or open_module(*a, **k)
+    )
+    monkeypatch.setattr(job, "run", lambda planned: planned.output_dir)
+    out = costseg.predict(NETWORK, [tmp_path / "photo.png"], output_dir=str(tmp_path / "out"))
+    assert out == tmp_path / "out" and len(checked) == 1 and opened == [1]
+    monkeypatch.setattr(job, "open_sources", lambda *a: open_module(NETWORK, a[3]))
+    predict_main(["--input", str(tmp_path / "photo.png"), "--output_dir", str(tmp_path / "cli")])
+    assert len(checked) == 2  # the command line's run: the same one check
+
+
+def test_evaluate_checks_every_option_once_on_each_entry(monkeypatch, tmp_path):
+    """The command line and the Python API check an evaluation's options once, before the
+    forkserver or the network (the plan takes the checked rule groups)."""
+    from costseg.evaluation import checks, run
+
+    checked = []
+    check = checks.check_values
+    monkeypatch.setattr(checks, "check_values", lambda opts: checked.append(check(opts)))
+    planned = []
+    monkeypatch.setattr(run, "plan", lambda *a: planned.append(len(checked)) or sys.exit(0))
+    monkeypatch.setattr(run.workers, "start", lambda: None)
+    with pytest.raises(SystemExit):
+        evaluate_main(["--output_dir", str(tmp_path / "cli")])
+    with pytest.raises(SystemExit):
+        costseg.evaluate(NETWORK, DATASET, output_dir=str(tmp_path / "api"))
+    assert planned == [1, 2]

@@ -12,7 +12,7 @@ drawn by worker processes of Python's forkserver: a script that calls it needs t
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +24,7 @@ from costseg.classes import CLASS_NAMES
 from costseg.data.priors import check_priors
 from costseg.networks.base import IMAGENET_MEAN, IMAGENET_STD, ImageNetwork
 from costseg.networks.sources import Source, resolve_device
-from costseg.options import RULES, EvalOptions, PredictOptions, check_values
+from costseg.options import RULES, EvalOptions, PredictOptions
 from costseg.report.results import EvalResults
 
 __all__ = ["evaluate", "module_source", "predict"]
@@ -70,9 +70,11 @@ def evaluate(
     from costseg.evaluation.run import evaluate as run_evaluation
 
     opts = _options(EvalOptions, network, costs, priors, options)
-    checked_groups(opts)  # evaluate.py's checks, before the network moves or data is read
+    groups = checked_groups(opts)  # evaluate.py's checks (each value's too), before the network
     _check_item(dataset)
-    return run_evaluation(opts, _source(network, opts, mean, std, priors), dataset)
+    opener = _opener(network, mean, std, priors)
+    source = None if opener is None else opener(resolve_device(opts.device))
+    return run_evaluation(opts, source, dataset, groups)
 
 
 def predict(
@@ -101,13 +103,12 @@ def predict(
 
     options["input"] = [str(path) for path in inputs]
     opts = _options(PredictOptions, network, costs, priors, options)
-    check_values(opts)
-    return job.predict(opts, _source(network, opts, mean, std, priors))
+    return job.predict(opts, _opener(network, mean, std, priors))  # opened once checked
 
 
 def _options(kind, network, costs, priors, options: dict[str, Any]):
-    """The job's options (``kind``) of the keyword arguments, with the command line's checks
-    of each value (:func:`costseg.options.check_values`)."""
+    """The job's options (``kind``) of the keyword arguments; each job checks their values as
+    it checks the command line's (:func:`costseg.options.check_values`)."""
     known = {f.name for f in dataclasses.fields(kind)} - {"cost", "priors"}
     unknown = sorted(set(options) - known)
     if unknown:
@@ -119,17 +120,16 @@ def _options(kind, network, costs, priors, options: dict[str, Any]):
         options["priors"] = str(priors)
     elif priors is not None:
         check_priors(priors, CLASS_NAMES, "the priors given")
-    opts = kind(cost=list(costs) if isinstance(costs, (list, tuple)) else costs, **options)
-    check_values(opts)
-    return opts
+    return kind(cost=list(costs) if isinstance(costs, (list, tuple)) else costs, **options)
 
 
-def _source(network, opts, mean, std, priors) -> Source | None:
-    """A source of a module given in Python (None: the options name the network)."""
+def _opener(network, mean, std, priors) -> Callable[[torch.device], Source] | None:
+    """What opens the source of a module given in Python on a device (None: the options name
+    the network)."""
     if not isinstance(network, nn.Module):
         return None
     given = priors if isinstance(priors, Tensor) else None
-    return module_source(network, resolve_device(opts.device), mean, std, given)
+    return lambda device: module_source(network, device, mean, std, given)
 
 
 def module_source(

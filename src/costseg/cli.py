@@ -22,11 +22,13 @@ import types
 import typing
 from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any, NoReturn, TypeVar
 
 from costseg import CONFIGS, workers
 from costseg.options import EvalOptions, PredictOptions, field_default
 from costseg.workers import Stalled
+
+T = TypeVar("T")
 
 
 def fail(message: str, join: bool = False) -> NoReturn:
@@ -221,12 +223,14 @@ class OneLineParser(argparse.ArgumentParser):
         fail(f"{self.prog}: {message}")
 
 
-def build_parser(options: type, prog: str, description: str) -> argparse.ArgumentParser:
-    """The parser of an options dataclass (:mod:`costseg.options`): one argument per field.
+def build_parser(options: type, prog: str | None, description: str) -> argparse.ArgumentParser:
+    """The parser of an options dataclass (:mod:`costseg.options`, or a script's own): one
+    argument per field.
 
     A field's type says the rest: ``bool`` is a flag (``--no-x`` when it defaults to True),
     ``list[...]`` takes several values, ``Literal[...]`` lists the choices; a field with
-    ``init=False`` is no option. A script that shares some of a job's options declares them with
+    ``init=False`` is no option, one whose ``flag`` has no dashes a positional argument. A
+    script that shares some of a job's options declares them with
     :func:`costseg.options.same_option`.
 
     >>> from costseg.options import EvalOptions, PredictOptions
@@ -247,10 +251,25 @@ def build_parser(options: type, prog: str, description: str) -> argparse.Argumen
         if title not in groups:
             groups[title] = parser.add_argument_group(title)
         flag = meta.pop("flag", f"--{f.name}")
-        groups[title].add_argument(
-            flag, dest=f.name, **_argument(field_default(f), hints[f.name], meta)
-        )
+        names = {"dest": f.name} if flag.startswith("-") else {}
+        if not names:  # a positional argument, shown as its flag
+            flag, meta["metavar"] = f.name, meta.get("metavar", flag)
+        argument = _argument(field_default(f), hints[f.name], meta)
+        groups[title].add_argument(flag, **names, **argument)
     return parser
+
+
+def parse_options(
+    options: type[T], args: Sequence[str] | None = None, prog: str | None = None, about: str = ""
+) -> T:
+    """The dataclass ``options`` filled from the command line ``args`` (default: the process's)
+    by :func:`build_parser`: a mistake ends in one line on stderr and exit status 2.
+
+    >>> from costseg.options import ExportOptions
+    >>> parse_options(ExportOptions, ["--output", "m.onnx", "--probabilities"]).probabilities
+    True
+    """
+    return options(**vars(build_parser(options, prog, about).parse_args(args)))
 
 
 def _argument(default: Any, hint: Any, meta: dict[str, Any]) -> dict[str, Any]:
@@ -292,11 +311,11 @@ def evaluate_main(args: Sequence[str] | None = None) -> Any:
         opts = EvalOptions(**vars(evaluate_parser().parse_args(args)))
         from costseg.evaluation.plan import checked_groups
 
-        checked_groups(opts)  # every option, before the forkserver, a network or data is touched
+        groups = checked_groups(opts)  # before the forkserver, a network or data is touched
         workers.start()  # the workers' forkserver imports its modules while this one does
         from costseg.evaluation.run import evaluate
 
-        return evaluate(opts)
+        return evaluate(opts, groups=groups)
 
 
 def predict_parser() -> argparse.ArgumentParser:

@@ -24,7 +24,7 @@ import yaml
 from costseg import CONFIGS
 from costseg.atomic import write_bytes
 from costseg.classes import CLASS_NAMES
-from costseg.options import steps_per_unit
+from costseg.values import steps_per_unit
 
 if TYPE_CHECKING:
     from importlib.resources.abc import Traversable

@@ -6,7 +6,8 @@ the jobs receive the dataclass. :class:`NetworkOptions` holds what every job tha
 shares (source, rules, device, output folder, examples), :class:`SourceOptions` adds a dataset,
 :class:`EvalOptions` and :class:`PredictOptions` add each command's own; :class:`ExportOptions`
 takes the source options of one network.
-A new option is one field here. No heavy imports, so ``--help`` answers at once.
+A new option is one field here, its value type one of :mod:`costseg.values`. No heavy imports,
+so ``--help`` answers at once.
 
 >>> EvalOptions(cost=["egoistic"]).split
 'val'
@@ -16,12 +17,21 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import types
 import typing
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
+
+from costseg.values import (
+    NETWORK_USAGE,
+    defer_cost,
+    fraction,
+    positive_number,
+    share,
+    step_size,
+    whole_number,
+)
 
 SOURCE = "probability source (default: newest runs/**/last.ckpt; several: their ensemble)"
 CALIBRATION = "calibration and guarantees (fitted on held-out images)"
@@ -31,111 +41,6 @@ CONFORMAL = "conformal prediction sets (docs/definitions.md §18)"
 DESIGN = "designing the value system from requirements (docs/definitions.md §20)"
 RULES = ["robotistic", "altruistic", "egoistic"]
 
-NETWORK_SPECS = {
-    "costseg": "PATH",
-    "vainf": "PATH[?os=8|16&backbone=resnet50|resnet101]",
-    "hf": "DIR",
-    "segformer": "DIR",
-    "onnx": "FILE[?mean=R,G,B&std=R,G,B&output=probs]",
-}
-"""The ``--network`` sources, ``prefix: what follows it`` (read before torch is imported, for
-``--help``); :data:`costseg.networks.LOADERS` holds each one's loader under the same prefix."""
-NETWORK_USAGE = ", ".join(f"{prefix}:{rest}" for prefix, rest in NETWORK_SPECS.items())
-
-
-def whole_number(minimum: int) -> Callable[[str], int]:
-    """Value type: an integer >= ``minimum``.
-
-    >>> whole_number(1)("3"), whole_number(0).__name__
-    (3, 'integer >= 0')
-    """
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            value = None
-        if value is None or value < minimum:
-            shown = repr(text) if value is None else value
-            raise argparse.ArgumentTypeError(f"expected a whole number >= {minimum}, got {shown}")
-        return value
-
-    parse.__name__ = f"integer >= {minimum}"
-    return parse
-
-
-def steps_per_unit(step: float, what: str = "step") -> int:
-    """n for a grid step ``step`` = 1/n with n a whole number >= 1; ValueError otherwise.
-
-    >>> steps_per_unit(0.1), steps_per_unit(0.05)
-    (10, 20)
-    """
-    n = round(1 / step) if 0 < step <= 1 else 0
-    if n < 1 or not math.isclose(n * step, 1.0, rel_tol=1e-9):
-        raise ValueError(f"{what} must be 1/n for a whole number n >= 1, got {step}")
-    return n
-
-
-def step_size(text: str) -> float:
-    """Value type: a grid step 1/n in (0, 1].
-
-    >>> step_size("0.25")
-    0.25
-    """
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a step such as 0.1, got {text!r}") from None
-    try:
-        steps_per_unit(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected a step 1/n in (0, 1], e.g. 0.1, got {text}"
-        ) from None
-    return value
-
-
-def number_above(
-    minimum: float, inclusive: bool, what: str, example: str
-) -> Callable[[str], float]:
-    """Value type: a finite number > ``minimum`` (>= with ``inclusive``), called ``what``.
-
-    >>> number_above(0, True, "a defer cost", "0.3")("0")
-    0.0
-    """
-    sign = ">=" if inclusive else ">"
-
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            value = math.nan
-        if not ((value >= minimum if inclusive else value > minimum) and value < math.inf):
-            raise argparse.ArgumentTypeError(
-                f"expected {what} {sign} {minimum:g} such as {example}, got {text!r}"
-            )
-        return value
-
-    parse.__name__ = f"number {sign} {minimum:g}"
-    return parse
-
-
-def fraction(text: str) -> float:
-    """Value type: a number in (0, 1).
-
-    >>> fraction("0.05")
-    0.05
-    """
-    value = number_above(0, False, "a number", "0.1")(text)
-    if value >= 1:
-        raise argparse.ArgumentTypeError(f"expected a number in (0, 1) such as 0.1, got {text!r}")
-    return value
-
-
-fraction.__name__ = "number in (0, 1)"
-positive_number = number_above(0, False, "a number", "0.75")
-defer_cost = number_above(0, True, "a defer cost", "0.3")
-
 
 def option(default: Any = None, help: str | None = None, **metadata: Any) -> Any:
     """A dataclass field that is also a command-line option.
@@ -143,11 +48,13 @@ def option(default: Any = None, help: str | None = None, **metadata: Any) -> Any
     Args:
         default: the default value (a list is copied for each instance).
         help: the line ``--help`` shows.
-        **metadata: ``flag`` (default ``--<name>``), ``type`` (a value type such as
-            :func:`whole_number`), ``nargs``, ``metavar``, ``group`` (an argument group's title),
-            ``candidates=True`` (the option builds a rule group whose rules ``--target`` and
-            ``--guarantee`` choose among: :func:`candidate_flags`), ``needs`` (the option that
-            must be given for this one to mean anything: :func:`check_needs`).
+        **metadata: ``flag`` (default ``--<name>``; a name without dashes: a positional
+            argument), ``type`` (a value type of :mod:`costseg.values`, such as
+            :func:`~costseg.values.whole_number`), ``nargs``, ``metavar``, ``group`` (an
+            argument group's title), ``candidates=True`` (the option builds a rule group whose
+            rules ``--target`` and ``--guarantee`` choose among: :func:`candidate_flags`),
+            ``needs`` (the option that must be given for this one to mean anything:
+            :func:`check_needs`).
     """
     metadata["help"] = help
     if isinstance(default, list):
@@ -511,7 +418,7 @@ class EvalOptions(SourceOptions):
         0.1,
         "share of each search image's labelled pixels the search scores on (pixel rates only; "
         "the certification tests on every pixel)",
-        type=number_above(0, False, "a share", "0.1"),
+        type=share,
         group=DESIGN,
         needs="design",
     )

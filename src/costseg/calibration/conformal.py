@@ -46,6 +46,8 @@ from costseg.decision.label_maps import DEFERRED
 
 Kind = Literal["lac", "aps"]
 KINDS: tuple[str, ...] = ("lac", "aps")
+Loss = Literal["uniform", "cost", "binary"]
+"""The losses a set's risk control may bound (:func:`set_losses`)."""
 CHUNK_PIXELS = 1 << 20
 """Pixels whose APS scores are sorted at once: the sort's values and int64 indices of a chunk
 take 12 · N bytes a pixel (240 MB at N = 19), whatever the image's size."""
@@ -231,6 +233,47 @@ def binary_losses(
         raise ValueError(f"the binary loss's τ must lie in [0, 1]; got {tau}")
     missed = image_losses(thresholds, labels, lambdas, None, mask)
     return torch.where(missed.isnan(), missed, ((1 - missed) < tau).double())
+
+
+def set_losses(
+    scores: Tensor,
+    labels: Tensor,
+    lambdas: Tensor | Sequence[float],
+    loss: Loss = "uniform",
+    cost: Tensor | None = None,
+    tau: float = 0.9,
+    mask: Tensor | None = None,
+) -> Tensor:
+    """Each image's loss at every λ of a grid for the sets of one anchor rule, as
+    ``evaluate.py --conformal_loss`` controls it: ``uniform`` (the share of counted pixels whose
+    true class is outside the set: :func:`image_losses`), ``cost`` (each pixel weighted by
+    :func:`class_weights` of ``cost``, the anchor rule's matrix) or ``binary`` (1 where the
+    covered share falls short of ``tau``: :func:`binary_losses`).
+
+    Args:
+        scores: (B, N, H, W) the rule's :func:`conformity_scores`.
+        labels: (B, H, W) true classes, 255 ignored.
+        lambdas: (L,) strictly increasing grid.
+        loss, cost, tau: the loss (``cost`` for ``"cost"``, ``tau`` for ``"binary"``).
+        mask: (B, H, W) or (H, W) bool, the pixels counted (e.g. one RoI); None: all.
+
+    Returns:
+        (B, L) float64 losses, NaN for an image with no counted pixel.
+
+    >>> scores = torch.tensor([[0.0, 0.4], [0.7, 0.0]]).view(1, 2, 1, 2)  # decisions 0, 1
+    >>> labels = torch.tensor([[[1, 0]]])                                   # λ* = 0.4, 0.7
+    >>> set_losses(scores, labels, [0.5, 1.0]).tolist()
+    [[0.5, 0.0]]
+    >>> set_losses(scores, labels, [0.5, 1.0], "binary", tau=0.5).tolist()
+    [[0.0, 0.0]]
+    """
+    if loss not in ("uniform", "cost", "binary"):
+        raise ValueError(f"the loss must be uniform, cost or binary; got {loss!r}")
+    thresholds = label_thresholds(scores, labels)
+    if loss == "binary":
+        return binary_losses(thresholds, labels, lambdas, tau, mask)
+    weights = class_weights(cost if loss == "cost" else None, scores.shape[1])
+    return image_losses(thresholds, labels, lambdas, weights, mask)
 
 
 @dataclass(frozen=True)

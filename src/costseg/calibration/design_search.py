@@ -39,7 +39,6 @@ class Candidates:
         names: (D,) the parameters' names.
         parameters: (L, D) float64 parameter values.
         matrices: (L, R, N) float64 cost matrices (R = N, or N + 1 with a defer row).
-        risks: (L, K) float64 D1 risks as ``score`` gave them (NaN: undefined).
         objective: (L,) float64 D1 objective.
     """
 
@@ -47,7 +46,6 @@ class Candidates:
     names: tuple[str, ...]
     parameters: NDArray[np.float64]
     matrices: torch.Tensor
-    risks: NDArray[np.float64]
     objective: NDArray[np.float64]
 
 
@@ -57,9 +55,9 @@ def search_grid(space: TriangleSpace | LagrangianSpace, score: Score) -> Candida
     >>> from costseg.costs import symmetric_cost
     >>> from costseg.rules.design_spaces import lagrangian_directions
     >>> space = LagrangianSpace(symmetric_cost(2), lagrangian_directions([(1, "recall")], 2), 3)
-    >>> found = search_grid(space, lambda C: ([1 / (1 + C[0, 1].item())], -C.sum().item()))
-    >>> found.parameters[:, 0].tolist(), found.risks[:, 0].round(3).tolist()
-    ([0.0, 0.01, 100.0], [0.5, 0.498, 0.01])
+    >>> found = search_grid(space, lambda C: ([1 / (1 + C[0, 1].item())], C[0, 1].item()))
+    >>> found.parameters[:, 0].tolist(), found.objective.tolist()
+    ([0.0, 0.01, 100.0], [1.0, 1.01, 101.0])
     """
     points = space.grid()
     return _collect(space, [(p.tolist(), space.matrix(p)) for p in points], score)
@@ -94,8 +92,8 @@ def search_aggregate(
     >>> from costseg.rules.design_spaces import aggregate_template
     >>> space = AggregateSpace(aggregate_template("altruistic"), 1.0, 1000.0)
     >>> found = search_aggregate(space, lambda C: ([C[0, 11].item() / 2000], 0.0), [0.1], 3)
-    >>> found.parameters.shape, found.risks[0].tolist()     # first: the template itself
-    ((3, 30), [0.5])
+    >>> found.parameters.shape, found.matrices[0, 0, 11].item()  # first: the template itself
+    ((3, 30), 1000.0)
     """
     import optuna  # ~1 s to import: only for this search
 
@@ -106,7 +104,7 @@ def search_aggregate(
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     box = space.box()
     found: list[tuple[list[float], torch.Tensor]] = []
-    scored: list[tuple[NDArray[np.float64], float]] = []
+    scored: list[float] = []
     worst = -1e300 if maximize else 1e300  # finite: NSGA-II's crowding distance subtracts
 
     def objective(trial) -> list[float]:
@@ -117,7 +115,7 @@ def search_aggregate(
         if len(risks) != len(levels):
             raise ValueError(f"score gave {len(risks)} risks for {len(levels)} alphas")
         found.append((values, matrix))
-        scored.append((risks, float(value)))
+        scored.append(float(value))
         filled = np.where(np.isnan(risks), 1.0, risks)
         for i, excess in enumerate((filled - np.array(levels)).tolist()):
             trial.set_constraint(f"risk_{i + 1}", excess)  # feasible where <= 0
@@ -165,17 +163,13 @@ def search(
 def _collect(
     space, found: list[tuple[list[float], torch.Tensor]], score: Score, scored=None
 ) -> Candidates:
-    """The candidates as arrays; ``scored`` holds their (risks, objective) when already scored."""
+    """The candidates as arrays; ``scored`` holds their objective values when already scored."""
     if scored is None:
-        scored = [score(matrix) for _, matrix in found]
-    risks = [np.asarray(r, dtype=np.float64).reshape(-1) for r, _ in scored]
-    if len({len(r) for r in risks}) > 1:
-        raise ValueError("score gave different numbers of risks for different matrices")
+        scored = [score(matrix)[1] for _, matrix in found]
     return Candidates(
         space.name,
         tuple(space.parameters),
         np.array([values for values, _ in found], dtype=np.float64).reshape(len(found), -1),
         torch.stack([matrix for _, matrix in found]),
-        np.stack(risks),
-        np.array([float(v) for _, v in scored], dtype=np.float64),
+        np.array([float(v) for v in scored], dtype=np.float64),
     )

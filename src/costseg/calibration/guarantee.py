@@ -27,6 +27,22 @@ Method = Literal["bonferroni", "fixed_sequence"]
 Bound = Literal["hoeffding", "hoeffding_bentkus"]
 
 
+def defined_risks(losses: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """The risk over the images with a defined loss: the mean of per-image ``losses`` (images
+    along the first axis, NaN where a loss is undefined) over the images where each is defined,
+    and how many those are; NaN where none is.
+
+    >>> risk, count = defined_risks(np.array([[0.5, np.nan, 1.0], [0.0, np.nan, np.nan]]))
+    >>> risk.tolist(), count.tolist()
+    ([0.25, nan, 1.0], [2, 0, 1])
+    """
+    values = np.asarray(losses, dtype=np.float64)
+    defined = ~np.isnan(values)
+    count = defined.sum(axis=0)
+    total = np.where(defined, values, 0.0).sum(axis=0)
+    return np.where(count > 0, total / np.maximum(count, 1), np.nan), count.astype(np.int64)
+
+
 def _pvalue_inputs(
     risk_hat: ArrayLike, n: ArrayLike, alpha: float
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -176,9 +192,7 @@ def learn_then_test(
     array([], dtype=int64)
     """
     values = _check_losses(losses, delta, method, bound)
-    count = len(values) - np.isnan(values).sum(axis=0)
-    with np.errstate(invalid="ignore"):  # all-NaN columns: NaN risk, p = 1
-        risk = np.nansum(values, axis=0) / count
+    risk, count = defined_risks(values)  # a column without a defined loss: NaN risk, p = 1
     pvalue = hoeffding_bentkus_pvalue if bound == "hoeffding_bentkus" else hoeffding_pvalue
     pvalues = pvalue(risk, count, alpha)
     path = _path(order, values.shape[1])
@@ -188,8 +202,8 @@ def learn_then_test(
         failed = np.flatnonzero(pvalues[path] > delta)
         valid = path[: failed[0] if len(failed) else len(path)]
     return LTTResult(
-        valid.astype(np.int64), pvalues, risk, count.astype(np.int64),
-        (len(values) - count).astype(np.int64), alpha, delta, method, bound,
+        valid.astype(np.int64), pvalues, risk, count, len(values) - count, alpha, delta, method,
+        bound,
     )  # fmt: skip
 
 

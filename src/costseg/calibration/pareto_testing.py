@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from costseg.calibration.guarantee import hoeffding_bentkus_pvalue
+from costseg.calibration.guarantee import defined_risks, hoeffding_bentkus_pvalue
 
 SCAN_LIMIT = 10**7
 """The largest size :func:`images_needed` scans for the smallest one; beyond it, the size at
@@ -236,13 +236,11 @@ def _tests(
     losses: NDArray[np.float64], alphas: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64]]:
     """(n, L, K) losses → the (L, K) risks over defined images, their counts, HB p-values."""
-    count = len(losses) - np.isnan(losses).sum(axis=0)
-    with np.errstate(invalid="ignore", divide="ignore"):  # no defined image: NaN risk, p = 1
-        risks = np.nansum(losses, axis=0) / count
+    risks, count = defined_risks(losses)  # no defined image: NaN risk, p = 1
     pvalues = np.column_stack(
         [hoeffding_bentkus_pvalue(risks[:, k], count[:, k], alphas[k]) for k in range(len(alphas))]
     ).reshape(risks.shape)
-    return risks, count.astype(np.int64), pvalues
+    return risks, count, pvalues
 
 
 def _check(

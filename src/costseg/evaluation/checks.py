@@ -130,8 +130,6 @@ def check_design(opts: EvalOptions) -> None:
             "--design needs its requirements: --require (one or more) and --design_delta δ "
             "(--target, --maximize and --guarantee choose a point of a sweep)"
         )
-    if opts.design_pixels > 1:
-        raise ValueError(f"--design_pixels is a share in (0, 1], got {opts.design_pixels}")
     req = Requirements.parse(opts.require, opts.design_maximize, opts.design_minimize)
     vertex_matrices(opts.vertices, opts.vertex_scaling)  # the triangle, searched to compare
     if opts.design == "lagrangian":

@@ -110,11 +110,15 @@ class Images:
 
 
 def plan(
-    opts: EvalOptions, source: Source | None = None, dataset: Dataset | None = None
+    opts: EvalOptions,
+    source: Source | None = None,
+    dataset: Dataset | None = None,
+    groups: list[RuleGroup] | None = None,
 ) -> EvalPlan:
-    """Check the options, open source and data, and claim the output folder; ``source`` and
-    ``dataset`` replace the ones the options name (the Python API, :mod:`costseg.api`)."""
-    groups = checked_groups(opts)
+    """Check the options (unless ``groups``, their rule groups, were checked already), open
+    source and data, and claim the output folder; ``source`` and ``dataset`` replace the ones
+    the options name (the Python API, :mod:`costseg.api`)."""
+    groups = checked_groups(opts) if groups is None else groups
     shifts = _shifts(opts)
     device = resolve_device(opts.device)
     if world_size() > 1 and not dist.is_initialized():

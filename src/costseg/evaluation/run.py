@@ -23,14 +23,20 @@ from costseg.networks.sources import Source
 from costseg.options import EvalOptions
 from costseg.report.outputs import INCOMPLETE, mark_complete
 from costseg.report.results import EvalResults
+from costseg.rules import RuleGroup
 
 
 def evaluate(
-    opts: EvalOptions, source: Source | None = None, dataset: Dataset | None = None
+    opts: EvalOptions,
+    source: Source | None = None,
+    dataset: Dataset | None = None,
+    groups: list[RuleGroup] | None = None,
 ) -> EvalResults | list[EvalResults]:
     """Plan, run, and (on rank 0) write every output; returns the results (a list of them, one
     per shift, with several ``--shift``: :mod:`costseg.evaluation.shifts`). ``source`` and
-    ``dataset`` replace the ones the options name (:func:`costseg.api.evaluate`).
+    ``dataset`` replace the ones the options name (:func:`costseg.api.evaluate`); ``groups``:
+    the rule groups of ``opts`` already checked (:func:`~costseg.evaluation.plan.checked_groups`,
+    which runs here otherwise).
 
     Figures known before the loop ends are drawn meanwhile, by workers of the forkserver
     (:mod:`costseg.workers`), which starts first, while the network loads. The output
@@ -40,7 +46,7 @@ def evaluate(
     entries = [entry for entry, _ in wanted(opts)]
     prepare = threading.Thread(target=import_analyses, args=(entries,), daemon=True)
     prepare.start()  # their imports (torchmetrics, the reports) overlap the network's loading
-    planned = plan(opts, source, dataset)
+    planned = plan(opts, source, dataset, groups)
     held_out = held_out_images(planned)
     try:
         if len(planned.shifts) > 1:

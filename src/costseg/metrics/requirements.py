@@ -19,10 +19,10 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import numpy as np
 import torch
 from torch import Tensor
 
+from costseg.metrics.functional.roi import mean_iou
 from costseg.metrics.names import DEFER_RATES, INSTANCE_RATES, PIXEL_RATES, SEGMENT_RATES
 from costseg.metrics.per_image import per_image_counts, per_image_loss, pixel_parts
 from costseg.metrics.selection import (
@@ -112,25 +112,9 @@ class Requirements:
         if self.objective == "agreement":
             labelled = whole.sum().item()
             return agree.item() / labelled if labelled else math.nan
-        if self.objective == "miou":  # a deferred pixel is a miss of its class
+        if self.objective == "miou":  # a deferred pixel (the last column) misses its class
             n = whole.shape[0]
-            tp = whole.diagonal()
-            union = whole[:, :n].sum(0) + whole.sum(1) - tp
-            present = union > 0
-            return (tp[present] / union[present]).mean().item() if present.any() else math.nan
+            return mean_iou(whole[:, :n], whole[:, n]).item()
         m = self.objective
         part, whole_count = pixel_parts(confusion[m.roi], m.cls, m.metric).double().tolist()
         return part / whole_count if whole_count else math.nan
-
-
-def mean_risks(losses: np.ndarray) -> np.ndarray:
-    """The mean of per-image losses over the images where each is defined (NaN: undefined),
-    along the first axis; NaN where no image is.
-
-    >>> mean_risks(np.array([[0.5, np.nan], [0.0, np.nan]])).tolist()
-    [0.25, nan]
-    """
-    defined = ~np.isnan(losses)
-    count = defined.sum(0)
-    total = np.where(defined, losses, 0).sum(0)
-    return np.where(count > 0, total / np.maximum(count, 1), np.nan)

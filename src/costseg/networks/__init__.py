@@ -34,7 +34,7 @@ from costseg.networks.costseg import CostsegCheckpoint, load_costseg_checkpoint
 from costseg.networks.hf import load_hf
 from costseg.networks.onnx import load_onnx, onnx_options
 from costseg.networks.vainf import VAINF_DEPTHS, export_vainf_state, load_vainf
-from costseg.options import NETWORK_SPECS, NETWORK_USAGE
+from costseg.values import NETWORK_SPECS, NETWORK_USAGE
 
 __all__ = [
     "IMAGENET_MEAN",
@@ -57,7 +57,7 @@ LOADERS: dict[str, Callable[[str, dict[str, Any]], ImageNetwork]] = {
     "segformer": lambda location, _: load_hf(location),
     "onnx": lambda location, options: load_onnx(location, **options),
 }
-"""The loader of each ``--network`` prefix of :data:`costseg.options.NETWORK_SPECS`: a new
+"""The loader of each ``--network`` prefix of :data:`costseg.values.NETWORK_SPECS`: a new
 source is an entry in both (``tests/test_networks.py`` checks that they agree)."""
 _OPTIONS = re.compile(r"\?(\w+=[^&?=]+(?:&\w+=[^&?=]+)*)$")
 

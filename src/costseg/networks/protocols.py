@@ -17,9 +17,9 @@ still run once, on the final map.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 from costseg.networks.sources import Source, with_mc_dropout
-from costseg.options import NetworkOptions
 
 OPTIONS = "--inference slide, --tta or --scales"
 
@@ -41,9 +41,10 @@ class Protocol:
     scales: tuple[float, ...] = (1.0,)
 
     @classmethod
-    def from_options(cls, opts: NetworkOptions) -> Protocol:
-        """The protocol of the options; ValueError (one line) for a malformed one, before any
-        network loads.
+    def from_options(cls, opts: Any) -> Protocol:
+        """The protocol of a job's options (``inference``, ``crop``, ``stride``, ``tta`` and
+        ``scales``, as :class:`costseg.options.NetworkOptions` holds them); ValueError (one line)
+        for a malformed one, before any network loads.
 
         >>> from costseg.options import PredictOptions
         >>> Protocol.from_options(PredictOptions(inference="slide", crop=[8, 8], stride=[9, 4]))

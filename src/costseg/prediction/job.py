@@ -4,6 +4,7 @@ frames: network once → probabilities → every rule (one call) → files (docs
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -35,6 +36,9 @@ from costseg.rules import (
     vertex_matrices,
 )
 
+Opener = Callable[[torch.device], Source]
+"""Opens a source on a device: :func:`costseg.api.predict`'s module, once the job has checked."""
+
 
 @dataclass
 class PredictPlan:
@@ -56,9 +60,10 @@ class PredictPlan:
         return [r.name for r in self.rules[: len(self.options.cost)]]
 
 
-def plan(opts: PredictOptions, source: Source | None = None) -> PredictPlan:
-    """Check options and inputs (before the network loads), open the source (``source``
-    replaces the one the options name: :func:`costseg.api.predict`), claim the folder."""
+def plan(opts: PredictOptions, source: Opener | None = None) -> PredictPlan:
+    """Check the options (every value, as the command line's: the one check of every entry)
+    and the inputs, claim the folder, then open the source: the options', or ``source``'s on
+    the device (:func:`costseg.api.predict`'s module)."""
     check_values(opts)
     rules = parse_rules(opts.cost, defer=opts.defer)
     if opts.explorer:
@@ -73,6 +78,8 @@ def plan(opts: PredictOptions, source: Source | None = None) -> PredictPlan:
         source = open_sources(
             opts.ckpt_path, opts.network, None, device, protocol, opts.mc_dropout, opts.seed
         )
+    else:
+        source = source(device)
     priors = source.priors
     if opts.priors is not None:
         priors = read_priors_file(opts.priors, CLASS_NAMES)["priors"]
@@ -175,9 +182,9 @@ def _predicted_iou(models: MetaModels, probs, labels, rule, priors, expected_ent
     return painted(table.ids, models.predicted_iou(SHOWN_MODEL, table.columns))
 
 
-def predict(opts: PredictOptions, source: Source | None = None) -> Path:
-    """Run ``predict.py`` (with ``source`` in place of the one the options name); returns the
-    output folder."""
+def predict(opts: PredictOptions, source: Opener | None = None) -> Path:
+    """Run ``predict.py`` (with ``source``'s source, opened on the device once every option is
+    checked, in place of the one the options name); returns the output folder."""
     return run(plan(opts, source))
 
 

@@ -14,9 +14,9 @@ import torch
 
 from costseg.classes import CLASS_NAMES
 from costseg.decision import decide
-from costseg.options import steps_per_unit
 from costseg.rules.base import RuleGroup, adapted_priors, given_priors
 from costseg.rules.named import parse_rules
+from costseg.values import steps_per_unit
 
 
 @dataclass(frozen=True)

@@ -11,13 +11,10 @@ import torch
 from costseg.calibration.conformal import (
     RiskControl,
     SetCounts,
-    binary_losses,
-    class_weights,
     conformity_scores,
     crc_threshold,
-    image_losses,
-    label_thresholds,
     lambda_grid,
+    set_losses,
 )
 from costseg.classes import CLASS_NAMES, NUM_ROIS
 from costseg.evaluation.analyses import Analysis, Seen
@@ -94,16 +91,9 @@ class Conformal(Analysis):
     def _loss(self, scores, labels, roi, grid, k: int) -> torch.Tensor:
         """(B, L) losses of rule k's sets (conformity ``scores``) at each λ of ``grid``."""
         given = self.settings
-        thresholds = label_thresholds(scores, labels)
-        mask = None if given.roi is None or roi is None else roi == given.roi
-        if mask is not None:
-            mask = mask.expand_as(labels)
-        cost = self.rules[k].cost if given.loss == "cost" else None
-        weights = class_weights(None if cost is None else cost.to(scores.device))
+        mask = None if given.roi is None or roi is None else (roi == given.roi).expand_as(labels)
         grid = grid.to(scores.device)
-        if given.loss == "binary":
-            return binary_losses(thresholds, labels, grid, given.tau, mask)
-        return image_losses(thresholds, labels, grid, weights.to(scores.device), mask)
+        return set_losses(scores, labels, grid, given.loss, self.rules[k].cost, given.tau, mask)
 
     def _describe(self) -> str:
         given = self.settings

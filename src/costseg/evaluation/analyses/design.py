@@ -17,13 +17,14 @@ import numpy as np
 import torch
 
 from costseg.calibration.design_search import search
+from costseg.calibration.guarantee import defined_risks
 from costseg.calibration.pareto_testing import choose, pareto_testing
 from costseg.classes import CLASS_NAMES
 from costseg.costs import cost_or_symmetric
 from costseg.decision import count_decisions, decide, prepare_counts, subsample
 from costseg.evaluation.analyses import Analysis, Context, Provided, Seen
 from costseg.evaluation.settings import DesignSettings
-from costseg.metrics.requirements import Requirements, mean_risks
+from costseg.metrics.requirements import Requirements
 from costseg.report.design import DESIGNED_FAMILY, DesignOutcome, SearchOutcome
 from costseg.rules import Rule, RuleGroup, parse_rules, vertex_matrices
 from costseg.rules.design_spaces import (
@@ -191,7 +192,7 @@ class SearchImages:
                 pooled.add(counts)
             per_image = torch.cat(losses).numpy()
             keep_losses(per_image)
-            return mean_risks(per_image), pooled.value(req)
+            return defined_risks(per_image)[0], pooled.value(req)
 
         return score
 

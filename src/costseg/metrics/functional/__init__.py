@@ -14,6 +14,7 @@ from costseg.metrics.functional.calibration import calibration_bins, calibration
 from costseg.metrics.functional.inputs import as_rules, check_batch
 from costseg.metrics.functional.roi import (
     iou_from_confusion,
+    mean_iou,
     precision_recall,
     roi_confusion,
     roi_metrics,
@@ -39,6 +40,7 @@ __all__ = [
     "iou_from_confusion",
     "label_segments",
     "mask_segment_errors",
+    "mean_iou",
     "precision_recall",
     "roi_confusion",
     "roi_metrics",

@@ -224,6 +224,19 @@ def iou_from_confusion(cm: Tensor, deferred: Tensor | None = None) -> Tensor:
     return tp / (tp + fp + fn)
 
 
+def mean_iou(cm: Tensor, deferred: Tensor | None = None) -> Tensor:
+    """mIoU of (..., N, N) counts → float64 (...): the mean IoU over the classes whose IoU is
+    defined (NaN where none is); a deferred pixel (``deferred``: (..., N)) is a false negative
+    of its class (:func:`iou_from_confusion`).
+
+    >>> mean_iou(torch.tensor([[2, 0, 0], [1, 1, 0], [0, 0, 0]])).item()   # (2/3 + 1/2) / 2
+    0.5833333333333333
+    >>> mean_iou(torch.tensor([[2, 0], [1, 1]]), torch.tensor([1, 0])).item()  # (1/2 + 1/2) / 2
+    0.5
+    """
+    return iou_from_confusion(cm, deferred).nanmean(-1)
+
+
 def roi_metrics(confmat: Tensor, deferred: Tensor | None = None) -> dict[str, Tensor]:
     """Everything :class:`~costseg.metrics.RoIPrecisionRecall` reports from its (K, R+1, N, N)
     counts of the pixels that were not deferred and its (K, R+1, N) deferred pixels per target
@@ -238,12 +251,11 @@ def roi_metrics(confmat: Tensor, deferred: Tensor | None = None) -> dict[str, Te
     """
     if deferred is None:
         deferred = confmat.new_zeros(confmat.shape[:-1])
-    iou = iou_from_confusion(confmat[:, 0], deferred[:, 0])
     return {
         "confmat": confmat,
         "deferred": deferred,
         **pixel_rates(confmat, deferred),
-        "iou": iou,
-        "miou": iou.nanmean(-1),
+        "iou": iou_from_confusion(confmat[:, 0], deferred[:, 0]),
+        "miou": mean_iou(confmat[:, 0], deferred[:, 0]),
         **deferral_metrics(confmat, deferred),
     }
