@@ -81,3 +81,38 @@ def test_what_a_fit_provides_is_applied_and_the_groups_freeze():
     assert plan.groups == (named, other)  # the plan's own groups untouched
     context.freeze()
     assert isinstance(context.groups, tuple) and named_group(context.groups) is named
+
+
+def _drawn_modules() -> set[str]:
+    """The report modules whose functions an evaluation's results send to the figure workers:
+    the first argument of each ``job(...)`` call in report/, traced to where it is defined."""
+    import ast
+    from pathlib import Path
+
+    import costseg.report
+
+    found = set()
+    report = Path(costseg.report.__file__).parent
+    for path in report.glob("*.py"):
+        tree = ast.parse(path.read_text())
+        imported = {a.asname or a.name: node.module for node in ast.walk(tree)
+                    if isinstance(node, ast.ImportFrom) and node.module
+                    for a in node.names}  # fmt: skip
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Call) and getattr(node.func, "id", "") == "job" and node.args:
+                name = getattr(node.args[0], "id", None)
+                found.add(imported.get(name, f"costseg.report.{path.stem}"))
+    assert found
+    return found
+
+
+def test_the_entries_declare_the_modules_of_every_figure_they_draw():
+    import importlib
+
+    from costseg import workers
+    from costseg.evaluation.analyses import figure_modules
+
+    declared = set(figure_modules(ANALYSES)) | set(workers.PRELOAD)
+    for module in declared:
+        importlib.import_module(module)
+    assert _drawn_modules() <= declared

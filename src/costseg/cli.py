@@ -309,10 +309,12 @@ def evaluate_main(args: Sequence[str] | None = None) -> Any:
     """``python evaluate.py --cost egoistic`` (see ``--help``); returns the results."""
     with user_errors():
         opts = EvalOptions(**vars(evaluate_parser().parse_args(args)))
+        from costseg.evaluation.analyses import figure_modules, wanted
         from costseg.evaluation.plan import checked_groups
 
         groups = checked_groups(opts)  # before the forkserver, a network or data is touched
-        workers.start()  # the workers' forkserver imports its modules while this one does
+        # the workers' forkserver imports the figures' modules while this process goes on
+        workers.start(figure_modules([entry for entry, _ in wanted(opts)]))
         from costseg.evaluation.run import evaluate
 
         return evaluate(opts, groups=groups)

@@ -27,28 +27,17 @@ import multiprocessing
 import os
 import signal
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import TypeVar
 
 T = TypeVar("T")
 
-PRELOAD = [
-    "costseg.report.drawing",
-    "costseg.report.figures",
-    "costseg.report.ternary",
-    "costseg.report.cost_matrix",
-    "costseg.report.design_figures",
-    "costseg.report.curves",
-    "costseg.report.priors",
-    "costseg.report.uncertainty",
-    "costseg.report.segment_figures",
-    "costseg.report.anomaly_figures",
-    "costseg.data.toy",
-]
+PRELOAD = ["costseg.report.drawing", "costseg.data.toy"]
 """Modules the forkserver imports once, so that a worker forked from it starts at once: the
-drawing jobs' and the procedural scenes' (a Cityscapes loader's workers import torchvision
-themselves, 1.3 s, rather than every evaluation's forkserver)."""
+drawing workers' loop and the procedural scenes' (a Cityscapes loader's workers import torchvision
+themselves, 1.3 s, rather than every evaluation's forkserver). A job adds the modules of the
+figures it will draw (:func:`start`: an evaluation's analyses declare theirs)."""
 
 STALL_SECONDS = 600.0
 """How long a wait on a worker may pass without a figure drawn or a batch loaded. One figure of
@@ -56,17 +45,23 @@ a 1024 × 2048 evaluation takes seconds; ten minutes without one is a stall."""
 
 CONTEXT = multiprocessing.get_context("forkserver")
 CONTEXT.set_forkserver_preload(PRELOAD)
+_started = False  # whether start() ran: the forkserver's preloads are then fixed
 
 
-def start() -> None:
-    """Start the forkserver now (it imports :data:`PRELOAD` while this process goes on), so
-    that the first worker does not wait for it. Returns at once; later calls do nothing.
+def start(preload: Sequence[str] = ()) -> None:
+    """Start the forkserver now (it imports :data:`PRELOAD` and ``preload``, the modules of the
+    figures this job will draw, while this process goes on), so that the first worker does not
+    wait for it. Returns at once; later calls do nothing.
 
     It starts with Ctrl-C ignored, as do the workers it forks: Ctrl-C is this process's to
     handle (it stops the workers), and a worker or the forkserver itself must not print a
     traceback of its own."""
     from multiprocessing import forkserver
 
+    global _started
+    if preload and not _started:  # the forkserver imports its preloads as it starts, once
+        CONTEXT.set_forkserver_preload([*PRELOAD, *preload])
+    _started = True
     if threading.current_thread() is not threading.main_thread():
         forkserver.ensure_running()  # only the main thread may set signal handlers
         return

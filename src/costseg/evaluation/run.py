@@ -14,7 +14,7 @@ import torch.distributed as dist
 from torch.utils.data import Dataset
 
 from costseg import workers
-from costseg.evaluation.analyses import import_analyses, wanted
+from costseg.evaluation.analyses import figure_modules, import_analyses, wanted
 from costseg.evaluation.held_out import HeldOut, held_out_images
 from costseg.evaluation.loop import run
 from costseg.evaluation.plan import EvalPlan, plan
@@ -42,8 +42,8 @@ def evaluate(
     (:mod:`costseg.workers`), which starts first, while the network loads. The output
     folder is marked ``INCOMPLETE`` until every file is written; an interrupt or a failed write
     says where the partial outputs are."""
-    workers.start()
     entries = [entry for entry, _ in wanted(opts)]
+    workers.start(figure_modules(entries))
     prepare = threading.Thread(target=import_analyses, args=(entries,), daemon=True)
     prepare.start()  # their imports (torchmetrics, the reports) overlap the network's loading
     planned = plan(opts, source, dataset, groups)

@@ -57,34 +57,54 @@ class Entry:
     ``ANALYSIS``, an :class:`Analysis` subclass), the resolver of its settings (None: the
     options do not ask for it), the results.json keys it leaves null when not run, the flag
     that asks for it where it fits on held-out images (``--calibration_split``, or the first
-    half of ``--split``), and the analyses whose fits must come before its own (it sees what
-    they provide: the scaled probabilities, the fused rules' meta models)."""
+    half of ``--split``), the analyses whose fits must come before its own (it sees what
+    they provide: the scaled probabilities, the fused rules' meta models), and the report
+    modules of the figures its result draws (the figure workers import them once, at start)."""
 
     module: str
     settings: Callable[[EvalOptions], Any]
     absent: tuple[str, ...] = ()
     held_out: str | None = None
     after: tuple[str, ...] = ()
+    figures: tuple[str, ...] = ()
 
 
 ANALYSES: tuple[Entry, ...] = (
     Entry("scaling", scaling_settings, held_out="--calibrate"),
-    Entry("metrics", always),
-    Entry("segments", segment_settings, absent=("meta",), after=("scaling",)),
+    Entry(
+        "metrics",
+        always,
+        figures=("figures", "priors", "cost_matrix", "ternary", "curves"),
+    ),
+    Entry(
+        "segments",
+        segment_settings,
+        absent=("meta",),
+        after=("scaling",),
+        figures=("segment_figures",),
+    ),
     Entry("choice", sweep_choice),
     Entry("guarantee", certified_choice, held_out="--guarantee", after=("scaling", "segments")),
-    Entry("design", design_settings, absent=("design",), held_out="--design", after=("scaling",)),
-    Entry("calibration", always),
+    Entry(
+        "design",
+        design_settings,
+        absent=("design",),
+        held_out="--design",
+        after=("scaling",),
+        figures=("design_figures",),
+    ),
+    Entry("calibration", always, figures=("curves",)),
     Entry("saved", saved_settings),
-    Entry("anomalies", anomaly_settings, absent=("anomalies",)),
+    Entry("anomalies", anomaly_settings, absent=("anomalies",), figures=("anomaly_figures",)),
     Entry(
         "conformal",
         conformal_settings,
         absent=("conformal",),
         held_out="--conformal",
         after=("scaling",),
+        figures=("conformal",),
     ),
-    Entry("examples", example_settings),
+    Entry("examples", example_settings, figures=("uncertainty",)),
     Entry("explorer", explorer_settings),
 )
 
@@ -131,6 +151,16 @@ def null_keys(ran: dict[Entry, Result | None]) -> tuple[str, ...]:
     """The results.json keys of the analyses that did not run or found nothing to write (null,
     so every results.json has them); ``ran``: each wanted entry's result."""
     return tuple(key for e in ANALYSES if ran.get(e) is None for key in e.absent)
+
+
+def figure_modules(entries: Sequence[Entry]) -> list[str]:
+    """The report modules (``costseg.report.<name>``) of the figures ``entries`` draw.
+
+    >>> figure_modules([e for e in ANALYSES if e.module == "design"])
+    ['costseg.report.design_figures']
+    """
+    names = dict.fromkeys(name for entry in entries for name in entry.figures)
+    return [f"costseg.report.{name}" for name in names]
 
 
 def analysis_class(entry: Entry) -> type[Analysis]:
@@ -344,6 +374,7 @@ __all__ = [
     "Provided",
     "Seen",
     "analysis_class",
+    "figure_modules",
     "fit_order",
     "held_out_flags",
     "import_analyses",
