@@ -133,6 +133,24 @@ def fraction(text: str) -> float:
 
 
 fraction.__name__ = "number in (0, 1)"
+
+
+def share(text: str) -> float:
+    """Value type: a share in (0, 1].
+
+    >>> share("1"), share("0.1")
+    (1.0, 0.1)
+    """
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not 0 < value <= 1:
+        raise argparse.ArgumentTypeError(f"expected a share in (0, 1] such as 0.1, got {text!r}")
+    return value
+
+
+share.__name__ = "share in (0, 1]"
 positive_number = number_above(0, False, "a number", "0.75")
 defer_cost = number_above(0, True, "a defer cost", "0.3")
 
@@ -454,9 +472,16 @@ class EvalOptions(SourceOptions):
 
     design: Literal["triangle", "lagrangian", "aggregate"] | None = option(
         help="design a cost matrix meeting every --require, jointly with probability 1 - δ "
-        "(--design_delta): searched in this space on half of the held-out images, certified on "
-        "the other half by Pareto Testing; writes designed_cost.yaml",
+        "(--design_delta): searched in this space on a random half of the held-out images "
+        "(--seed), certified on the other half by Pareto Testing; writes designed_cost.yaml",
         group=DESIGN,
+    )
+    design_search: Literal["grid", "continuous"] | None = option(
+        help="how --design lagrangian searches its multipliers: every point of a log grid, or "
+        "Optuna's TPE sampler over log μ (--seed); default: the grid when it has at least 8 "
+        "values per multiplier within --design_budget, else continuous",
+        group=DESIGN,
+        needs="design=lagrangian",
     )
     require: list[str] | None = option(
         help="the requirements of --design, e.g. 'person:roi1:recall>=0.8' "
@@ -487,8 +512,8 @@ class EvalOptions(SourceOptions):
     )
     design_budget: int = option(
         300,
-        "candidates --design scores: the aggregate space's search, the finest grid within it "
-        "for the triangle and lagrangian spaces",
+        "candidates --design scores: the continuous searches' budget, the finest grid within "
+        "it for the triangle and a lagrangian grid",
         type=whole_number(2),
         group=DESIGN,
         needs="design",
@@ -509,9 +534,10 @@ class EvalOptions(SourceOptions):
     )
     design_pixels: float = option(
         0.1,
-        "share of each search image's labelled pixels the search scores on (pixel rates only; "
-        "the certification tests on every pixel)",
-        type=number_above(0, False, "a share", "0.1"),
+        "share of each search image's labelled pixels that measures the objective in the "
+        "search (seeded by --seed); the constraints are measured on every pixel that can "
+        "change them, the certification on every pixel",
+        type=share,
         group=DESIGN,
         needs="design",
     )

@@ -31,13 +31,14 @@ from costseg.data.priors import note_priors
 from costseg.evaluation.analyses import Entry, held_out_flags, wanted
 from costseg.evaluation.checks import (
     check_calibration_size,
+    check_design_size,
     check_groups,
     check_instance_targets,
     check_options,
 )
 from costseg.evaluation.priors import evaluation_priors
 from costseg.evaluation.processes import on_rank0, share, world_size
-from costseg.evaluation.settings import certified_choice
+from costseg.evaluation.settings import certified_choice, design_settings
 from costseg.networks.ensemble import open_sources
 from costseg.networks.protocols import Protocol
 from costseg.networks.sources import Source, resolve_device
@@ -143,6 +144,9 @@ def plan(
         candidates = next((g for g in groups if g.candidates), named_group(groups))
         own_split = opts.calibration_split is not None
         check_calibration_size(choice, len(calibration[1]), candidates, own_split)
+    designed = design_settings(opts)
+    if calibration is not None and designed is not None:
+        check_design_size(designed, len(calibration[1]), opts.calibration_split is not None)
     batch_size = opts.batch_size or images.batch_size
     base = source.default_output("evaluation", "eval")
     cache = (Path(opts.output_dir).resolve().parent if opts.output_dir else base.parent) / "priors"

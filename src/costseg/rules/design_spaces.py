@@ -11,7 +11,10 @@ part of it (then the scalar defer cost is the space's last parameter):
   (log scale), expanded to the class matrix by :func:`costseg.costs.expand_aggregates`.
 
 Grid spaces list their points (``grid()``); the aggregate space gives its box (``box()``) to an
-optimiser (:mod:`costseg.calibration.design_search`).
+optimiser (:mod:`costseg.calibration.design_search`), and so may the Lagrangian space (its
+multipliers on a log scale). Each space also bounds its candidates (``hull()``, a :class:`Hull`,
+or None where no bound is derived): what lets the search leave out the pixels that no candidate
+can decide as a constraint's class (:mod:`costseg.calibration.search_pixels`).
 
 >>> from costseg.costs import symmetric_cost
 >>> space = LagrangianSpace(symmetric_cost(3), lagrangian_directions([(2, "recall")], 3), size=3)
@@ -204,6 +207,24 @@ def split_defer(
 
 
 @dataclass(frozen=True)
+class Hull:
+    """A set holding the class rows (the first N) of every candidate of a space: the convex hull
+    of ``vertices`` plus ``Σ_g t_g · generators[g]`` with every ``t_g ∈ [0, 1]``.
+
+    An expected cost ``Σ_j C[k, j] p_j`` is linear in C, so its smallest value over the set is its
+    smallest over the vertices plus, for each generator, its negative part: the bound with which
+    the search keeps every pixel some candidate may decide as a class (docs/definitions.md §20).
+
+    Attributes:
+        vertices: (V, N, N) float64, V >= 1.
+        generators: (G, N, N) float64, G >= 0.
+    """
+
+    vertices: torch.Tensor
+    generators: torch.Tensor
+
+
+@dataclass(frozen=True)
 class TriangleSpace:
     """The mixtures ``α·A + β·B + γ·C`` of three vertex matrices on a barycentric grid of
     ``step`` (:func:`costseg.costs.barycentric_grid`), parameters ``(alpha, beta, gamma)`` and,
@@ -228,6 +249,12 @@ class TriangleSpace:
     def grid(self) -> torch.Tensor:
         """(P, D) every grid point (at every defer cost), in the triangle's order."""
         return grid_with_defer(barycentric_grid(self.step), self.defer_costs)
+
+    def hull(self) -> Hull:
+        """Every mixture lies in the triangle of its three vertices."""
+        vertices = torch.as_tensor(self.vertices, dtype=torch.float64)
+        n = vertices.shape[-1]
+        return Hull(vertices[:, :n], vertices.new_zeros(0, n, n))
 
     def matrix(self, values: Sequence[float] | torch.Tensor) -> torch.Tensor:
         weights, defer = split_defer(values, bool(self.defer_costs))
@@ -271,6 +298,14 @@ class LagrangianSpace:
     def grid(self) -> torch.Tensor:
         points = multiplier_grid(len(self.directions), self.size, self.low, self.high)
         return grid_with_defer(points, self.defer_costs)
+
+    def hull(self) -> Hull:
+        """``C₀ + Σ_i μ_i A_i`` with every μ_i in [0, high]: the grid's points and the continuous
+        search's (:func:`costseg.calibration.design_search.search_multipliers`) alike."""
+        base = torch.as_tensor(self.base, dtype=torch.float64)
+        n = base.shape[-1]
+        directions = torch.as_tensor(self.directions, dtype=torch.float64)
+        return Hull(base[None, :n], self.high * directions)
 
     def matrix(self, values: Sequence[float] | torch.Tensor) -> torch.Tensor:
         mu, defer = split_defer(values, bool(self.defer_costs))
@@ -375,6 +410,11 @@ class AggregateSpace:
         order = self.template.order
         names = tuple(f"{a}>{b}" for a in order for b in order if a != b)
         return defer_parameter(names, self.defer_box is not None)
+
+    def hull(self) -> None:
+        """None: §2's expansion of the aggregates gives no bound here, so the search keeps every
+        pixel of a constraint's RoI."""
+        return None
 
     def box(self) -> list[tuple[str, float, float]]:
         """(name, low, high) of each parameter, all on a log scale."""
