@@ -16,7 +16,7 @@ from costseg.classes import CLASS_NAMES, class_indices
 from costseg.data.priors import check_priors_file
 from costseg.evaluation.analyses import held_out_flags
 from costseg.evaluation.priors import no_priors
-from costseg.evaluation.settings import DesignSettings, SweepChoice
+from costseg.evaluation.settings import DesignSettings, SweepChoice, design_settings
 from costseg.metrics.requirements import Requirements
 from costseg.metrics.selection import certifiable_level, parse_metric, parse_target
 from costseg.networks.probs_files import DATA_RECORD, records_its_data
@@ -142,6 +142,8 @@ def check_design(opts: EvalOptions) -> None:
         raise ValueError(
             f"--require gives two levels for the rate of {text}: keep the stricter one"
         )
+    if opts.limit is not None and opts.calibration_split is None:  # at most half of --limit
+        check_design_size(design_settings(opts), opts.limit // 2, own_split=False)
     vertex_matrices(opts.vertices, opts.vertex_scaling)  # the triangle, searched to compare
     if opts.design == "lagrangian":
         for t in req.constraints:

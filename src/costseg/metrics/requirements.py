@@ -66,7 +66,13 @@ class Requirements:
     ) -> Requirements:
         """The requirements of ``--require`` and ``--design_maximize`` / ``--design_minimize``
         (default: maximise agreement); ValueError naming what is wrong."""
-        constraints = tuple(parse_target(t) for t in targets)
+        constraints = []
+        for text in targets:
+            try:
+                constraints.append(parse_target(text))
+            except ValueError as err:
+                raise ValueError(f"--require {text}: {err}") from None
+        constraints = tuple(constraints)
         alphas = tuple(certifiable_level(t, "--require") for t in targets)
         if maximize and minimize:
             raise ValueError("--design_maximize and --design_minimize: give one objective")
