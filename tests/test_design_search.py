@@ -204,6 +204,8 @@ def test_a_pixel_any_candidate_decides_as_a_class_is_kept() -> None:
     from costseg.rules.triangle import vertex_matrices
 
     probs, _, _ = _scene(seed=2, b=2, h=30, w=40)
+    probs[:, :, 0] = 0.01  # a row of exact ties at the base matrix, each broken to class 2
+    probs[:, 2, 0] = probs[:, 5, 0] = probs[:, 11, 0] = probs[:, 13, 0] = 0.2125
     pairs = [(11, "recall"), (11, "precision"), (2, "precision")]
     space = LagrangianSpace(load_cost("robotistic"), lagrangian_directions(pairs, 19))
     triangle = TriangleSpace(vertex_matrices(["robotistic", "altruistic", "egoistic"]), 0.1)

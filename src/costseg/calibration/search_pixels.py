@@ -33,7 +33,13 @@ from costseg.classes import IGNORE_INDEX
 from costseg.rules.design_spaces import Hull
 
 CHUNK = 1 << 16
-"""Pixels whose expected costs are bounded at once (float64, every vertex and generator)."""
+"""Pixels whose expected costs are bounded at once (every vertex and generator)."""
+
+MARGIN = 2 * 2**-24
+"""The rounding margin of :func:`could_decide`: twice float32's unit roundoff u, per term.
+Each expected cost errs by at most ``(N + 1) u`` times its sum of sizes ``A`` (N products,
+the cost's own rounding), the gap's subtraction and the sum over the hull's M matrices by
+``(M + 1) u`` more: ``(N + M + 2) u (A_c + A_k) ≤ 2u (N + M) (A_c + A_k)``."""
 
 PixelNeed = tuple[int | None, int, bool]
 """What a constraint counts: its class (None: every class), its RoI id (0: the whole image), and
@@ -44,25 +50,31 @@ whether it counts pixels of other classes decided as its class (precision, Dice:
 def could_decide(probs: torch.Tensor, cls: int, hull: Hull) -> torch.Tensor:
     """Where some matrix of ``hull`` may decide ``cls`` (the module docstring's bound).
 
+    Computed in float32, one matrix product per block of pixels, each matrix's gap
+    ``E_c − E_k`` lowered by a bound on its rounding error (:data:`MARGIN` ``· (N + M)`` times
+    the sums of sizes ``Σ_j |C[c, j]| p_j + Σ_j |C[k, j]| p_j``) before the least over the hull
+    is taken: a pixel left out is one the float64 rule cannot decide as c.
+
     Args:
         probs: (N, P) probabilities of P pixels.
         cls: the class c.
-        hull: a set holding every candidate's class rows.
+        hull: a set holding every candidate's class rows (M matrices in all).
 
     Returns:
         (P,) bool: False only where some class k costs less than c under every matrix of the
-        hull, by more than a rounding margin.
+        hull, beyond rounding.
     """
     vertices, generators = hull.vertices, hull.generators
-    rows = torch.cat([vertices, generators]).to(probs.device)  # (V + G, N, N)
-    margin = 1e-9 * (1 + vertices.abs().amax().item() + generators.abs().sum(0).amax().item())
+    m, n, v = len(vertices) + len(generators), vertices.shape[-1], len(vertices)
+    rows = torch.cat([vertices, generators]).reshape(m * n, n)
+    both = torch.cat([rows, rows.abs()]).to(probs.device, torch.float32)
     out = []
     for start in range(0, probs.shape[1], CHUNK):
-        p = probs[:, start : start + CHUNK].double()
-        costs = torch.einsum("mkj,jp->mkp", rows, p)  # E_k of each vertex and generator
-        gap = costs[:, cls : cls + 1] - costs  # E_c − E_k: (V + G, N, P)
-        low = gap[: len(vertices)].amin(0) + gap[len(vertices) :].clamp(max=0).sum(0)
-        out.append(~(low > margin).any(0))
+        costs, sizes = (both @ probs[:, start : start + CHUNK].float()).view(2, m, n, -1)
+        error = MARGIN * (n + m) * (sizes[:, cls : cls + 1] + sizes)
+        gap = costs[:, cls : cls + 1] - costs  # E_c − E_k of each matrix: (M, N, P)
+        low = (gap[:v] - error[:v]).amin(0) + (gap[v:].clamp(max=0) - error[v:]).sum(0)
+        out.append(~(low > 0).any(0))  # no k beats c under every matrix of the hull
     return torch.cat(out) if out else torch.zeros(0, dtype=torch.bool, device=probs.device)
 
 
