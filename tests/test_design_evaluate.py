@@ -98,7 +98,7 @@ def test_the_python_api_designs_what_the_command_line_designs(ckpt, tmp_path):
     evaluate_main([*ARGS, "--network", f"costseg:{ckpt}", "--data_root", str(root),
                    "--roi", "geometric", "--design", "aggregate", "--design_budget", "12",
                    "--seed", "3", "--output_dir", str(cli)])  # fmt: skip
-    costseg.evaluate(
+    results = costseg.evaluate(
         load_network(f"costseg:{ckpt}"), CityscapesSegmentation(root, "val"), ["robotistic"],
         require=REQUIREMENTS, design_delta=0.5, num_examples=1, progress=False, output_dir=str(api),
         **common,
@@ -107,6 +107,7 @@ def test_the_python_api_designs_what_the_command_line_designs(ckpt, tmp_path):
     sources = first["certified_for"].pop("source"), second["certified_for"].pop("source")
     assert "sha256" in sources[0] and sources[1] == "python:DeepLabV3Plus"  # a network object
     assert first == second
+    assert results.design.split.d1 == first["split"]["search (D1)"]["positions"]
     assert (cli / "design_candidates.csv").read_text() == (
         api / "design_candidates.csv"
     ).read_text()
