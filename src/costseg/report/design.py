@@ -422,7 +422,7 @@ class DesignOutcome(Result):
             t = s.testing
             arguments = (t.risks_d1, s.candidates.objective, t.front, t.certified, s.chosen,
                          list(req.texts), list(req.alphas), req.objective_text)  # fmt: skip
-            fronts.append((s.candidates.space, arguments))
+            fronts.append((s.candidates.space, arguments, (t.risks_d2, t.order)))
         title = f"designed value system, {figure_subject(results.source, [])}"
         return job(design_figures, matrices, list(CLASS_NAMES), fronts, title)
 
