@@ -53,3 +53,19 @@ def test_a_requirement_no_candidate_meets_on_the_search_images_is_out_of_reach()
     assert "no candidate of the space meets person:roi1:recall>=0.8" in why
     assert "cannot reach it" in why and "handled_recall" in why
     assert any("handled_recall" in note for note in found.notes(req))
+
+
+def test_a_designed_file_used_with_another_network_is_noted(tmp_path) -> None:
+    from costseg.report.certified import CERTIFIED_FOR, certificate_notes, fingerprint
+
+    ours, other = tmp_path / "ours.ckpt", tmp_path / "other.ckpt"
+    ours.write_bytes(b"weights")
+    other.write_bytes(b"other weights")
+    made_with = fingerprint({"network": f"costseg:{ours}"})
+    cost = tmp_path / "designed_cost.yaml"
+    cost.write_text(f"# designed by costseg\n# {CERTIFIED_FOR}{made_with}; held-out ...\nname: d\n")
+    moved = tmp_path / "moved.ckpt"
+    moved.write_bytes(b"weights")  # the same file elsewhere: the same certificate
+    assert certificate_notes([str(cost)], {"network": f"costseg:{moved}"}) == []
+    (note,) = certificate_notes([str(cost), "robotistic"], {"network": f"costseg:{other}"})
+    assert note.startswith(f"note: {cost} was certified for {made_with}") and "other.ckpt" in note

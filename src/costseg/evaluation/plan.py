@@ -43,6 +43,7 @@ from costseg.networks.ensemble import open_sources
 from costseg.networks.protocols import Protocol
 from costseg.networks.sources import Source, resolve_device
 from costseg.options import EvalOptions
+from costseg.report.certified import certificate_notes
 from costseg.report.outputs import claim_output_dir
 from costseg.rules import (
     TEMPERATURES,
@@ -156,6 +157,8 @@ def plan(
     )
     description = _description(source, record)
     note_priors(description, opts.priors, dataset)
+    for note in certificate_notes(opts.cost, description):
+        print(note)
     priors = PriorMaps(pixel_priors, CLASS_NAMES, device, geometric)
     require_priors(groups, priors.priors)
     measured, note = instance_classes(dataset, opts.classes)

@@ -4,10 +4,8 @@
 
 from __future__ import annotations
 
-import hashlib
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -19,6 +17,7 @@ from costseg.costs import load_cost, save_cost
 from costseg.metrics.names import INSTANCE_RATES, SEGMENT_RATES
 from costseg.metrics.requirements import Requirements
 from costseg.metrics.selection import Target, metric_values
+from costseg.report.certified import CERTIFIED_FOR, fingerprint
 from costseg.report.design_figures import design_figures
 from costseg.report.drawing import job
 from costseg.report.files import write_csv, write_json
@@ -307,7 +306,7 @@ class DesignOutcome(Result):
         """What the certificate holds for: the probability source (a file's SHA-256), the
         held-out images, the RoI map."""
         return {
-            "source": _fingerprint(results.source),
+            "source": fingerprint(results.source),
             "held_out": self.split.held_out,
             "roi_map": f"--roi {self.roi}",
             "priors": _priors_words(results.source.get("priors")),
@@ -328,7 +327,7 @@ class DesignOutcome(Result):
                 f"risk {t.risks_d1[k, i]:.4f} on {t.n_d1[k, i]} of {self.n1}"
             )
         lines += [
-            f"certified for: {certified_for['source']}; held-out images "
+            f"{CERTIFIED_FOR}{certified_for['source']}; held-out images "
             f"{certified_for['held_out']}, split at random with --seed {self.split.seed} "
             f"({self.n1} search, {self.n2} certification; design.json lists them); RoI map "
             f"{certified_for['roi_map']} (priors: {certified_for['priors']})",
@@ -485,21 +484,6 @@ def _defer_hint(target: Target, defers: bool) -> str:
             "handled_recall (deferred pixels count as handled)"
         )
     return ""
-
-
-def _fingerprint(source: dict) -> str:
-    """The probability source, with the SHA-256 of the file behind it where there is one."""
-    spec = str(source.get("network") or source.get("probs") or source)
-    if "members" in source:
-        return "ensemble of " + ", ".join(_fingerprint(m) for m in source["members"])
-    path = Path(spec.split(":", 1)[-1].split("?")[0]) if ":" in spec else Path(spec)
-    if path.is_file():
-        digest = hashlib.sha256()
-        with path.open("rb") as f:
-            for block in iter(lambda: f.read(1 << 22), b""):
-                digest.update(block)
-        return f"{spec} (sha256 {digest.hexdigest()[:16]})"
-    return spec
 
 
 def _priors_words(record) -> str:

@@ -177,9 +177,8 @@ class EvalResults:
     def design(self):
         """The outcome of ``--design`` (:class:`costseg.report.design.DesignOutcome`: the
         requirements, the split, each searched space and its chosen matrix), or None."""
-        from costseg.report.design import DesignOutcome  # it imports this module
-
-        return self.find(DesignOutcome)
+        # by name: report/design.py imports this module
+        return next((r for r in self.analyses if type(r).__name__ == "DesignOutcome"), None)
 
     @property
     def subject(self) -> str:
