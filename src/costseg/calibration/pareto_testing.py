@@ -103,7 +103,8 @@ class ParetoTestingResult:
         best: when nothing is certified, the front's candidate closest to meeting every
             constraint on D1 (the smallest largest excess ``R̂_i − α_i``; the first in ``order``
             of ties), else None.
-        failed: its constraint with the largest D2 p-value (the first of ties), else None.
+        failed: its constraint with the largest D2 p-value (of ties, the first with a defined
+            D2 risk, else the first), else None.
         needed_n: the images with a defined loss at which its observed risk on ``failed`` would
             pass at δ (:func:`images_needed`); None when certified, or the risk is ≥ α.
         needed_images: ``needed_n`` as D2 images, at D2's share of images with a defined loss
@@ -190,7 +191,9 @@ def pareto_testing(
         return result
     excess = np.nan_to_num(risks_d1[order] - levels, nan=np.inf).max(axis=1)
     best = int(order[np.argmin(excess)])  # the first of ties
-    failed = int(np.argmax(p_d2[best]))
+    worst = np.flatnonzero(p_d2[best] == p_d2[best].max())
+    defined = worst[n_d2[best, worst] > 0]  # of ties, one whose risk is measured, if any
+    failed = int(defined[0] if len(defined) else worst[0])
     observed = risks_d2[best, failed] if n_d2[best, failed] else risks_d1[best, failed]
     needed = None
     if np.isfinite(observed) and observed < levels[failed]:

@@ -144,8 +144,8 @@ class SearchOutcome:
             return (
                 f"nothing certified at δ = {delta}: the search's best candidate "
                 f"({_parameters(c, k)}) has certification risks {_risks(t.risks_d2[k])} "
-                f"(α {_risks(t.alphas)}) on {_counts(t.n_d2[k])} of {n2} images; "
-                f"{self.why(req)}"
+                f"(α {_risks(t.alphas)}) on {_counts(t.n_d2[k])} of {n2} images"
+                f"{self._deferring()}; {self.why(req)}"
             )
         k = self.chosen
         return (
@@ -153,16 +153,26 @@ class SearchOutcome:
             f"(front {len(t.front)}); chosen {_parameters(c, k)}, certification risks "
             f"{_risks(t.risks_d2[k])} on {_counts(t.n_d2[k])} of {n2} images, "
             f"{req.objective_text} {self.objective_all[k]:.4f} on the held-out images"
-            + ("" if self.deferred is None else
-               f", deferring {_share(self.deferred['all pixels'])} of the labelled pixels")
-        )  # fmt: skip
+            f"{self._deferring()}"
+        )
+
+    def _deferring(self) -> str:
+        if self.deferred is None:
+            return ""
+        return f", deferring {_share(self.deferred['all pixels'])} of the labelled held-out pixels"
 
     def why(self, req: Requirements) -> str:
         """Why the best candidate was not certified, and whether more images would help."""
         t, k = self.testing, self.testing.best
         i = t.failed
         text, target = req.texts[i], req.constraints[i]
-        reached = np.nanmin(np.where(np.isnan(t.risks_d1[:, i]), np.inf, t.risks_d1[:, i]))
+        if np.isnan(t.risks_d1[:, i]).all():
+            return (
+                f"{text} is undefined on every search image under every candidate (no search "
+                f"image {_where(target)} under any of them): it cannot be measured, let alone "
+                f"certified; held-out images where it is defined are needed"
+            )
+        reached = np.nanmin(t.risks_d1[:, i])
         if not reached <= t.alphas[i]:
             return (
                 f"no candidate of the space meets {text} even on the search images (its "
@@ -171,7 +181,12 @@ class SearchOutcome:
             )
         if t.n_d2[k, i] == 0:
             where = _where(target)
-            more = f"; about {t.needed_images} held-out images" if t.needed_images else ""
+            more = (
+                f" (about {t.needed_images} certification images at the search images' share "
+                "of such images)"
+                if t.needed_images
+                else ""
+            )
             return (
                 f"{text} fails because no certification image {where}: its risk there is "
                 f"undefined (p = 1), not above α; more images would help{more}"
@@ -279,7 +294,7 @@ class DesignOutcome(Result):
         for s in self.searches:
             name = f"design, {s.candidates.space} space{'' if s.designed else ' (to compare)'}"
             lines.append(f"{name}: " + s.line(req, self.delta, self.n2))
-            if s.designed:
+            if s.designed and s.chosen is not None:
                 lines += [f"{name}: {note}" for note in s.notes(req)]
         images = self.searches[0].images(req)
         if images:
@@ -395,7 +410,7 @@ class DesignOutcome(Result):
                 cells += [f"{s.objective_all[k]:.4f}"]
             lines.append("| " + " | ".join(map(str, cells)) + " |")
         for s in self.searches:
-            for note in s.notes(req) if s.designed else []:
+            for note in s.notes(req) if s.designed and s.chosen is not None else []:
                 lines += ["", f"Note: {note}."]
             if s.chosen is None and s.testing.best is not None:
                 lines += ["", f"{s.candidates.space}: {s.why(req)}."]

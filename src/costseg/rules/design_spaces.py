@@ -117,6 +117,29 @@ def lagrangian_directions(constraints: Sequence[tuple[int, str]], num_classes: i
     return directions
 
 
+DEFERRAL_IS_HANDLED: tuple[str, ...] = ("handled_recall",)
+"""Recall-type metrics that count a deferred pixel of the class as handled, not missed."""
+
+
+def defer_directions(constraints: Sequence[tuple[int, str]], num_classes: int) -> torch.Tensor:
+    """How each constraint's multiplier moves a defer row: a recall-type constraint on class c
+    whose rate counts a deferred pixel of c as a miss (recall, FN segments, missed instances)
+    raises the row's cost for true class c (deferring c costs more, as missing it does); the
+    others (precision-type, handled recall) leave it.
+
+    Returns:
+        (K, N) float64.
+
+    >>> defer_directions([(1, "recall"), (1, "handled_recall"), (0, "precision")], 2).tolist()
+    [[0.0, 1.0], [0.0, 0.0], [0.0, 0.0]]
+    """
+    out = torch.zeros(len(constraints), num_classes, dtype=torch.float64)
+    for i, (c, metric) in enumerate(constraints):
+        if constraint_kind(metric) == "recall" and metric not in DEFERRAL_IS_HANDLED:
+            out[i, c] = 1.0
+    return out
+
+
 def lagrangian_cost(base: torch.Tensor, directions: torch.Tensor, mu: torch.Tensor) -> torch.Tensor:
     """``C(μ) = C₀ + Σ_i μ_i A_i``, summed in the order of i; a defer row of ``C₀`` is left as is.
 
@@ -268,7 +291,8 @@ class TriangleSpace:
 class LagrangianSpace:
     """``C(μ) = C₀ + Σ_i μ_i A_i`` (:func:`lagrangian_cost`) on :func:`multiplier_grid`'s points,
     parameters ``mu_1 … mu_K`` and, with ``defer_costs``, each point at each defer cost (then
-    ``base`` must be square).
+    ``base`` must be square): the defer row is the defer cost plus ``Σ_i μ_i d_i`` with
+    ``deferring`` the (K, N) rows d_i of :func:`defer_directions` (None: zeros).
 
     >>> from costseg.costs import symmetric_cost
     >>> space = LagrangianSpace(symmetric_cost(2), lagrangian_directions([(0, "recall")], 2),
@@ -283,6 +307,7 @@ class LagrangianSpace:
     low: float = 1e-2
     high: float = 1e2
     defer_costs: tuple[float, ...] = ()
+    deferring: torch.Tensor | None = None
     name: str = field(default="lagrangian", init=False)
 
     def __post_init__(self) -> None:
@@ -310,7 +335,12 @@ class LagrangianSpace:
     def matrix(self, values: Sequence[float] | torch.Tensor) -> torch.Tensor:
         mu, defer = split_defer(values, bool(self.defer_costs))
         cost = lagrangian_cost(self.base, self.directions, mu)
-        return cost if defer is None else with_defer(cost, defer)
+        if defer is None:
+            return cost
+        row = torch.full((cost.shape[-1],), defer, dtype=torch.float64)
+        if self.deferring is not None:
+            row = row + (mu[:, None] * torch.as_tensor(self.deferring, dtype=torch.float64)).sum(0)
+        return with_defer(cost, row)
 
 
 @dataclass(frozen=True)

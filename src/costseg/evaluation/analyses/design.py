@@ -39,6 +39,7 @@ from costseg.rules.design_spaces import (
     LagrangianSpace,
     TriangleSpace,
     aggregate_template,
+    defer_directions,
     lagrangian_directions,
 )
 from costseg.rules.named import NamedRules, rule_columns
@@ -164,8 +165,9 @@ def spaces(settings: DesignSettings, req: Requirements) -> list[Space]:
         pairs = [(t.cls, t.metric) for t in req.constraints]
         size = grid_size(settings.budget, len(pairs), len(defer))
         base_cost = cost_or_symmetric(base.cost, len(CLASS_NAMES))
-        own = LagrangianSpace(base_cost, lagrangian_directions(pairs, len(CLASS_NAMES)), size,
-                              defer_costs=defer)  # fmt: skip
+        n = len(CLASS_NAMES)
+        own = LagrangianSpace(base_cost, lagrangian_directions(pairs, n), size, defer_costs=defer,
+                              deferring=defer_directions(pairs, n))  # fmt: skip
     else:
         box = (min(defer), max(defer)) if defer else None
         own = AggregateSpace(aggregate_template(settings.base or "altruistic"), defer_box=box)
