@@ -4,6 +4,8 @@ images is said to be out of the space's reach, and a deferring design's recall i
 
 from __future__ import annotations
 
+import textwrap
+
 import numpy as np
 import torch
 
@@ -63,7 +65,11 @@ def test_a_designed_file_used_with_another_network_is_noted(tmp_path) -> None:
     other.write_bytes(b"other weights")
     made_with = fingerprint({"network": f"costseg:{ours}"})
     cost = tmp_path / "designed_cost.yaml"
-    cost.write_text(f"# designed by costseg\n# {CERTIFIED_FOR}{made_with}; held-out ...\nname: d\n")
+    line = f"{CERTIFIED_FOR}{made_with}; held-out ..."
+    wrapped = textwrap.fill(
+        line, 40, subsequent_indent="  ", break_long_words=False, break_on_hyphens=False
+    ).replace("\n", "\n# ")
+    cost.write_text(f"# designed by costseg\n# {wrapped}\nname: d\n")  # as the header wraps
     moved = tmp_path / "moved.ckpt"
     moved.write_bytes(b"weights")  # the same file elsewhere: the same certificate
     assert certificate_notes([str(cost)], {"network": f"costseg:{moved}"}) == []

@@ -43,10 +43,16 @@ def certified_source(path: str | Path) -> str | None:
         lines = Path(path).read_text(encoding="utf-8").splitlines()
     except (OSError, UnicodeDecodeError):
         return None
+    header: list[str] = []
     for line in lines:
         if not line.startswith("#"):
             break
-        text = line.lstrip("#").strip()
+        text = line.removeprefix("#").removeprefix(" ")
+        if text.startswith("  ") and header:  # a wrapped line goes on
+            header[-1] += " " + text.strip()
+        else:
+            header.append(text.strip())
+    for text in header:
         if text.startswith(CERTIFIED_FOR):
             return text.removeprefix(CERTIFIED_FOR).split(";")[0]
     return None

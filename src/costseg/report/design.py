@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import math
+import textwrap
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -354,7 +355,13 @@ class DesignOutcome(Result):
         if own.deferred is not None:
             lines.append(f"defers {_share(own.deferred['all pixels'])} of the labelled "
                          "held-out pixels")  # fmt: skip
-        return "\n".join(lines)
+        wrapped = [
+            textwrap.fill(
+                line, 98, subsequent_indent="  ", break_long_words=False, break_on_hyphens=False
+            )
+            for line in lines
+        ]
+        return "\n".join(wrapped)
 
     def _rows(self) -> list[dict]:
         req, rows = self.requirements, []
@@ -512,11 +519,17 @@ def _reported(results: EvalResults, req: Requirements, per_image: dict) -> dict:
     """Per constraint and rule (the named rules and the designed ones), on the reported images:
     the pooled rate (every image's pixels or segments counted together), the mean per-image
     loss (what the certificate bounds), the images where that loss is defined, and how many of
-    them miss the requirement's level on their own."""
+    them miss the requirement's level on their own; and each rule's mIoU (``miou``)."""
     designed = next((g for g in results.groups if g.group.family == DESIGNED_FAMILY), None)
     named = named_group([g.group for g in results.groups])
     groups = [results.result_of(named)] + ([designed] if designed is not None else [])
-    out = {}
+    out = {
+        "miou": {
+            name: g.pixels["miou"][k].item() if "miou" in g.pixels else None
+            for g in groups
+            for k, name in enumerate(g.group.names)
+        }
+    }
     for text, target in zip(req.texts, req.constraints, strict=True):
         out[text] = {}
         for g in groups:
@@ -537,6 +550,8 @@ def _reported(results: EvalResults, req: Requirements, per_image: dict) -> dict:
 
 
 def _reported_table(reported: dict) -> list[str]:
+    reported = dict(reported)
+    miou = reported.pop("miou", {})
     if not reported:
         return []
     rules = list(next(iter(reported.values())))
@@ -560,4 +575,8 @@ def _reported_table(reported: dict) -> list[str]:
                 cells.append(f"{pooled} pooled, risk {risk:.4f}, {v['images_above_alpha']} of "
                              f"{v['images']} images miss")  # fmt: skip
         lines.append(f"| {text} | " + " | ".join(cells) + " |")
+    if miou:
+        values = [miou.get(rule) for rule in rules]
+        lines.append("| mIoU | " + " | ".join("–" if v is None else f"{100 * v:.2f}"
+                                                for v in values) + " |")  # fmt: skip
     return lines
