@@ -25,7 +25,14 @@ from costseg.calibration.pareto_testing import choose, pareto_testing, split_ima
 from costseg.calibration.search_pixels import constraint_pixels, gather_pixels
 from costseg.classes import CLASS_NAMES, IGNORE_INDEX
 from costseg.costs import cost_or_symmetric
-from costseg.decision import DecisionCounts, count_decisions, decide, prepare_counts, subsample
+from costseg.decision import (
+    CountInputs,
+    DecisionCounts,
+    count_decisions,
+    decide,
+    prepare_counts,
+    subsample,
+)
 from costseg.evaluation.analyses import Analysis, Context, Provided, Seen
 from costseg.evaluation.processes import summed
 from costseg.evaluation.settings import DesignSettings
@@ -223,7 +230,7 @@ class Part(NamedTuple):
     hold the constraints' pixels; the objective's are the rest (``objective_rows``: all rows
     when the constraints and the objective see the same pixels)."""
 
-    inputs: object  # CountInputs
+    inputs: CountInputs
     images: int
     split: bool
 
