@@ -115,13 +115,14 @@ def aggregate_pool(
     settings: DesignSettings, req: Requirements, search_images, seed: int, budget: int
 ) -> torch.Tensor:
     """The candidates of one NSGA-II search of the aggregate space on ``search_images``,
-    scored as ``evaluate.py --design`` scores them (its share of each image's pixels, each
-    image drawn with its own seed)."""
+    scored as ``evaluate.py --design`` scores them (every pixel that can change a constraint,
+    and a share of each image's pixels, drawn with its own seed, for the objective)."""
     found, first = SearchImages(), 0
-    for p, y, r in search_images:
-        found.add_pixels(p, y, r, settings.pixels, pixel_seeds(seed, first, len(y)))
-        first += len(y)
     space = next(s for s in spaces(settings, req) if s.name == "aggregate")
+    for p, y, r in search_images:
+        seeds = pixel_seeds(seed, list(range(first, first + len(y))))
+        found.add_pixels(p, y, r, settings.pixels, req, [space.hull()], seeds)
+        first += len(y)
     return search(space, found.scorer(req, lambda losses: None), req.alphas, budget, seed).matrices
 
 

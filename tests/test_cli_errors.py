@@ -186,6 +186,22 @@ EVALUATE_CASES = {
         ["--design_minimize", "person:roi1:recall"],
         ["--design_minimize goes with"],
     ),
+    "design search of the triangle": (
+        [*DESIGN[:-1], "triangle", "--design_search", "grid"],
+        ["--design_search goes with --design lagrangian"],
+    ),
+    "design requirement twice": (
+        [*DESIGN, "--require", "person:roi1:recall>=0.9", "person:street:recall>=0.9"],
+        ["--require gives person:roi1:recall>=0.9 twice"],
+    ),
+    "design requirement misspelt": (
+        [*DESIGN, "--require", "person:roi1:recal>=0.9"],
+        ["--require person:roi1:recal>=0.9", "unknown metric"],
+    ),
+    "design on too few held-out images": (
+        [*DESIGN, "--limit", "2"],
+        ["1 held-out image(s)", "at least 44 held-out images", "--calibration_split"],
+    ),
     "design base of triangle": (
         [*DESIGN[:-1], "triangle", "--design_base", "egoistic"],
         ["--design_base goes with"],

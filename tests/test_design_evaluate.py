@@ -40,18 +40,26 @@ def test_the_designed_cost_file_reproduces_the_rows_of_the_design(ckpt, tmp_path
                    "lagrangian", "--calibration_split", "train"])  # fmt: skip
     record = json.loads((out / "design.json").read_text())
     own = record["searches"][0]
-    assert record["split"]["search (D1)"] == "the first 4 held-out images"
-    assert own["space"] == "lagrangian" and own["candidates"] == 16  # 4 multipliers per constraint
+    split = record["split"]
+    d1, d2 = split["search (D1)"]["positions"], split["certification (D2)"]["positions"]
+    assert split["seed"] == 0 and sorted(d1 + d2) == list(range(8)) and len(d1) == 4
+    assert split["held_out"] == "--calibration_split train"
+    # a grid of 4 values per multiplier would be coarse: the multipliers are searched by Optuna
+    assert own["space"] == "lagrangian" and own["candidates"] == 20
+    assert own["search"].startswith("Optuna's TPE sampler")
+    assert set(own["images_with_a_defined_loss"][REQUIREMENTS[0]]) == {"search", "certification"}
     assert own["certified"] >= 1 and "chosen" in own
     assert all(own["chosen"]["certification_pvalues"][t] <= 0.5 for t in REQUIREMENTS)
     yaml_file = out / "designed_cost.yaml"
     header = yaml_file.read_text().split("name:")[0]
-    assert "δ = 0.5" in header and "n1 = 4" in header and "n2 = 4" in header
+    assert "δ = 0.5" in header and "4 search, 4 certification" in header
+    assert "sha256" in header and "--calibration_split train" in header
     matrix = load_cost(yaml_file)
     mu = own["chosen"]["parameters"]
     expected = load_cost("robotistic")
-    expected[:, 11] += mu["mu_1"] * (torch.arange(19) != 11)  # person recall: its column
-    expected[0, :] += mu["mu_2"] * (torch.arange(19) != 0)  # road precision: its row
+    off = (torch.arange(19) != 11).double(), (torch.arange(19) != 0).double()
+    expected[:, 11] += mu["mu_1"] * off[0]  # person recall: its column
+    expected[0, :] += mu["mu_2"] * off[1]  # road precision: its row
     torch.testing.assert_close(matrix, expected, rtol=0, atol=0)
     again = tmp_path / "again"
     evaluate_main(["--no-progress", "--num_examples", "1", "--ckpt_path", ckpt, "--output_dir",
@@ -90,13 +98,16 @@ def test_the_python_api_designs_what_the_command_line_designs(ckpt, tmp_path):
     evaluate_main([*ARGS, "--network", f"costseg:{ckpt}", "--data_root", str(root),
                    "--roi", "geometric", "--design", "aggregate", "--design_budget", "12",
                    "--seed", "3", "--output_dir", str(cli)])  # fmt: skip
-    costseg.evaluate(
+    results = costseg.evaluate(
         load_network(f"costseg:{ckpt}"), CityscapesSegmentation(root, "val"), ["robotistic"],
         require=REQUIREMENTS, design_delta=0.5, num_examples=1, progress=False, output_dir=str(api),
         **common,
     )  # fmt: skip
     first, second = (json.loads((d / "design.json").read_text()) for d in (cli, api))
+    sources = first["certified_for"].pop("source"), second["certified_for"].pop("source")
+    assert "sha256" in sources[0] and sources[1] == "python:DeepLabV3Plus"  # a network object
     assert first == second
+    assert results.design.split.d1 == first["split"]["search (D1)"]["positions"]
     assert (cli / "design_candidates.csv").read_text() == (
         api / "design_candidates.csv"
     ).read_text()

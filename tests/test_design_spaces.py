@@ -22,6 +22,7 @@ from costseg.rules.design_spaces import (
     TriangleSpace,
     aggregate_template,
     constraint_kind,
+    defer_directions,
     lagrangian_cost,
     lagrangian_directions,
     multiplier_grid,
@@ -103,6 +104,11 @@ def test_lagrangian_space_with_a_defer_parameter() -> None:
     with pytest.raises(ValueError, match="defer row"):
         LagrangianSpace(torch.cat([symmetric_cost(3), torch.ones(1, 3)]), directions,
                         defer_costs=(0.1,))  # fmt: skip
+    # a recall that counts a deferral as a miss makes deferring its class cost more too
+    pairs = [(0, "recall"), (1, "handled_recall"), (2, "precision")]
+    directions, rows = lagrangian_directions(pairs, 3), defer_directions(pairs, 3)
+    deferring = LagrangianSpace(symmetric_cost(3), directions, defer_costs=(0.2,), deferring=rows)
+    assert deferring.matrix([5.0, 7.0, 11.0, 0.2])[3].tolist() == [5.2, 0.2, 0.2]
 
 
 def test_aggregate_space_with_the_papers_matrices_reproduces_the_presets() -> None:

@@ -229,3 +229,20 @@ def test_invalid_inputs_are_refused() -> None:
             pareto_testing(*args)
     with pytest.raises(ValueError, match="objective_d1"):
         pareto_testing(ok, ok, [0.1, 0.1], 0.1, objective_d1=[1.0])
+
+
+def test_the_split_is_random_seeded_and_covers_every_image_once() -> None:
+    """D1 and D2 (docs/definitions.md §20): disjoint, together every image, half each; the same
+    seed draws the same split, another seed another; not the halves in order."""
+    from costseg.calibration.pareto_testing import split_images
+
+    for n in (0, 1, 7, 100):
+        d1, d2 = split_images(n, seed=5)
+        assert len(d1) == n // 2 and not set(d1.tolist()) & set(d2.tolist())
+        assert sorted([*d1.tolist(), *d2.tolist()]) == list(range(n))
+        assert list(d1) == sorted(d1) and list(d2) == sorted(d2)
+    same = [split_images(100, seed=s)[0].tolist() for s in (5, 5, 6)]
+    assert same[0] == same[1] and same[0] != same[2]
+    assert same[0] != list(range(50))  # not the first half
+    firsts = np.mean([np.mean(split_images(100, seed=s)[0] < 50) for s in range(50)])
+    assert 0.4 < firsts < 0.6  # D1 draws from both halves alike

@@ -361,9 +361,16 @@ class EvalOptions(SourceOptions):
 
     design: Literal["triangle", "lagrangian", "aggregate"] | None = option(
         help="design a cost matrix meeting every --require, jointly with probability 1 - δ "
-        "(--design_delta): searched in this space on half of the held-out images, certified on "
-        "the other half by Pareto Testing; writes designed_cost.yaml",
+        "(--design_delta): searched in this space on a random half of the held-out images "
+        "(--seed), certified on the other half by Pareto Testing; writes designed_cost.yaml",
         group=DESIGN,
+    )
+    design_search: Literal["grid", "continuous"] | None = option(
+        help="how --design lagrangian searches its multipliers: every point of a log grid, or "
+        "Optuna's TPE sampler over log μ (--seed); default: the grid when it has at least 8 "
+        "values per multiplier within --design_budget, else continuous",
+        group=DESIGN,
+        needs="design=lagrangian",
     )
     require: list[str] | None = option(
         help="the requirements of --design, e.g. 'person:roi1:recall>=0.8' "
@@ -394,8 +401,8 @@ class EvalOptions(SourceOptions):
     )
     design_budget: int = option(
         300,
-        "candidates --design scores: the aggregate space's search, the finest grid within it "
-        "for the triangle and lagrangian spaces",
+        "candidates --design scores: the continuous searches' budget, the finest grid within "
+        "it for the triangle and a lagrangian grid",
         type=whole_number(2),
         group=DESIGN,
         needs="design",
@@ -416,8 +423,9 @@ class EvalOptions(SourceOptions):
     )
     design_pixels: float = option(
         0.1,
-        "share of each search image's labelled pixels the search scores on (pixel rates only; "
-        "the certification tests on every pixel)",
+        "share of each search image's labelled pixels that measures the objective in the "
+        "search (seeded by --seed); the constraints are measured on every pixel that can "
+        "change them, the certification on every pixel",
         type=share,
         group=DESIGN,
         needs="design",

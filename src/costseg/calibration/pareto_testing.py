@@ -18,6 +18,7 @@ Pure numpy / scipy; nothing here knows of models, matrices or Lightning.
 
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import dataclass
 
@@ -29,6 +30,28 @@ from costseg.calibration.guarantee import defined_risks, hoeffding_bentkus_pvalu
 SCAN_LIMIT = 10**7
 """The largest size :func:`images_needed` scans for the smallest one; beyond it, the size at
 which the Hoeffding part alone allows the risk."""
+
+
+def split_images(n: int, seed: int = 0) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """D1 and D2: a seeded random ⌊n / 2⌋ of the n calibration images and the others, each as
+    ascending positions.
+
+    Image i's place in the draw is the BLAKE2b hash of ``(seed, i)``: the same split on every
+    machine and version, a different one for another seed. A random split, not halves in order:
+    datasets such as Cityscapes list their images city by city, and halves in order would not be
+    exchangeable.
+
+    >>> d1, d2 = split_images(6, seed=0)
+    >>> len(d1), len(d2), sorted([*d1, *d2]) == list(range(6))
+    (3, 3, True)
+    """
+    if n < 0:
+        raise ValueError(f"need n >= 0 images, got {n}")
+    keys = [hashlib.blake2b(f"{seed}:{i}".encode(), digest_size=8).digest() for i in range(n)]
+    order = sorted(range(n), key=lambda i: keys[i])
+    half = n // 2
+    d1, d2 = sorted(order[:half]), sorted(order[half:])
+    return np.array(d1, dtype=np.int64), np.array(d2, dtype=np.int64)
 
 
 def pareto_front(objectives: ArrayLike) -> NDArray[np.int64]:
@@ -80,10 +103,12 @@ class ParetoTestingResult:
         best: when nothing is certified, the front's candidate closest to meeting every
             constraint on D1 (the smallest largest excess ``R̂_i − α_i``; the first in ``order``
             of ties), else None.
-        failed: its constraint with the largest D2 p-value (the first of ties), else None.
+        failed: its constraint with the largest D2 p-value (of ties, the first with a defined
+            D2 risk, else the first), else None.
         needed_n: the images with a defined loss at which its observed risk on ``failed`` would
             pass at δ (:func:`images_needed`); None when certified, or the risk is ≥ α.
-        needed_images: ``needed_n`` as D2 images, at D2's share of images with a defined loss.
+        needed_images: ``needed_n`` as D2 images, at D2's share of images with a defined loss
+            (D1's where no D2 image has one).
     """
 
     front: NDArray[np.int64]
@@ -166,12 +191,17 @@ def pareto_testing(
         return result
     excess = np.nan_to_num(risks_d1[order] - levels, nan=np.inf).max(axis=1)
     best = int(order[np.argmin(excess)])  # the first of ties
-    failed = int(np.argmax(p_d2[best]))
+    worst = np.flatnonzero(p_d2[best] == p_d2[best].max())
+    defined = worst[n_d2[best, worst] > 0]  # of ties, one whose risk is measured, if any
+    failed = int(defined[0] if len(defined) else worst[0])
     observed = risks_d2[best, failed] if n_d2[best, failed] else risks_d1[best, failed]
     needed = None
     if np.isfinite(observed) and observed < levels[failed]:
         needed = images_needed(float(observed), float(levels[failed]), float(delta))
+    # images per defined one: D2's share, or D1's where no D2 image defines the loss
     share = n_d2[best, failed] / len(d2) if len(d2) else 0.0
+    if share == 0 and len(d1):
+        share = n_d1[best, failed] / len(d1)
     images = math.ceil(needed / share) if needed is not None and share > 0 else None
     return ParetoTestingResult(
         **{**result.__dict__, "best": best, "failed": failed, "needed_n": needed,

@@ -11,11 +11,12 @@ import re
 from pathlib import Path
 
 from costseg.calibration.guarantee import minimum_images, tests_sharing_delta
+from costseg.calibration.pareto_testing import images_needed
 from costseg.classes import CLASS_NAMES, class_indices
 from costseg.data.priors import check_priors_file
 from costseg.evaluation.analyses import held_out_flags
 from costseg.evaluation.priors import no_priors
-from costseg.evaluation.settings import SweepChoice
+from costseg.evaluation.settings import DesignSettings, SweepChoice, design_settings
 from costseg.metrics.requirements import Requirements
 from costseg.metrics.selection import certifiable_level, parse_metric, parse_target
 from costseg.networks.probs_files import DATA_RECORD, records_its_data
@@ -131,6 +132,18 @@ def check_design(opts: EvalOptions) -> None:
             "(--target, --maximize and --guarantee choose a point of a sweep)"
         )
     req = Requirements.parse(opts.require, opts.design_maximize, opts.design_minimize)
+    twice = sorted({t for t in req.constraints if req.constraints.count(t) > 1}, key=str)
+    if twice:
+        text = req.texts[req.constraints.index(twice[0])]
+        raise ValueError(f"--require gives {text} twice: each requirement once")
+    same = [t[:3] for t in req.constraints]
+    if len(set(same)) < len(same):
+        text = req.texts[next(i for i, t in enumerate(same) if same.count(t) > 1)]
+        raise ValueError(
+            f"--require gives two levels for the rate of {text}: keep the stricter one"
+        )
+    if opts.limit is not None and opts.calibration_split is None:  # at most half of --limit
+        check_design_size(design_settings(opts), opts.limit // 2, own_split=False)
     vertex_matrices(opts.vertices, opts.vertex_scaling)  # the triangle, searched to compare
     if opts.design == "lagrangian":
         for t in req.constraints:
@@ -191,8 +204,8 @@ def check_calibration_size(
 ) -> None:
     """Refuse a guarantee that cannot certify anything with ``n_images`` calibration images
     (of ``--calibration_split`` when ``own_split``) among the rules of ``candidates``
-    (Bonferroni over them, or over its fixed-sequence paths). A design is not refused: too few
-    images is its result (it says how many it needs)."""
+    (Bonferroni over them, or over its fixed-sequence paths). A design has its own check
+    (:func:`check_design_size`)."""
     alpha, family = certifiable_level(choice.target, "--target"), len(candidates.names)
     tests = tests_sharing_delta(choice.method, family, len(candidates.paths))
     needed = minimum_images(alpha, choice.delta, tests)
@@ -203,6 +216,26 @@ def check_calibration_size(
             f"δ = {choice.delta} over {family} candidates: at least {needed} are needed; give "
             f"{more}a looser --target, a larger --guarantee δ or a coarser sweep"
         )
+
+
+def check_design_size(settings: DesignSettings, n_images: int, own_split: bool) -> None:
+    """Refuse a design whose certification half cannot certify anything, not even a matrix
+    with no loss on any image: the certification images (D2, half of the ``n_images`` held-out
+    images, those of ``--calibration_split`` when ``own_split``) must number at least the
+    smallest n at which a risk of 0 passes the strictest requirement at δ."""
+    req = Requirements.parse(settings.requirements, settings.maximize, settings.minimize)
+    alpha = min(req.alphas)
+    per_half = images_needed(0.0, alpha, settings.delta)
+    if n_images // 2 >= 1 and n_images - n_images // 2 >= per_half:
+        return
+    needed = 2 * per_half
+    more = "" if own_split else "--calibration_split (another split's images) or "
+    raise ValueError(
+        f"{n_images} held-out image(s) ({settings.held_out}) cannot certify a design at "
+        f"α = {alpha:.3g}, δ = {settings.delta}: half of them certify, and even with no loss "
+        f"on any image {per_half} are needed there, so at least {needed} held-out images; give "
+        f"{more}a larger --limit, or a looser --require / --design_delta"
+    )
 
 
 def check_instance_targets(opts: EvalOptions, measured: list[int], note: str) -> None:

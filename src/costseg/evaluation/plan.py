@@ -31,17 +31,19 @@ from costseg.data.priors import note_priors
 from costseg.evaluation.analyses import Entry, held_out_flags, wanted
 from costseg.evaluation.checks import (
     check_calibration_size,
+    check_design_size,
     check_groups,
     check_instance_targets,
     check_options,
 )
 from costseg.evaluation.priors import evaluation_priors
 from costseg.evaluation.processes import on_rank0, share, world_size
-from costseg.evaluation.settings import certified_choice
+from costseg.evaluation.settings import certified_choice, design_settings
 from costseg.networks.ensemble import open_sources
 from costseg.networks.protocols import Protocol
 from costseg.networks.sources import Source, resolve_device
 from costseg.options import EvalOptions
+from costseg.report.certified import certificate_notes
 from costseg.report.outputs import claim_output_dir
 from costseg.rules import (
     TEMPERATURES,
@@ -147,6 +149,9 @@ def plan(
         candidates = next((g for g in groups if g.candidates), named_group(groups))
         own_split = opts.calibration_split is not None
         check_calibration_size(choice, len(calibration[1]), candidates, own_split)
+    designed = design_settings(opts)
+    if calibration is not None and designed is not None:
+        check_design_size(designed, len(calibration[1]), opts.calibration_split is not None)
     batch_size = opts.batch_size or images.batch_size
     base = source.default_output("evaluation", "eval")
     cache = (Path(opts.output_dir).resolve().parent if opts.output_dir else base.parent) / "priors"
@@ -156,6 +161,8 @@ def plan(
     )
     description = _description(source, record)
     note_priors(description, opts.priors, dataset)
+    for note in certificate_notes(opts.cost, description):
+        print(note)
     priors = PriorMaps(pixel_priors, CLASS_NAMES, device, geometric)
     require_priors(groups, priors.priors)
     measured, note = instance_classes(dataset, opts.classes)

@@ -60,6 +60,7 @@ class DesignSettings:
     """``--design``: a cost matrix designed from requirements (docs/definitions.md §20)."""
 
     space: Literal["triangle", "lagrangian", "aggregate"]
+    search: Literal["grid", "continuous"] | None  # the multipliers' search (None: by the budget)
     requirements: tuple[str, ...]  # --require
     maximize: str | None
     minimize: str | None
@@ -67,10 +68,12 @@ class DesignSettings:
     budget: int
     base: str | None
     defer: tuple[float, ...]
-    pixels: float  # the share of each search image's labelled pixels the search scores
-    seed: int
+    pixels: float  # the share of each search image's labelled pixels scored for the objective
+    seed: int  # of the D1 / D2 split, the objective's pixels and the continuous searches
     vertices: tuple[str, ...]  # the triangle's corners (the triangle is searched to compare)
     vertex_scaling: Literal["none", "mean"]
+    held_out: str  # which images are held out, in words (the certificate names them)
+    roi: Literal["priors", "geometric"]  # the RoI map the constraints' RoIs come from
 
 
 @dataclass(frozen=True)
@@ -141,8 +144,15 @@ def certified_choice(opts: EvalOptions) -> SweepChoice | None:
 def design_settings(opts: EvalOptions) -> DesignSettings | None:
     if opts.design is None:
         return None
+    held_out = (
+        f"--calibration_split {opts.calibration_split}"
+        if opts.calibration_split is not None
+        else f"the first half of --split {opts.split}"
+        + ("" if opts.limit is None else f" (of its first {opts.limit} images)")
+    )
     return DesignSettings(
         space=opts.design,
+        search=opts.design_search,
         requirements=tuple(opts.require or ()),
         maximize=opts.design_maximize,
         minimize=opts.design_minimize,
@@ -154,6 +164,8 @@ def design_settings(opts: EvalOptions) -> DesignSettings | None:
         seed=opts.seed,
         vertices=tuple(opts.vertices),
         vertex_scaling=opts.vertex_scaling,
+        held_out=held_out,
+        roi=opts.roi,
     )
 
 

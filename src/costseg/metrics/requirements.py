@@ -23,7 +23,13 @@ import torch
 from torch import Tensor
 
 from costseg.metrics.functional.roi import mean_iou
-from costseg.metrics.names import DEFER_RATES, INSTANCE_RATES, PIXEL_RATES, SEGMENT_RATES
+from costseg.metrics.names import (
+    DEFER_RATES,
+    INSTANCE_RATES,
+    PIXEL_RATE_PARTS,
+    PIXEL_RATES,
+    SEGMENT_RATES,
+)
 from costseg.metrics.per_image import per_image_counts, per_image_loss, pixel_parts
 from costseg.metrics.selection import (
     Metric,
@@ -60,7 +66,13 @@ class Requirements:
     ) -> Requirements:
         """The requirements of ``--require`` and ``--design_maximize`` / ``--design_minimize``
         (default: maximise agreement); ValueError naming what is wrong."""
-        constraints = tuple(parse_target(t) for t in targets)
+        constraints = []
+        for text in targets:
+            try:
+                constraints.append(parse_target(text))
+            except ValueError as err:
+                raise ValueError(f"--require {text}: {err}") from None
+        constraints = tuple(constraints)
         alphas = tuple(certifiable_level(t, "--require") for t in targets)
         if maximize and minimize:
             raise ValueError("--design_maximize and --design_minimize: give one objective")
@@ -77,6 +89,20 @@ class Requirements:
     def label_maps(self) -> bool:
         """Whether a constraint counts segments or instances (label maps, whole images)."""
         return any(t.metric in (*SEGMENT_RATES, *INSTANCE_RATES) for t in self.constraints)
+
+    def pixel_needs(self) -> list[tuple[int | None, int, bool]]:
+        """Per constraint, what its per-image loss counts: its class (None: every class), its
+        RoI, and whether pixels of other classes decided as the class count (its false
+        positives: precision, Dice); recall and the rates of deferral count the class's own.
+
+        >>> Requirements.parse(["person:roi1:recall>=0.5", "car:roi0:precision>=0.5"]).pixel_needs()
+        [(11, 1, False), (13, 0, True)]
+        """
+        out = []
+        for t in self.constraints:
+            parts = PIXEL_RATE_PARTS.get(t.metric)
+            out.append((t.cls, t.roi, parts is not None and any(v != 0 for v in parts(0, 1, 0))))
+        return out
 
     def losses(
         self,

@@ -1,21 +1,24 @@
 """A value system designed from requirements (docs/definitions.md §20): ``designed_cost.yaml``
 (the certified matrix, with its certificate as a header), ``design.json``,
-``design_candidates.csv``, a table.md section and the figures."""
+``design_candidates.csv``, a table.md section, the console lines and the figures."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import textwrap
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 
 from costseg.calibration.design_search import Candidates
 from costseg.calibration.pareto_testing import ParetoTestingResult
-from costseg.classes import CLASS_NAMES
+from costseg.classes import CLASS_NAMES, ROI_NAMES
 from costseg.costs import load_cost, save_cost
+from costseg.metrics.names import INSTANCE_RATES, SEGMENT_RATES
 from costseg.metrics.requirements import Requirements
-from costseg.metrics.selection import metric_values
+from costseg.metrics.selection import Target, metric_values
+from costseg.report.certified import CERTIFIED_FOR, fingerprint
 from costseg.report.design_figures import design_figures
 from costseg.report.drawing import job
 from costseg.report.files import write_csv, write_json
@@ -30,17 +33,50 @@ DESIGNED_FAMILY = "designed"
 """The family of the rule group that holds the designed matrix and the best triangle point."""
 
 
+@dataclass(frozen=True)
+class Split:
+    """The held-out images of a design and their seeded split: ``d1`` searched, ``d2`` certify
+    (positions among the held-out images, ascending), the names of all held-out images, and
+    which images were held out, in words."""
+
+    seed: int
+    d1: list[int]
+    d2: list[int]
+    stems: list[str]
+    held_out: str
+
+    def record(self) -> dict:
+        def names(positions: list[int]) -> list[str]:
+            return [self.stems[p] if p < len(self.stems) else str(p) for p in positions]
+
+        return {
+            "held_out": self.held_out,
+            "seed": self.seed,
+            "how": "a random half of the held-out images, drawn with the seed "
+            "(docs/definitions.md §20)",
+            "search (D1)": {"count": len(self.d1), "positions": self.d1, "images": names(self.d1)},
+            "certification (D2)": {
+                "count": len(self.d2),
+                "positions": self.d2,
+                "images": names(self.d2),
+            },
+            "reported": "the reported images, disjoint from both",
+        }
+
+
 @dataclass
 class SearchOutcome:
     """One searched space: its candidates (scored on D1), Pareto Testing's outcome, the chosen
-    candidate (None: nothing certified) and the objective on all held-out images (NaN off the
-    front)."""
+    candidate (None: nothing certified), the objective on all held-out images (NaN off the
+    front), and the shares of labelled pixels the chosen (else the best) candidate defers on
+    all held-out images (None without a defer row)."""
 
     candidates: Candidates
     testing: ParetoTestingResult
     chosen: int | None
     objective_all: np.ndarray
     designed: bool = True  # False: the triangle, searched beside another space to compare
+    deferred: dict | None = None
 
     @property
     def rule_name(self) -> str:
@@ -50,71 +86,175 @@ class SearchOutcome:
         weights = self.candidates.parameters[self.chosen, :3].tolist()
         return f"best triangle {point_name(weights)}"
 
-    def record(self, req: Requirements) -> dict:
+    @property
+    def shown(self) -> int | None:
+        """The candidate the outputs describe: the chosen one, else the best uncertified."""
+        return self.chosen if self.chosen is not None else self.testing.best
+
+    def images(self, req: Requirements) -> dict[str, dict[str, int]]:
+        """Per constraint, the search and certification images with a defined loss behind the
+        shown candidate's risks."""
+        t, k = self.testing, self.shown
+        if k is None:
+            return {}
+        return {
+            text: {"search": int(t.n_d1[k, i]), "certification": int(t.n_d2[k, i])}
+            for i, text in enumerate(req.texts)
+        }
+
+    def record(self, req: Requirements, n1: int, n2: int) -> dict:
         """What design.json says of this search."""
         c, t = self.candidates, self.testing
         out = {
             "space": c.space,
+            "search": c.how,
             "parameters": list(c.names),
             "candidates": len(c.objective),
             "front": len(t.front),
             "certified": len(t.certified),
-        }
+            "images_with_a_defined_loss": self.images(req) | {"of": {"search": n1,
+                                                                     "certification": n2}},
+            "notes": self.notes(req),
+        }  # fmt: skip
+        if self.deferred is not None:
+            out["deferred_share"] = self.deferred
         if self.chosen is not None:
             k = self.chosen
             return out | {
                 "chosen": _candidate(c, t, k, req) | {"objective_held_out": self.objective_all[k]}
             }
-        best = t.best
-        failed = None if t.failed is None else req.texts[t.failed]
+        if t.best is None:
+            return out | {"nothing_certified": None}
+        failed = req.texts[t.failed]
         return out | {
-            "nothing_certified": _candidate(c, t, best, req)
+            "nothing_certified": _candidate(c, t, t.best, req)
             | {
                 "failed_constraint": failed,
                 "certification_images_needed": t.needed_images,
+                "why": self.why(req),
             }
         }
 
-    def line(self, req: Requirements, delta: float) -> str:
+    def line(self, req: Requirements, delta: float, n2: int) -> str:
         """One line for the terminal."""
         c, t = self.candidates, self.testing
         if self.chosen is None:
             if t.best is None:
                 return "nothing certified (no candidate on the front)"
-            failed = req.texts[t.failed]
-            risks = ", ".join(f"{r:.3f}" for r in t.risks_d1[t.best])
-            needed = (
-                f"about {t.needed_images} certification images would let it pass"
-                if t.needed_images
-                else "its risk is above α: more images would not help"
-            )
+            k = t.best
             return (
-                f"nothing certified at δ = {delta}; the best search candidate has "
-                f"risks {risks} on the search images and fails {failed} on the certification "
-                f"images (p = {t.pvalues_d2[t.best, t.failed]:.3g}); {needed}"
+                f"nothing certified at δ = {delta}: the search's best candidate "
+                f"({_parameters(c, k)}) has certification risks {_risks(t.risks_d2[k])} "
+                f"(α {_risks(t.alphas)}) on {_counts(t.n_d2[k])} of {n2} images"
+                f"{self._deferring()}; {self.why(req)}"
             )
         k = self.chosen
         return (
             f"{len(t.certified)} of {len(c.objective)} candidates certified "
             f"(front {len(t.front)}); chosen {_parameters(c, k)}, certification risks "
-            f"{', '.join(f'{r:.3f}' for r in t.risks_d2[k])}, {req.objective_text} "
-            f"{self.objective_all[k]:.4f} on the held-out images"
+            f"{_risks(t.risks_d2[k])} on {_counts(t.n_d2[k])} of {n2} images, "
+            f"{req.objective_text} {self.objective_all[k]:.4f} on the held-out images"
+            f"{self._deferring()}"
         )
+
+    def _deferring(self) -> str:
+        if self.deferred is None:
+            return ""
+        return f", deferring {_share(self.deferred['all pixels'])} of the labelled held-out pixels"
+
+    def why(self, req: Requirements) -> str:
+        """Why the best candidate was not certified, and whether more images would help."""
+        t, k = self.testing, self.testing.best
+        i = t.failed
+        text, target = req.texts[i], req.constraints[i]
+        if np.isnan(t.risks_d1[:, i]).all():
+            return (
+                f"{text} is undefined on every search image under every candidate (no search "
+                f"image {_where(target)} under any of them): it cannot be measured, let alone "
+                f"certified; held-out images where it is defined are needed"
+            )
+        reached = np.nanmin(t.risks_d1[:, i])
+        if not reached <= t.alphas[i]:
+            return (
+                f"no candidate of the space meets {text} even on the search images (its "
+                f"smallest search risk is {reached:.3f} > α = {t.alphas[i]:.3g}): the space "
+                f"cannot reach it" + _defer_hint(target, self.deferred is not None)
+            )
+        if t.n_d2[k, i] == 0:
+            where = _where(target)
+            more = (
+                f" (about {t.needed_images} certification images at the search images' share "
+                "of such images)"
+                if t.needed_images
+                else ""
+            )
+            return (
+                f"{text} fails because no certification image {where}: its risk there is "
+                f"undefined (p = 1), not above α; more images would help{more}"
+            )
+        p = t.pvalues_d2[k, i]
+        if t.needed_images:
+            return (
+                f"{text} fails on the certification images (risk {t.risks_d2[k, i]:.3f}, "
+                f"p = {p:.3g} > δ); about {t.needed_images} certification images at that risk "
+                f"would let it pass"
+            )
+        return (
+            f"{text} fails on the certification images: its risk {t.risks_d2[k, i]:.3f} there "
+            f"is at or above α = {t.alphas[i]:.3g} (p = {p:.3g}); more images would not help"
+            + _defer_hint(target, self.deferred is not None)
+        )
+
+    def notes(self, req: Requirements) -> list[str]:
+        """What a reader should know of the shown candidate: a multiplier at the top of its
+        range (a larger range might do better), a recall that deferring can only lower."""
+        c, k, out = self.candidates, self.shown, []
+        if k is not None and c.space == "lagrangian":
+            top = float(np.nanmax(c.parameters[:, : len(req.texts)]))
+            for i, text in enumerate(req.texts):
+                if c.parameters[k, i] >= top > 0:
+                    out.append(
+                        f"μ_{i + 1} ({text}) is {top:g}, the top of its range: the space may "
+                        f"hold a better matrix beyond it"
+                    )
+        if self.deferred is not None:
+            out += [
+                f"{text}: a deferred pixel counts as a miss; handled_recall counts it as handled"
+                for text, t in zip(req.texts, req.constraints, strict=True)
+                if t.metric == "recall"
+            ]
+        return out
 
 
 @dataclass
 class DesignOutcome(Result):
-    """The outcome of ``--design``: the requirements, δ, the split of the held-out images
-    (the first ``n1`` searched, the other ``n2`` certify), the share of pixels searched, the seed,
-    and each searched space (the design's first, then the triangle to compare)."""
+    """The outcome of ``--design``: the requirements, δ, the held-out images and their seeded
+    split, the share of pixels that measures the objective in the search, each searched space
+    (the design's first, then the triangle to compare), the RoI map, the defer costs, and the
+    reported images' per-image constraint losses of the named and designed rules (set by the
+    analysis once the reported images are seen)."""
 
     requirements: Requirements
     delta: float
-    n1: int
-    n2: int
+    split: Split
     share: float
-    seed: int
     searches: list[SearchOutcome]
+    roi: str = "priors"
+    defer: tuple[float, ...] = ()
+    per_image: dict = field(default_factory=dict)
+
+    @property
+    def n1(self) -> int:
+        return len(self.split.d1)
+
+    @property
+    def n2(self) -> int:
+        return len(self.split.d2)
+
+    @property
+    def certified(self) -> bool:
+        """Whether the design's own space certified a matrix."""
+        return self.searches[0].chosen is not None
 
     def write(self, results: EvalResults) -> Section:
         req, out, own = self.requirements, results.output_dir, self.searches[0]
@@ -124,55 +264,104 @@ class DesignOutcome(Result):
             "objective": req.objective_text,
             "maximize": req.maximize,
             "delta": self.delta,
-            "split": {
-                "search (D1)": f"the first {self.n1} held-out images",
-                "certification (D2)": f"the other {self.n2} held-out images",
-                "reported": "the reported images, disjoint from both",
+            "guarantee": self.guarantee(),
+            "split": self.split.record(),
+            "search_pixels": {
+                "constraints": "every pixel that can change a constraint's per-image loss "
+                "under some candidate (docs/definitions.md §20)",
+                "objective": self.share,
             },
-            "search_pixels": self.share,
-            "seed": self.seed,
-            "searches": [s.record(req) for s in self.searches],
-            "reported": _reported(results, self.searches, req),
+            "certified_for": self.certified_for(results),
+            "seed": self.split.seed,
+            "searches": [s.record(req, self.n1, self.n2) for s in self.searches],
+            "reported": _reported(results, req, self.per_image),
         }
         if own.chosen is not None:
             matrix = own.candidates.matrices[own.chosen]
-            save_cost(out / "designed_cost.yaml", matrix, DESIGNED, header=self._header(own))
+            header = self.header(own, record["certified_for"])
+            save_cost(out / "designed_cost.yaml", matrix, DESIGNED, header=header)
             record["cost_file"] = "designed_cost.yaml"
         write_json(out / "design.json", record)
         write_csv(out / "design_candidates.csv", self._rows())
-        lines = [
-            f"design, {s.candidates.space} space{'' if s.designed else ' (to compare)'}: "
-            + s.line(req, self.delta)
-            for s in self.searches
-        ]
         return Section(
             json={"design": record},
             table=self._table(record),
-            console=lines,
+            console=self.console(),
             jobs=[("evaluation", self._figures(results))],
         )
 
-    def _header(self, own: SearchOutcome) -> str:
-        req, t, k = self.requirements, own.testing, own.chosen
-        constraints = "; ".join(
-            f"{text} (risk ≤ {a:.3g}; certification risk {r:.4f}, p = {p:.3g})"
-            for text, a, r, p in zip(
-                req.texts, req.alphas, t.risks_d2[k], t.pvalues_d2[k], strict=True
+    def console(self) -> list[str]:
+        req, lines = self.requirements, []
+        for s in self.searches:
+            name = f"design, {s.candidates.space} space{'' if s.designed else ' (to compare)'}"
+            lines.append(f"{name}: " + s.line(req, self.delta, self.n2))
+            if s.designed and s.chosen is not None:
+                lines += [f"{name}: {note}" for note in s.notes(req)]
+        images = self.searches[0].images(req)
+        if images:
+            lines.append(
+                "design: images with a defined loss (search of "
+                f"{self.n1}, certification of {self.n2}): "
+                + "; ".join(f"{t} {v['search']}, {v['certification']}" for t, v in images.items())
             )
-        )
+        return lines
+
+    def guarantee(self) -> str:
+        """What the certificate says, in words."""
         return (
-            f"designed by costseg evaluate.py --design {own.candidates.space} "
-            f"(docs/definitions.md §20)\n"
-            f"constraints: {constraints}\n"
-            f"certificate: Pareto Testing, every constraint met jointly with probability "
-            f">= {1 - self.delta:g} (δ = {self.delta}) over the draw of the certification images\n"
-            f"search images n1 = {self.n1} ({self.share:g} of their pixels), certification images "
-            f"n2 = {self.n2}; {len(own.candidates.objective)} candidates, front "
-            f"{len(t.front)}, certified {len(t.certified)}\n"
-            f"search space: {own.candidates.space}, parameters "
-            f"{_parameters(own.candidates, k)}; objective {req.objective_text} = "
-            f"{own.objective_all[k]:.4f} on the held-out images"
+            f"With probability at least {1 - self.delta:g} (δ = {self.delta:g}) over the draw "
+            f"of the {self.n2} certification images, the matrix meets every requirement at once, "
+            "each requirement bounding a mean over images of that image's own loss (for a "
+            "rate such as recall: 1 − the image's recall, over the images where it is "
+            "defined) on new images drawn like the held-out ones, seen by the same network "
+            "with the same RoI map. It bounds neither the pooled pixel rate nor any one image: "
+            "table.md shows both beside the mean."
         )
+
+    def certified_for(self, results: EvalResults) -> dict:
+        """What the certificate holds for: the probability source (a file's SHA-256), the
+        held-out images, the RoI map."""
+        return {
+            "source": fingerprint(results.source),
+            "held_out": self.split.held_out,
+            "roi_map": f"--roi {self.roi}",
+            "priors": _priors_words(results.source.get("priors")),
+        }
+
+    def header(self, own: SearchOutcome, certified_for: dict) -> str:
+        req, t, k = self.requirements, own.testing, own.chosen
+        lines = [
+            f"designed by costseg evaluate.py --design {own.candidates.space} "
+            "(docs/definitions.md §20)",
+            "guarantee: " + self.guarantee(),
+        ]
+        for i, (text, target) in enumerate(zip(req.texts, req.constraints, strict=True)):
+            lines.append(
+                f"requirement {text}: mean per-image {_loss_words(target)} <= "
+                f"{req.alphas[i]:.3g}; certification risk {t.risks_d2[k, i]:.4f} on "
+                f"{t.n_d2[k, i]} of {self.n2} images (p = {t.pvalues_d2[k, i]:.3g}), search "
+                f"risk {t.risks_d1[k, i]:.4f} on {t.n_d1[k, i]} of {self.n1}"
+            )
+        lines += [
+            f"{CERTIFIED_FOR}{certified_for['source']}; held-out images "
+            f"{certified_for['held_out']}, split at random with --seed {self.split.seed} "
+            f"({self.n1} search, {self.n2} certification; design.json lists them); RoI map "
+            f"{certified_for['roi_map']} (priors: {certified_for['priors']})",
+            f"search: {own.candidates.space} space, {own.candidates.how}; "
+            f"{len(own.candidates.objective)} candidates, front {len(t.front)}, certified "
+            f"{len(t.certified)}; chosen {_parameters(own.candidates, k)}; objective "
+            f"{req.objective_text} = {own.objective_all[k]:.4f} on the held-out images",
+        ]
+        if own.deferred is not None:
+            lines.append(f"defers {_share(own.deferred['all pixels'])} of the labelled "
+                         "held-out pixels")  # fmt: skip
+        wrapped = [
+            textwrap.fill(
+                line, 98, subsequent_indent="  ", break_long_words=False, break_on_hyphens=False
+            )
+            for line in lines
+        ]
+        return "\n".join(wrapped)
 
     def _rows(self) -> list[dict]:
         req, rows = self.requirements, []
@@ -184,6 +373,10 @@ class DesignOutcome(Result):
                 row = {"space": c.space, "candidate": k}
                 row |= dict(zip(c.names, c.parameters[k].tolist(), strict=True))
                 row |= {f"search risk {text}": t.risks_d1[k, i] for i, text in enumerate(req.texts)}
+                row |= {
+                    f"certification risk {text}": t.risks_d2[k, i]
+                    for i, text in enumerate(req.texts)
+                }
                 row |= {
                     f"search {req.objective_text}": c.objective[k],
                     "front": k in tested,
@@ -199,32 +392,40 @@ class DesignOutcome(Result):
         req = self.requirements
         lines = [
             "",
-            f"## Designed value system (δ = {self.delta}; search on {self.n1} held-out images, "
-            f"certification on {self.n2})",
+            f"## Designed value system (δ = {self.delta}; {self.split.held_out}, split at "
+            f"random with seed {self.split.seed}: search on {self.n1} images, certification "
+            f"on {self.n2})",
             "",
-            "| space | candidates | front | certified | chosen | "
-            + " | ".join(f"{t} (certification risk)" for t in req.texts)
+            self.guarantee(),
+            "",
+            "| space | search | candidates | front | certified | chosen | "
+            + " | ".join(f"{t} (certification risk; images)" for t in req.texts)
             + f" | {req.objective_text} (held-out) |",
-            "|---" * (5 + len(req.texts) + 1) + "|",
+            "|---" * (6 + len(req.texts) + 1) + "|",
         ]
         for s in self.searches:
             c, t, k = s.candidates, s.testing, s.chosen
-            cells = [c.space, len(c.objective), len(t.front), len(t.certified)]
+            cells = [c.space, c.how, len(c.objective), len(t.front), len(t.certified)]
             if k is None:
-                cells += ["none"] + ["–"] * len(req.texts) + ["–"]
+                cells += ["none"]
+                cells += [f"– ({n2} of {self.n2})" for n2 in _images_of(t, t.best, len(req.texts))]
+                cells += ["–"]
             else:
-                cells += [_parameters(c, k), *(f"{r:.4f}" for r in t.risks_d2[k])]
+                cells += [_parameters(c, k)]
+                cells += [f"{r:.4f} ({n} of {self.n2})" for r, n in zip(t.risks_d2[k], t.n_d2[k],
+                                                                         strict=True)]  # fmt: skip
                 cells += [f"{s.objective_all[k]:.4f}"]
             lines.append("| " + " | ".join(map(str, cells)) + " |")
-        reported = record["reported"]
-        if reported:
-            rules = list(next(iter(reported.values())))
-            lines += ["", "On the reported images:", "", "| constraint | " + " | ".join(rules)
-                      + " |", "|---" * (len(rules) + 1) + "|"]  # fmt: skip
-            for text, values in reported.items():
-                lines.append(
-                    f"| {text} | " + " | ".join(f"{v:.4f}" for v in values.values()) + " |"
-                )
+        for s in self.searches:
+            for note in s.notes(req) if s.designed and s.chosen is not None else []:
+                lines += ["", f"Note: {note}."]
+            if s.chosen is None and s.testing.best is not None:
+                lines += ["", f"{s.candidates.space}: {s.why(req)}."]
+            if s.deferred is not None:
+                shares = ", ".join(f"{k} {_share(v)}" for k, v in s.deferred.items())
+                lines += ["", f"{s.candidates.space}: deferred share of labelled held-out "
+                          f"pixels: {shares}."]  # fmt: skip
+        lines += _reported_table(record["reported"])
         return "\n".join(lines) + "\n"
 
     def _figures(self, results: EvalResults):
@@ -242,7 +443,7 @@ class DesignOutcome(Result):
             t = s.testing
             arguments = (t.risks_d1, s.candidates.objective, t.front, t.certified, s.chosen,
                          list(req.texts), list(req.alphas), req.objective_text)  # fmt: skip
-            fronts.append((s.candidates.space, arguments))
+            fronts.append((s.candidates.space, arguments, (t.risks_d2, t.order)))
         title = f"designed value system, {figure_subject(results.source, [])}"
         return job(design_figures, matrices, list(CLASS_NAMES), fronts, title)
 
@@ -265,15 +466,71 @@ def _parameters(c: Candidates, k: int) -> str:
     return ", ".join(f"{n}={v:.3g}" for n, v in zip(c.names, values, strict=True))
 
 
-def _reported(results: EvalResults, searches: list[SearchOutcome], req: Requirements) -> dict:
-    """Per constraint, its value on the reported images for each named rule and each designed
-    rule (the certified matrix, the best certified triangle point)."""
+def _risks(values) -> str:
+    return ", ".join("undefined" if math.isnan(r) else f"{r:.3f}" for r in np.asarray(values))
+
+
+def _counts(values) -> str:
+    return ", ".join(str(int(n)) for n in np.asarray(values))
+
+
+def _share(value: float | None) -> str:
+    return "–" if value is None else f"{100 * value:.1f} %"
+
+
+def _images_of(t: ParetoTestingResult, k: int | None, count: int) -> list[int]:
+    return [0] * count if k is None else [int(n) for n in t.n_d2[k]]
+
+
+def _where(target: Target) -> str:
+    """Which images define a constraint's loss, in words."""
+    cls = "any class" if target.cls is None else CLASS_NAMES[target.cls]
+    region = "the image" if target.roi == 0 else f"RoI {target.roi} ({ROI_NAMES[target.roi]})"
+    if target.metric in ("precision", "fp_rate"):
+        return f"has a pixel decided {cls} in {region}"
+    return f"holds {cls} in {region}"
+
+
+def _loss_words(target: Target) -> str:
+    """The per-image loss of a constraint, in words."""
+    if target.metric in SEGMENT_RATES:
+        return f"{target.metric} (over the images where it is defined)"
+    what = "instance recall" if target.metric in INSTANCE_RATES else target.metric
+    return f"(1 − {what}) (over the images where it is defined)"
+
+
+def _defer_hint(target: Target, defers: bool) -> str:
+    if defers and target.metric == "recall":
+        return (
+            "; a deferred pixel counts as a miss of recall: a deferring design can meet "
+            "handled_recall (deferred pixels count as handled)"
+        )
+    return ""
+
+
+def _priors_words(record) -> str:
+    """The priors behind the RoI map, short (their record without its notes)."""
+    if isinstance(record, dict):
+        return ", ".join(f"{k} {v}" for k, v in record.items() if k != "note")
+    return "none" if record is None else str(record)
+
+
+def _reported(results: EvalResults, req: Requirements, per_image: dict) -> dict:
+    """Per constraint and rule (the named rules and the designed ones), on the reported images:
+    the pooled rate (every image's pixels or segments counted together), the mean per-image
+    loss (what the certificate bounds), the images where that loss is defined, and how many of
+    them miss the requirement's level on their own; and each rule's mIoU (``miou``)."""
     designed = next((g for g in results.groups if g.group.family == DESIGNED_FAMILY), None)
     named = named_group([g.group for g in results.groups])
     groups = [results.result_of(named)] + ([designed] if designed is not None else [])
-    out = {}
-    for target in req.constraints:
-        text = req.texts[req.constraints.index(target)]
+    out = {
+        "miou": {
+            name: g.pixels["miou"][k].item() if "miou" in g.pixels else None
+            for g in groups
+            for k, name in enumerate(g.group.names)
+        }
+    }
+    for text, target in zip(req.texts, req.constraints, strict=True):
         out[text] = {}
         for g in groups:
             try:
@@ -281,5 +538,45 @@ def _reported(results: EvalResults, searches: list[SearchOutcome], req: Requirem
                                        g.instances)  # fmt: skip
             except (ValueError, KeyError, IndexError):  # a rate not measured on these images
                 values = torch.full((len(g.group.names),), math.nan)
-            out[text] |= dict(zip(g.group.names, values.tolist(), strict=True))
+            for name, value in zip(g.group.names, values.tolist(), strict=True):
+                mine = per_image.get(text, {}).get(name, {})
+                out[text][name] = {
+                    "pooled": value,
+                    "mean_per_image_risk": mine.get("risk"),
+                    "images": mine.get("images"),
+                    "images_above_alpha": mine.get("above_alpha"),
+                }
     return out
+
+
+def _reported_table(reported: dict) -> list[str]:
+    reported = dict(reported)
+    miou = reported.pop("miou", {})
+    if not reported:
+        return []
+    rules = list(next(iter(reported.values())))
+    lines = [
+        "",
+        "On the reported images, per requirement and rule: the pooled rate (all images' pixels "
+        "or segments together), the mean per-image risk (what the certificate bounds) and the "
+        "images that miss the requirement on their own:",
+        "",
+        "| requirement | " + " | ".join(rules) + " |",
+        "|---" * (len(rules) + 1) + "|",
+    ]
+    for text, values in reported.items():
+        cells = []
+        for v in values.values():
+            pooled = "–" if v["pooled"] is None or math.isnan(v["pooled"]) else f"{v['pooled']:.4f}"
+            risk = v["mean_per_image_risk"]
+            if risk is None:
+                cells.append(f"{pooled} pooled")
+            else:
+                cells.append(f"{pooled} pooled, risk {risk:.4f}, {v['images_above_alpha']} of "
+                             f"{v['images']} images miss")  # fmt: skip
+        lines.append(f"| {text} | " + " | ".join(cells) + " |")
+    if miou:
+        values = [miou.get(rule) for rule in rules]
+        lines.append("| mIoU | " + " | ".join("–" if v is None else f"{100 * v:.2f}"
+                                                for v in values) + " |")  # fmt: skip
+    return lines

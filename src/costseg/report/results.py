@@ -174,6 +174,13 @@ class EvalResults:
         return next(g for g in self.groups if g.group.is_named)
 
     @property
+    def design(self):
+        """The outcome of ``--design`` (:class:`costseg.report.design.DesignOutcome`: the
+        requirements, the split, each searched space and its chosen matrix), or None."""
+        # by name: report/design.py imports this module
+        return next((r for r in self.analyses if type(r).__name__ == "DesignOutcome"), None)
+
+    @property
     def subject(self) -> str:
         """What every figure of this evaluation shows, for its title (:func:`figure_subject`)."""
         return figure_subject(self.source, self.shifts)

@@ -11,7 +11,10 @@ part of it (then the scalar defer cost is the space's last parameter):
   (log scale), expanded to the class matrix by :func:`costseg.costs.expand_aggregates`.
 
 Grid spaces list their points (``grid()``); the aggregate space gives its box (``box()``) to an
-optimiser (:mod:`costseg.calibration.design_search`).
+optimiser (:mod:`costseg.calibration.design_search`), and so may the Lagrangian space (its
+multipliers on a log scale). Each space also bounds its candidates (``hull()``, a :class:`Hull`,
+or None where no bound is derived): what lets the search leave out the pixels that no candidate
+can decide as a constraint's class (:mod:`costseg.calibration.search_pixels`).
 
 >>> from costseg.costs import symmetric_cost
 >>> space = LagrangianSpace(symmetric_cost(3), lagrangian_directions([(2, "recall")], 3), size=3)
@@ -114,6 +117,29 @@ def lagrangian_directions(constraints: Sequence[tuple[int, str]], num_classes: i
     return directions
 
 
+DEFERRAL_IS_HANDLED: tuple[str, ...] = ("handled_recall",)
+"""Recall-type metrics that count a deferred pixel of the class as handled, not missed."""
+
+
+def defer_directions(constraints: Sequence[tuple[int, str]], num_classes: int) -> torch.Tensor:
+    """How each constraint's multiplier moves a defer row: a recall-type constraint on class c
+    whose rate counts a deferred pixel of c as a miss (recall, FN segments, missed instances)
+    raises the row's cost for true class c (deferring c costs more, as missing it does); the
+    others (precision-type, handled recall) leave it.
+
+    Returns:
+        (K, N) float64.
+
+    >>> defer_directions([(1, "recall"), (1, "handled_recall"), (0, "precision")], 2).tolist()
+    [[0.0, 1.0], [0.0, 0.0], [0.0, 0.0]]
+    """
+    out = torch.zeros(len(constraints), num_classes, dtype=torch.float64)
+    for i, (c, metric) in enumerate(constraints):
+        if constraint_kind(metric) == "recall" and metric not in DEFERRAL_IS_HANDLED:
+            out[i, c] = 1.0
+    return out
+
+
 def lagrangian_cost(base: torch.Tensor, directions: torch.Tensor, mu: torch.Tensor) -> torch.Tensor:
     """``C(μ) = C₀ + Σ_i μ_i A_i``, summed in the order of i; a defer row of ``C₀`` is left as is.
 
@@ -204,6 +230,24 @@ def split_defer(
 
 
 @dataclass(frozen=True)
+class Hull:
+    """A set holding the class rows (the first N) of every candidate of a space: the convex hull
+    of ``vertices`` plus ``Σ_g t_g · generators[g]`` with every ``t_g ∈ [0, 1]``.
+
+    An expected cost ``Σ_j C[k, j] p_j`` is linear in C, so its smallest value over the set is its
+    smallest over the vertices plus, for each generator, its negative part: the bound with which
+    the search keeps every pixel some candidate may decide as a class (docs/definitions.md §20).
+
+    Attributes:
+        vertices: (V, N, N) float64, V >= 1.
+        generators: (G, N, N) float64, G >= 0.
+    """
+
+    vertices: torch.Tensor
+    generators: torch.Tensor
+
+
+@dataclass(frozen=True)
 class TriangleSpace:
     """The mixtures ``α·A + β·B + γ·C`` of three vertex matrices on a barycentric grid of
     ``step`` (:func:`costseg.costs.barycentric_grid`), parameters ``(alpha, beta, gamma)`` and,
@@ -229,6 +273,12 @@ class TriangleSpace:
         """(P, D) every grid point (at every defer cost), in the triangle's order."""
         return grid_with_defer(barycentric_grid(self.step), self.defer_costs)
 
+    def hull(self) -> Hull:
+        """Every mixture lies in the triangle of its three vertices."""
+        vertices = torch.as_tensor(self.vertices, dtype=torch.float64)
+        n = vertices.shape[-1]
+        return Hull(vertices[:, :n], vertices.new_zeros(0, n, n))
+
     def matrix(self, values: Sequence[float] | torch.Tensor) -> torch.Tensor:
         weights, defer = split_defer(values, bool(self.defer_costs))
         if weights.shape != (3,):
@@ -241,7 +291,8 @@ class TriangleSpace:
 class LagrangianSpace:
     """``C(μ) = C₀ + Σ_i μ_i A_i`` (:func:`lagrangian_cost`) on :func:`multiplier_grid`'s points,
     parameters ``mu_1 … mu_K`` and, with ``defer_costs``, each point at each defer cost (then
-    ``base`` must be square).
+    ``base`` must be square): the defer row is the defer cost plus ``Σ_i μ_i d_i`` with
+    ``deferring`` the (K, N) rows d_i of :func:`defer_directions` (None: zeros).
 
     >>> from costseg.costs import symmetric_cost
     >>> space = LagrangianSpace(symmetric_cost(2), lagrangian_directions([(0, "recall")], 2),
@@ -256,6 +307,7 @@ class LagrangianSpace:
     low: float = 1e-2
     high: float = 1e2
     defer_costs: tuple[float, ...] = ()
+    deferring: torch.Tensor | None = None
     name: str = field(default="lagrangian", init=False)
 
     def __post_init__(self) -> None:
@@ -272,10 +324,23 @@ class LagrangianSpace:
         points = multiplier_grid(len(self.directions), self.size, self.low, self.high)
         return grid_with_defer(points, self.defer_costs)
 
+    def hull(self) -> Hull:
+        """``C₀ + Σ_i μ_i A_i`` with every μ_i in [0, high]: the grid's points and the continuous
+        search's (:func:`costseg.calibration.design_search.search_multipliers`) alike."""
+        base = torch.as_tensor(self.base, dtype=torch.float64)
+        n = base.shape[-1]
+        directions = torch.as_tensor(self.directions, dtype=torch.float64)
+        return Hull(base[None, :n], self.high * directions)
+
     def matrix(self, values: Sequence[float] | torch.Tensor) -> torch.Tensor:
         mu, defer = split_defer(values, bool(self.defer_costs))
         cost = lagrangian_cost(self.base, self.directions, mu)
-        return cost if defer is None else with_defer(cost, defer)
+        if defer is None:
+            return cost
+        row = torch.full((cost.shape[-1],), defer, dtype=torch.float64)
+        if self.deferring is not None:
+            row = row + (mu[:, None] * torch.as_tensor(self.deferring, dtype=torch.float64)).sum(0)
+        return with_defer(cost, row)
 
 
 @dataclass(frozen=True)
@@ -375,6 +440,11 @@ class AggregateSpace:
         order = self.template.order
         names = tuple(f"{a}>{b}" for a in order for b in order if a != b)
         return defer_parameter(names, self.defer_box is not None)
+
+    def hull(self) -> None:
+        """None: §2's expansion of the aggregates gives no bound here, so the search keeps every
+        pixel of a constraint's RoI."""
+        return None
 
     def box(self) -> list[tuple[str, float, float]]:
         """(name, low, high) of each parameter, all on a log scale."""
