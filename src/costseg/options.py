@@ -615,6 +615,7 @@ class PredictOptions(NetworkOptions):
         "their predicted IoU, one more row of the panels",
         metavar="PATH",
     )
+    roi: Literal["priors", "geometric"] = same_option(SourceOptions, "roi")
 
 
 @dataclass

@@ -153,11 +153,16 @@ def reference_labels(q: torch.Tensor, shifted: torch.Tensor) -> torch.Tensor:
 
 
 def expected_costs(
-    probs: torch.Tensor, cost: torch.Tensor | None = None, priors: torch.Tensor | None = None
+    probs: torch.Tensor,
+    cost: torch.Tensor | None = None,
+    priors: torch.Tensor | None = None,
+    roi: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """(B, K, H, W) float64 expected cost ``Σ_k C[k', k] q_k`` of each decision k' (the rows of
     ``cost``, a defer row last; None: symmetric), with ``q = p / π`` (``priors``: None, (N,) or
-    (N, H, W)). The rule decides the row of least expected cost (docs/definitions.md §1).
+    (N, H, W)). The rule decides the row of least expected cost (docs/definitions.md §1). A
+    regional stack (R + 1, K, N) with its ``roi`` map: each pixel's costs with its RoI's matrix
+    (docs/definitions.md §21).
 
     >>> p = torch.tensor([0.5, 0.25, 0.25]).view(1, 3, 1, 1)
     >>> expected_costs(p).flatten().tolist()
@@ -165,4 +170,13 @@ def expected_costs(
     """
     q = over_priors(probs, priors)
     cost = cost_or_symmetric(cost, probs.shape[1]).to(q)
-    return torch.einsum("jk,bkhw->bjhw", cost, q)
+    if cost.ndim == 2:
+        return torch.einsum("jk,bkhw->bjhw", cost, q)
+    b, n, h, w = q.shape
+    ids = check_roi(roi, probs, cost).expand(b, h, w).reshape(-1)
+    q = q.permute(0, 2, 3, 1).reshape(-1, n)
+    out = q.new_empty(len(q), cost.shape[1])
+    for r, matrix in enumerate(cost):  # each RoI's pixels with its matrix
+        mine = (ids == r).nonzero()[:, 0]
+        out[mine] = q[mine] @ matrix.t()
+    return out.view(b, h, w, -1).permute(0, 3, 1, 2)

@@ -53,6 +53,7 @@ from costseg.rules import (
     named_group,
     parse_rules,
     require_priors,
+    require_roi,
     rules_group,
     temperature_group,
 )
@@ -154,6 +155,7 @@ def plan(
     note_priors(description, opts.priors, dataset)
     priors = PriorMaps(pixel_priors, CLASS_NAMES, device, geometric)
     require_priors(groups, priors.priors)
+    require_roi(groups, priors.roi_map())
     measured, note = instance_classes(dataset, opts.classes)
     check_instance_targets(opts, measured, note)
     reported_images = dataset
