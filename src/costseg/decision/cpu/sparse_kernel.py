@@ -193,7 +193,10 @@ def _decide_gather(q, s, size, program, certificate, buffers, labels, gathered):
     """Pixels ``s : s + size`` decided into ``labels[s : s + size]`` (:func:`decide_block`), those
     left open appended to ``gathered`` (:func:`_opened`) with their q, while in cache."""
     opened, values, count = gathered
-    decide_block(q, s, program, certificate, buffers, labels[s : s + size], size)
+    if size == BLOCK:  # the default: a compiled version whose loops have a known length
+        decide_block(q, s, program, certificate, buffers, labels[s : s + BLOCK])
+    else:
+        decide_block(q, s, program, certificate, buffers, labels[s : s + size], size)
     flags, unsure = buffers[4], 0
     for i in range(size):  # the pixels left open, gathered (flags[unsure] is free: unsure <= i)
         opened_at = flags[i]
