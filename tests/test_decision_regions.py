@@ -173,3 +173,14 @@ def test_the_triton_kernel_region_by_region_under_the_interpreter():
         [sys.executable, "-c", code], env=env, capture_output=True, text=True, cwd=root
     )
     assert done.returncode == 0, done.stderr[-3000:]
+
+
+def test_expected_costs_of_a_regional_system_are_each_rois_own():
+    from costseg.decision import expected_costs
+
+    probs, stack, roi = hard_probs(), stack_of_five(True), blocky_roi(1, 12, 96, seed=16)
+    got = expected_costs(probs, stack, roi=roi)
+    for r in range(5):
+        mine = (roi == r).expand(2, -1, -1)
+        own = expected_costs(probs, stack[r])
+        assert torch.allclose(got.permute(0, 2, 3, 1)[mine], own.permute(0, 2, 3, 1)[mine])

@@ -150,3 +150,17 @@ def test_a_regional_rule_with_defer_gets_a_row_in_every_matrix():
     assert rule.cost.shape == (5, 20, 19)
     own = Rule("x", torch.stack([symmetric_cost(2)] * 5))
     assert not own.defers and own.defer_cost is None
+
+
+def test_the_defer_sweep_of_a_regional_rule_decides_each_roi_with_its_row():
+    from costseg.rules import defer_group
+
+    group = defer_group([STREET], [0.0, 0.4])
+    assert group.needs_roi and [r.defer_cost for r in group.rules] == [0.0, 0.4]
+    probs = torch.rand(1, 19, 6, 8, generator=torch.Generator().manual_seed(0)).softmax(1)
+    roi = torch.arange(48).view(6, 8) % 5
+    stack = load_cost(STREET)
+    for k, c in enumerate((0.0, 0.4)):
+        deferring = torch.cat([stack, torch.full((5, 1, 19), c, dtype=torch.float64)], 1)
+        expected = loop_over_rois(probs[0], deferring, roi)  # 255: deferred
+        assert (group.decide(probs, None, roi)[0, k].numpy() == expected).all()
