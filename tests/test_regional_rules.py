@@ -131,7 +131,7 @@ def test_a_regional_rule_without_a_roi_map_is_refused_in_one_line():
     assert group.needs_roi and group.rules[0].regional
     require_roi([group], torch.zeros(2, 2))
     with pytest.raises(ValueError, match=r"street_person decides each RoI with its own matrix.*"):
-        require_roi([group], None)
+        require_roi([group], None, "pass --roi geometric")
     require_roi([rules_group(parse_rules(["egoistic"]))], None)  # a plain rule needs none
 
 

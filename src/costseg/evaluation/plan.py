@@ -155,7 +155,9 @@ def plan(
     note_priors(description, opts.priors, dataset)
     priors = PriorMaps(pixel_priors, CLASS_NAMES, device, geometric)
     require_priors(groups, priors.priors)
-    require_roi(groups, priors.roi_map())
+    require_roi(
+        groups, priors.roi_map(), "pass --priors FILE (a run's priors.pt) or --roi geometric"
+    )
     measured, note = instance_classes(dataset, opts.classes)
     check_instance_targets(opts, measured, note)
     reported_images = dataset

@@ -79,7 +79,7 @@ def plan(opts: PredictOptions, source: Source | None = None) -> PredictPlan:
         priors = read_priors_file(opts.priors, CLASS_NAMES)["priors"]
     require_priors([rules_group(rules)], priors)
     maps = PriorMaps(priors, CLASS_NAMES, device, geometric=opts.roi == "geometric")
-    require_roi([rules_group(rules)], maps.roi_map())
+    require_roi([rules_group(rules)], maps.roi_map(), "pass --priors FILE or --roi geometric")
     if meta_models:
         _require_runs(meta_models, source)
     base = source.default_output("prediction", "predict")

@@ -215,15 +215,26 @@ def require_priors(groups: Sequence[RuleGroup], priors: torch.Tensor | None) -> 
         )
 
 
-def require_roi(groups: Sequence[RuleGroup], roi: torch.Tensor | None) -> None:
+def require_roi(
+    groups: Sequence[RuleGroup],
+    roi: torch.Tensor | None,
+    how: str = "give the images priors or the geometric RoI map",
+) -> None:
     """ValueError if a rule of ``groups`` is a regional value system and there is no RoI map
-    (``roi`` None: no priors and no geometric map)."""
+    (``roi`` None: no priors and no geometric map); ``how`` says what to give (the command's
+    options).
+
+    >>> require_roi([RuleGroup("r", ["s"], None, [], rules=[Rule("s", torch.ones(5, 2, 2))],
+    ...                        needs_roi=True)], None)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    ValueError: s decides each RoI with its own matrix and needs a RoI map, and there is none ...
+    """
     needing = dict.fromkeys(r.name for g in groups if g.needs_roi for r in g.rules if r.regional)
     if roi is None and needing:
         raise ValueError(
-            f"{', '.join(needing)} decides each RoI with its own matrix and needs "
-            "a RoI map, and there is none for these images: pass --priors FILE (a run's "
-            "priors.pt) or --roi geometric (docs/definitions.md §3)"
+            f"{', '.join(needing)} decides each RoI with its own matrix and needs a RoI map, and "
+            f"there is none for these images: {how} (docs/definitions.md §3)"
         )
 
 
