@@ -6,7 +6,10 @@
 On (1, 19, H, W) float32 probabilities (softmax of smooth random logits, the recipe of
 ``scripts/bench.py``), on the CPU and, when there is one, on the GPU: one read pass ``p.sum()``,
 ``torch.argmax(p, 1)``, single-rule ``decide`` (egoistic, and egoistic with a defer row of
-:data:`DEFER` times its mean off-diagonal cost, docs/definitions.md §14) and ``decide_mixtures``
+:data:`DEFER` times its mean off-diagonal cost, docs/definitions.md §14), ``decide`` of a regional
+value system (docs/definitions.md §21: :func:`regional_stack`'s five matrices on the uint8
+geometric RoI map, ids 1 to 4, each pixel of RoI r decided with matrix r; also the egoistic
+matrix times 1 … 5, whose regional pass must give egoistic's labels) and ``decide_mixtures``
 over the 66-point barycentric grid (robotistic / altruistic / egoistic vertices, unscaled), on the
 CPU also without numba's kernels. Each timing is the best of several repeats after a warm-up; every
 ratio compares timings of the same run. The target ratios are also given as the median over
@@ -33,6 +36,7 @@ import torch
 
 from costseg.cli import parse_options
 from costseg.costs import barycentric_grid, load_cost, with_defer
+from costseg.data.priors import geometric_roi_map
 from costseg.decision import (
     DEFERRED,
     count_decisions,
@@ -52,6 +56,20 @@ def egoistic_with_defer() -> torch.Tensor:
     """The egoistic matrix with a defer row of ``DEFER`` times its mean off-diagonal cost."""
     cost, n = VERTICES[2], VERTICES.shape[-1]
     return with_defer(cost, DEFER * cost.sum().item() / (n * n - n))
+
+
+def regional_stack(scaled: bool = False) -> torch.Tensor:
+    """Five distinct matrices of the egoistic kind, each as fast to decide alone (measured): the
+    egoistic matrix with person's column (the cost of missing a person) times 1 … 5; with
+    ``scaled``, the whole matrix times 1 … 5 (egoistic's decisions everywhere: the ratio is then
+    the regional pass's own cost)."""
+    factors = torch.arange(1, 6, dtype=torch.float64)
+    if scaled:
+        return VERTICES[2] * factors[:, None, None]
+    stack = VERTICES[2].expand(5, -1, -1).clone()
+    person = 11
+    stack[:, :, person] *= factors[:, None]
+    return stack
 
 
 def best_time(fn: Callable[[], object], repeats: int, sync: Callable[[], object]) -> float:
@@ -102,16 +120,23 @@ def bench(device: str, shape: tuple[int, int, int, int], repeats: int) -> None:
     deferring = egoistic_with_defer().to(device)
     run_defer = lambda: decide(probs, deferring)  # noqa: E731
     run_mix = lambda: decide_mixtures(probs, VERTICES, grid)  # noqa: E731
+    roi = geometric_roi_map(shape[2:]).to(device, torch.uint8)  # the graph's RoI map is uint8
+    stack, scaled = regional_stack().to(device), regional_stack(scaled=True).to(device)
+    run_regional = lambda: decide(probs, stack, roi=roi)  # noqa: E731
+    run_scaled = lambda: decide(probs, scaled, roi=roi)  # noqa: E731
     t_sum = best_time(run_sum, repeats, sync)
     t_argmax = best_time(lambda: probs.argmax(1), repeats, sync)
     t_decide = best_time(run_decide, repeats, sync)
     t_defer = best_time(run_defer, repeats, sync)
     deferred = (run_defer() == DEFERRED).float().mean().item()
+    t_regional = best_time(run_regional, repeats, sync)
     t_mix = best_time(run_mix, max(3, repeats // 2), sync)
     rounds = 2 * repeats + 1
     paired_decide = paired_ratio(run_decide, run_sum, rounds, sync)
     paired_mix = paired_ratio(run_mix, run_decide, rounds, sync)
     paired_defer = paired_ratio(run_defer, run_decide, rounds, sync)
+    paired_regional = paired_ratio(run_regional, run_decide, rounds, sync)
+    paired_scaled = paired_ratio(run_scaled, run_decide, rounds, sync)
     fine = barycentric_grid(0.05)
     t_fine = best_time(lambda: decide_mixtures(probs, VERTICES, fine), 1, sync)
     t_ops = t_decide_ops = None
@@ -127,6 +152,7 @@ def bench(device: str, shape: tuple[int, int, int, int], repeats: int) -> None:
         print(f"  same, tensor ops               {1e3 * t_decide_ops:8.3f} ms   (without numba)")
     share = f"({100 * deferred:.1f} % deferred)"
     print(f"  decide (egoistic + defer row)  {1e3 * t_defer:8.3f} ms   {share}")
+    print(f"  decide (RoI map, 5 matrices)   {1e3 * t_regional:8.3f} ms")
     print(f"  decide_mixtures, {len(grid)} points    {1e3 * t_mix:8.3f} ms")
     print(f"  decide_mixtures, {len(fine)} points   {1e3 * t_fine:8.3f} ms")
     if t_ops:
@@ -137,6 +163,9 @@ def bench(device: str, shape: tuple[int, int, int, int], repeats: int) -> None:
     print(f"  decide / argmax                {t_decide / t_argmax:8.2f}")
     print(f"  decide with / without defer    {t_defer / t_decide:8.2f}")
     print(f"  same, {paired}: {paired_defer:.2f}")
+    print(f"  regional / one matrix          {t_regional / t_decide:8.2f}   (goal <= 1.2)")
+    print(f"  same, {paired}: {paired_regional:.2f}")
+    print(f"  same, egoistic times 1 … 5 (the regional pass alone), {paired}: {paired_scaled:.2f}")
     print(f"  decide_mixtures / decide       {t_mix / t_decide:8.2f}   (target <= 10)")
     print(f"  same, {paired}: {paired_mix:.2f}")
     if device == "cuda":

@@ -54,6 +54,7 @@ def test_documented_evaluate_commands_pass_every_option_check(
 ):
     monkeypatch.chdir(tmp_path)  # the reader's own cost and priors files
     (tmp_path / "my_costs.yaml").write_text("off_diagonal: 1.0\n")
+    (tmp_path / "configs").symlink_to(ROOT / "configs")  # the repository's cost files
     save_priors(tmp_path / "priors.pt", torch.full((19, 8, 16), 1 / 19))  # the reader's priors
     if "--probs" in args:  # the reader's saved probabilities (with --data_root: any folder)
         (tmp_path / args[args.index("--probs") + 1]).mkdir(parents=True)

@@ -1,6 +1,7 @@
 """Compile the numba kernels once and cache them on disk (``make setup`` runs it).
 
-The compiled CPU passes (the decision kernels, the fused decide-and-count pass, the many-rules
+The compiled CPU passes (the decision kernels, a regional value system's runs, the fused
+decide-and-count pass, the many-rules
 confusion counts, the segment runs,
 the segment features of meta classification)
 are compiled on first use and cached beside their modules (``cache=True``); without this step the
@@ -32,11 +33,13 @@ def compile_kernels() -> None:
     vertices = torch.stack([load_cost(n) for n in ("robotistic", "altruistic", "egoistic")])
     weights = barycentric_grid(0.2)  # 21 rules: the many-rules confusion pass
     decide(probs, vertices[2], path="numba")
+    roi = torch.randint(0, 5, SIZE, generator=g)
+    regional = torch.stack([*vertices, vertices[1], vertices[2]])  # a matrix per RoI
+    decide(probs, regional, roi=roi, path="numba")  # the runs of a regional value system
     rules = decide_mixtures(probs, vertices, weights, path="numba")  # uint8 label maps
     decide(probs, mix_costs(vertices, weights)[0], path="numba")
     target = decide(probs, vertices[0])
     target[1][target[1] == 2] = 0  # a class without segments: its arrays' other memory layout
-    roi = torch.randint(0, 5, SIZE, generator=g)
     for cost in (vertices[2], with_defer(vertices[1], 1.0)):  # the fused count pass
         for priors in (None, probs[0] + 0.1):  # q is p; q is p / π (settled in float64)
             decide_counts(probs, cost, target, roi, priors)

@@ -1,9 +1,11 @@
-"""Confusion cost matrices: load, validate, build (symmetric, aggregates, sky), mix, grid; the
-class weights of a matrix.
+"""Confusion cost matrices: load, validate, build (symmetric, aggregates, sky, regional), mix,
+grid; the class weights of a matrix.
 
 A cost matrix ``C`` is (N, N) with **rows = predicted class, columns = true class**
 (docs/definitions.md §1), or (N + 1, N) with a last row of defer costs ``c_defer[j] >= 0``, the
-cost of deferring a pixel whose true class is j (docs/definitions.md §14).
+cost of deferring a pixel whose true class is j (docs/definitions.md §14). A **regional** value
+system (docs/definitions.md §21) is a stack (R + 1, M, N) of such matrices, index 0 the default
+(the whole image), index r the matrix of RoI r (classes.py's RoI ids).
 Matrices are float64 tensors so that YAML values and mixtures stay exact.
 
 >>> C = load_cost("egoistic")
@@ -23,7 +25,7 @@ import yaml
 
 from costseg import CONFIGS
 from costseg.atomic import write_bytes
-from costseg.classes import CLASS_NAMES
+from costseg.classes import CLASS_NAMES, NUM_ROIS, ROI_IDS, ROI_NAMES
 from costseg.values import steps_per_unit
 
 if TYPE_CHECKING:
@@ -96,10 +98,11 @@ def has_defer_row(cost: torch.Tensor) -> bool:
 def with_defer(
     cost: torch.Tensor, defer: float | torch.Tensor, class_names: Sequence[str] | None = None
 ) -> torch.Tensor:
-    """``cost`` with a defer row: (N, N) → (N + 1, N) (docs/definitions.md §14).
+    """``cost`` with a defer row: (N, N) → (N + 1, N) (docs/definitions.md §14); a regional
+    stack (R + 1, N, N) gets the same row in every matrix.
 
     Args:
-        cost: (N, N) cost matrix.
+        cost: (N, N) cost matrix, or (R + 1, N, N) regional stack.
         defer: the cost of deferring, for every true class (a number) or per true class ((N,)).
         class_names: names of the true classes in error messages (None: their indices).
 
@@ -114,7 +117,7 @@ def with_defer(
     """
     cost = torch.as_tensor(cost, dtype=torch.float64)
     n = cost.shape[-1]
-    if cost.shape != (n, n):
+    if cost.shape[-2:] != (n, n) or cost.ndim not in (2, 3):
         raise ValueError(f"a defer row extends an NxN cost matrix, got shape {tuple(cost.shape)}")
     row = torch.as_tensor(defer, dtype=torch.float64, device=cost.device)
     if row.shape not in ((), (n,)):
@@ -128,7 +131,7 @@ def with_defer(
             f"the defer cost of true class {name} is {row[j].item()}: defer costs must be "
             "finite and >= 0"
         )
-    return torch.cat([cost, row[None]])
+    return torch.cat([cost, row.expand(*cost.shape[:-2], 1, n)], -2)
 
 
 def load_cost(name_or_path: str | Path, class_names: Sequence[str] = CLASS_NAMES) -> torch.Tensor:
@@ -147,17 +150,23 @@ def load_cost(name_or_path: str | Path, class_names: Sequence[str] = CLASS_NAMES
     aggregates) and ``default`` (every class not named otherwise) to the cost of deferring that
     true class; a class's own entry wins over its aggregate's.
 
+    A file with ``regions:`` is a regional value system (docs/definitions.md §21,
+    :func:`regional_of_spec`): the result is its (R + 1, M, N) stack.
+
     Returns:
-        (N, N) float64 matrix, or (N + 1, N) with ``defer``, validated.
+        (N, N) float64 matrix, or (N + 1, N) with ``defer``, validated; (R + 1, N, N) or
+        (R + 1, N + 1, N) for a regional file.
 
     Raises:
-        ValueError: unknown preset; a malformed file, a missing or unknown key, unknown class or
-            aggregate names, an invalid matrix: one line naming the file (and every class at
-            fault).
+        ValueError: unknown preset; a malformed file, a missing or unknown key, unknown class,
+            aggregate or region names, an invalid matrix, regions of different shapes: one line
+            naming the file (and every class or the region at fault).
         FileNotFoundError: the path does not exist.
 
     >>> load_cost("robotistic").sum().item()    # 19 * 18 ones
     342.0
+    >>> load_cost(COSTS_DIR / "street_person.yaml").shape    # regional: the default, RoIs 1 … 4
+    torch.Size([5, 19, 19])
     """
     path, folder = Path(name_or_path), Path(name_or_path).parent
     if path.suffix not in (".yaml", ".yml"):
@@ -169,7 +178,10 @@ def load_cost(name_or_path: str | Path, class_names: Sequence[str] = CLASS_NAMES
         path, folder = COSTS_DIR / f"{name_or_path}.yaml", COSTS_DIR
     spec = read_yaml(path)
     try:
-        cost = cost_of_spec(spec, folder, class_names)
+        if "regions" in spec or "default" in spec:
+            cost = regional_of_spec(spec, folder, class_names)
+        else:
+            cost = cost_of_spec(spec, folder, class_names)
     except ValueError as err:  # one place names the file for every rule of the format
         raise ValueError(f"cost file {path}: {err}") from None
     return cost
@@ -183,15 +195,29 @@ def save_cost(
     header: str = "",
 ) -> None:
     """Write ``cost`` as a full-matrix YAML file (a defer row as ``defer`` per class) that
-    :func:`load_cost` reads back exactly; ``header``'s lines first, as YAML comments."""
-    cost = validate_cost(cost, class_names)
-    n = len(class_names)
-    spec = {"name": name, "classes": list(class_names), "matrix": cost[:n].tolist()}
-    if has_defer_row(cost):
-        spec["defer"] = dict(zip(class_names, cost[n].tolist(), strict=True))
+    :func:`load_cost` reads back exactly; ``header``'s lines first, as YAML comments. A regional
+    stack (R + 1, M, N) is written as ``default:`` and, for each RoI whose matrix differs from
+    it, an entry of ``regions:``, each an inline full matrix."""
+    if is_regional(cost):
+        cost = validate_regional_cost(cost, class_names)
+        spec = {"name": name, "default": _full_spec(cost[0], class_names), "regions": {}}
+        for r in range(1, len(cost)):
+            if not torch.equal(cost[r], cost[0]):
+                spec["regions"][ROI_NAMES[r]] = _full_spec(cost[r], class_names)
+    else:
+        spec = {"name": name} | _full_spec(validate_cost(cost, class_names), class_names)
     comments = "".join(f"# {line}".rstrip() + "\n" for line in header.splitlines())
     text = comments + yaml.safe_dump(spec, sort_keys=False, width=1000)
     write_bytes(path, text.encode("utf-8"))
+
+
+def _full_spec(cost: torch.Tensor, class_names: Sequence[str]) -> dict:
+    """The full-matrix form of a validated matrix (a defer row as ``defer`` per class)."""
+    n = len(class_names)
+    spec = {"classes": list(class_names), "matrix": cost[:n].tolist()}
+    if has_defer_row(cost):
+        spec["defer"] = dict(zip(class_names, cost[n].tolist(), strict=True))
+    return spec
 
 
 def symmetric_cost(
@@ -364,6 +390,209 @@ def cost_of_spec(
     if "defer" in spec:
         cost = with_defer(cost, defer_costs(spec, folder, class_names), class_names)
     return validate_cost(cost, class_names)
+
+
+def is_regional(cost: torch.Tensor | None) -> bool:
+    """Whether ``cost`` is a regional stack (R + 1, M, N) rather than one matrix (M, N)
+    (docs/definitions.md §21).
+
+    >>> is_regional(symmetric_cost(2)), is_regional(torch.stack([symmetric_cost(2)] * 5))
+    (False, True)
+    """
+    return cost is not None and cost.ndim == 3
+
+
+def regional_cost(
+    default: torch.Tensor,
+    regions: dict[int | str, torch.Tensor],
+    class_names: Sequence[str] = CLASS_NAMES,
+) -> torch.Tensor:
+    """The (R + 1, M, N) stack of a regional value system (docs/definitions.md §21): index 0
+    ``default``, index r the matrix ``regions`` gives RoI r (an id 1 … R or a name of
+    ``classes.ROI_IDS``), the default where it gives none.
+
+    Raises:
+        ValueError: an unknown region, one named twice, an invalid matrix, or matrices of
+            different shapes (a defer row on some only), naming the region.
+
+    >>> stack = regional_cost(symmetric_cost(2), {"street": 2 * symmetric_cost(2)}, ["a", "b"])
+    >>> stack.shape, stack[1, 0, 1].item(), stack[2, 0, 1].item()
+    (torch.Size([5, 2, 2]), 2.0, 1.0)
+    """
+    default = validate_cost(default, class_names)
+    stack = [default] * (NUM_ROIS + 1)
+    given: dict[int, str] = {}
+    for key, matrix in regions.items():
+        r = region_id(key)
+        if r in given:
+            raise ValueError(f"regions {given[r]!r} and {key!r} are both RoI {r}")
+        given[r] = key
+        try:
+            stack[r] = validate_cost(matrix, class_names)
+        except ValueError as err:
+            raise ValueError(f"region {key!r}: {err}") from None
+        if stack[r].shape != default.shape:
+            raise ValueError(
+                f"region {key!r} has a {_shape(stack[r])} matrix and the default a "
+                f"{_shape(default)} one: every matrix of a regional value system has a defer "
+                "row, or none"
+            )
+    return torch.stack(stack)
+
+
+def validate_regional_cost(
+    stack: torch.Tensor, class_names: Sequence[str] = CLASS_NAMES
+) -> torch.Tensor:
+    """``stack`` as a float64 (R + 1, M, N) regional value system, each matrix valid
+    (:func:`validate_cost`), R the RoIs of ``classes.ROI_NAMES``; ValueError naming the region.
+
+    >>> validate_regional_cost(torch.stack([symmetric_cost(2)] * 5), ["a", "b"]).dtype
+    torch.float64
+    >>> validate_regional_cost(torch.stack([symmetric_cost(2)] * 3), ["a", "b"])
+    Traceback (most recent call last):
+    ...
+    ValueError: a regional value system stacks 5 matrices (the default, then RoIs 1 … 4), got 3
+    """
+    stack = torch.as_tensor(stack, dtype=torch.float64)
+    if stack.ndim != 3 or len(stack) != NUM_ROIS + 1:
+        count = len(stack) if stack.ndim == 3 else f"shape {tuple(stack.shape)}"
+        raise ValueError(
+            f"a regional value system stacks {NUM_ROIS + 1} matrices (the default, then RoIs "
+            f"1 … {NUM_ROIS}), got {count}"
+        )
+    for r, matrix in enumerate(stack):
+        where = "the default" if r == 0 else f"region {ROI_NAMES[r]!r}"
+        try:
+            validate_cost(matrix, class_names)
+        except ValueError as err:
+            raise ValueError(f"{where}: {err}") from None
+    return stack
+
+
+def region_id(key: int | str) -> int:
+    """The RoI id 1 … R of a key of ``regions:`` (``street``, ``roi1`` or ``1``).
+
+    >>> region_id("street"), region_id("roi3"), region_id(4)
+    (1, 3, 4)
+    >>> region_id("image")
+    Traceback (most recent call last):
+    ...
+    ValueError: region 'image' is the whole image (RoI 0): its matrix is 'default'
+    """
+    r = key if isinstance(key, int) and not isinstance(key, bool) else ROI_IDS.get(str(key))
+    if r == 0:
+        raise ValueError(f"region {key!r} is the whole image (RoI 0): its matrix is 'default'")
+    if r is None or not 0 < r <= NUM_ROIS:
+        names = ", ".join(ROI_NAMES[1:])
+        raise ValueError(
+            f"unknown region {key!r}: expected a RoI name ({names}), roi1 … roi{NUM_ROIS} or an "
+            f"id 1 … {NUM_ROIS}"
+        )
+    return r
+
+
+def regional_of_spec(
+    spec: dict, folder: Path | Traversable, class_names: Sequence[str]
+) -> torch.Tensor:
+    """The validated (R + 1, M, N) stack of a regional cost file's mapping (docs/usage.md#regional
+    value systems, docs/definitions.md §21).
+
+    ``regions`` maps RoIs (:func:`region_id`) to matrices; ``default`` is the matrix of every
+    other pixel. Each matrix is a preset's name, a .yaml file (beside the cost file) of a plain
+    matrix, a mapping in any form of :data:`COST_FILE_KEYS` (with its own ``defer``, if any), or
+    the N (or N + 1, a defer row last) rows of a matrix in the classes' order. Without
+    ``default``, the file's own matrix (its keys of a form beside ``regions``) is the default,
+    else the robotistic matrix. A ``defer`` beside ``regions`` gives a defer row to every matrix
+    that has none.
+
+    >>> regional_of_spec({"regions": {"street": {"off_diagonal": 2}}}, COSTS_DIR, ["a", "b"])[:2]
+    tensor([[[0., 1.],
+             [1., 0.]],
+    <BLANKLINE>
+            [[0., 2.],
+             [2., 0.]]], dtype=torch.float64)
+    >>> park = {"regions": {"park": "egoistic"}}
+    >>> regional_of_spec(park, COSTS_DIR, CLASS_NAMES)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    ValueError: unknown region 'park': expected a RoI name (street, sidewalk, building, sky), ...
+    """
+    regions = spec.get("regions")
+    if not isinstance(regions, dict) or not regions:
+        raise ValueError(
+            "'regions' must map RoIs (street, roi1 or 1, …) to matrices; 'default' goes with it"
+        )
+    own = {k: v for k, v in spec.items() if k not in ("regions", "default", "name", "defer")}
+    form = [key for key in COST_FILE_KEYS if key in own]
+    if "default" in spec and own:
+        raise ValueError(
+            f"the default matrix is 'default' or the file's own {_keys(sorted(own), 'and')}, "
+            "not both"
+        )
+    if own and not form:
+        raise ValueError(
+            f"unknown {_keys(sorted(own))}: a regional file takes 'regions', 'default', 'name', "
+            "'defer' and the keys of one matrix"
+        )
+    if "default" in spec:
+        default = _entry_matrix(spec["default"], "'default'", folder, class_names)
+    elif own:
+        default = cost_of_spec(own, folder, class_names)
+    else:
+        default = symmetric_cost(len(class_names))
+    matrices = {
+        key: _entry_matrix(value, f"region {key!r}", folder, class_names)
+        for key, value in regions.items()
+    }
+    if "defer" in spec:  # a defer row for every matrix without its own
+        row = defer_costs(spec, folder, class_names)
+        add = lambda m: m if has_defer_row(m) else with_defer(m, row, class_names)  # noqa: E731
+        default, matrices = add(default), {key: add(m) for key, m in matrices.items()}
+    return regional_cost(default, matrices, class_names)
+
+
+def _entry_matrix(
+    value: object, where: str, folder: Path | Traversable, class_names: Sequence[str]
+) -> torch.Tensor:
+    """The plain matrix of one entry of a regional file (see :func:`regional_of_spec`)."""
+    try:
+        if isinstance(value, str) and Path(value).suffix in (".yaml", ".yml"):
+            path = Path(value) if Path(value).is_absolute() else folder / value
+            inner = read_yaml(path)
+            if "regions" in inner or "default" in inner:
+                raise ValueError(f"{value} is a regional file itself: give a plain matrix")
+            beside = path.parent if isinstance(path, Path) else folder
+            return cost_of_spec(inner, beside, class_names)
+        if isinstance(value, str):
+            return load_cost(value, class_names)
+        if isinstance(value, dict):
+            return cost_of_spec(value, folder, class_names)
+        if isinstance(value, list):
+            return validate_cost(_rows(value, len(class_names)), class_names)
+    except (ValueError, FileNotFoundError) as err:
+        raise ValueError(f"{where}: {err}") from None
+    raise ValueError(
+        f"{where} must be a preset's name, a .yaml file, a cost mapping or the rows of a matrix, "
+        f"got {value!r}"
+    )
+
+
+def _rows(values: list, n: int) -> torch.Tensor:
+    """An inline matrix: N rows of N numbers, or N + 1 (a defer row last)."""
+    try:
+        matrix = torch.tensor(values, dtype=torch.float64)
+    except (TypeError, ValueError, RuntimeError):
+        matrix = None
+    if matrix is None or matrix.shape not in ((n, n), (n + 1, n)):
+        got = "" if matrix is None else f", got {_shape(matrix)}"
+        raise ValueError(f"an inline matrix is {n} rows of {n} numbers (a defer row: {n + 1}){got}")
+    return matrix
+
+
+def _shape(cost: torch.Tensor) -> str:
+    """``19x19``, ``20x19 (a defer row)``: a matrix's shape in messages."""
+    text = "x".join(str(d) for d in cost.shape)
+    return text + (" (a defer row)" if cost.ndim == 2 and has_defer_row(cost) else "")
 
 
 def _keys(keys: Sequence[str], joint: str = "or", noun: bool = True) -> str:

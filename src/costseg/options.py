@@ -530,6 +530,7 @@ class PredictOptions(NetworkOptions):
         "their predicted IoU, one more row of the panels",
         metavar="PATH",
     )
+    roi: Literal["priors", "geometric"] = same_option(SourceOptions, "roi")
 
 
 @dataclass
@@ -552,6 +553,11 @@ class ExportOptions:
         metavar="FILE",
     )
     probabilities: bool = option(False, "the graph also outputs the probabilities")
+    regional: bool = option(
+        False,
+        "the graph takes a regional value system (docs/definitions.md §21): a stack of matrices, "
+        "one per RoI, and the RoI map (uint8, resized to the image) as inputs",
+    )
     overwrite: bool = same_option(
         NetworkOptions, "overwrite", help="replace an earlier export's files"
     )

@@ -21,8 +21,10 @@ figure or one batch that takes longer means a stalled worker, never a healthy on
 
 from __future__ import annotations
 
+import bisect
 import contextlib
 import functools
+import itertools
 import multiprocessing
 import os
 import signal
@@ -138,11 +140,20 @@ def threads() -> ThreadPoolExecutor:
     return ThreadPoolExecutor(len(os.sched_getaffinity(0)), thread_name_prefix="costseg")
 
 
-def in_pieces(kernel, args: tuple, count: int, align: int = 1, per_thread: int = 4) -> list:
+def in_pieces(
+    kernel, args: tuple, count: int, align: int = 1, per_thread: int = 4, work=None
+) -> list:
     """``kernel(*args, start, stop)`` over ``range(count)`` in ``per_thread`` pieces per thread
     (taken in turn by the threads that are free), each starting at a multiple of ``align``;
-    their results in order."""
-    step = max(1, -(-count // (per_thread * threads()._max_workers)))
-    step = -(-step // align) * align
-    pieces = [(s, min(s + step, count)) for s in range(0, count, step)]
+    their results in order. ``work``: (count,) the work of each item (e.g. a run's pixels), for
+    pieces of about equal work instead of equal counts."""
+    total = per_thread * threads()._max_workers
+    if work is not None and count:  # cut where the work so far passes each share of the total
+        done = list(itertools.accumulate(int(w) for w in work))
+        cuts = {bisect.bisect_left(done, done[-1] * k / total) + 1 for k in range(1, total)}
+        pieces = list(itertools.pairwise(sorted({0, count} | {c for c in cuts if c < count})))
+    else:
+        step = max(1, -(-count // total))
+        step = -(-step // align) * align
+        pieces = [(s, min(s + step, count)) for s in range(0, count, step)]
     return [job.result() for job in [threads().submit(kernel, *args, *p) for p in pieces]]

@@ -29,11 +29,12 @@ def decide(
     probs: torch.Tensor,
     cost: torch.Tensor | None = None,
     priors: torch.Tensor | None = None,
+    roi: torch.Tensor | None = None,
     *,
     path: str | None = None,
 ) -> torch.Tensor:
     """Cost-based decision for every pixel, equal to :func:`~.reference.decide_reference` on
-    every pixel (docs/definitions.md §1; deferring: §14).
+    every pixel (docs/definitions.md §1; deferring: §14; a regional value system: §21).
 
     Args:
         probs: (B, N, H, W) class probabilities >= 0 (float16/bfloat16/32/64, any device).
@@ -42,6 +43,9 @@ def decide(
             with a defer row (N <= 255): deferring is one more option, after the classes.
         priors: ``None``, (N,) global or (N, H, W) pixel-wise priors π > 0: the rule is applied to
             ``p / π`` (a per-pixel column scaling).
+        roi: a regional value system's RoI map: (H, W), (1, H, W) or (B, H, W) integer ids, each
+            pixel decided with the matrix ``cost[id]`` of a (K, N, N) or (K, N + 1, N) stack
+            (:func:`costseg.costs.load_cost` of a file with ``regions:``); unused with one matrix.
         path: force a path (``triton``, ``numba``, ``torch``, ``reference``; see
             :mod:`~.dispatch`); default: ``$COSTSEG_DECISION_PATH``, else the fastest that fits.
 
@@ -52,11 +56,17 @@ def decide(
     >>> C = torch.tensor([[0.0, 10, 1], [1, 0, 1], [1, 1, 0]])
     >>> decide(p, None).item(), decide(p, C).item(), decide(p, torch.cat([C, C[1:2]])).item()
     (0, 1, 1)
+    >>> stack = torch.stack([1 - torch.eye(3), C])  # RoI 0: argmax; RoI 1: C
+    >>> decide(p.expand(1, 3, 1, 2), stack, roi=torch.tensor([[0, 1]])).tolist()
+    [[[0, 1]]]
     """
     n = checks.check_probs(probs)
     cost = checks.check_cost(cost, n)
     priors = checks.check_priors(priors, n, probs)
-    chosen = dispatch.choose(Inputs.of(probs, priors, cost), path)
+    cost, roi, regions = checks.check_regions(cost, roi, probs)
+    chosen = dispatch.choose(Inputs.of(probs, priors, cost, regions=regions), path)
+    if regions:
+        return labels_of(chosen.decide_regional(probs, cost, priors, roi), cost)
     return labels_of(chosen.decide(probs, cost, priors), cost)
 
 

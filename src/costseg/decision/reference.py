@@ -1,8 +1,8 @@
 """The decision rule itself, in plain float64 torch: the definition every fast path equals.
 
-See docs/definitions.md §1 and §14 (a defer row). :func:`decide_reference` is slow and simple
-on purpose; the fast paths behind :func:`costseg.decision.decide` give its decision on every
-pixel, bit for bit.
+See docs/definitions.md §1, §14 (a defer row) and §21 (a regional value system: the matrix of
+each pixel's RoI). :func:`decide_reference` is slow and simple on purpose; the fast paths behind
+:func:`costseg.decision.decide` give its decision on every pixel, bit for bit.
 """
 
 from __future__ import annotations
@@ -10,12 +10,15 @@ from __future__ import annotations
 import torch
 
 from costseg.costs import cost_or_symmetric, mix_costs
-from costseg.decision.inputs import check_defer
+from costseg.decision.inputs import check_defer, check_roi
 from costseg.decision.label_maps import labels_of
 
 
 def decide_reference(
-    probs: torch.Tensor, cost: torch.Tensor | None = None, priors: torch.Tensor | None = None
+    probs: torch.Tensor,
+    cost: torch.Tensor | None = None,
+    priors: torch.Tensor | None = None,
+    roi: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """The cost-based decision of every pixel, by definition (docs/definitions.md §1).
 
@@ -29,11 +32,17 @@ def decide_reference(
     same shift (over all N + 1 rows), q and sums; the argmin over the N + 1 rows, so a class wins
     a tie with deferring; a deferred pixel gets the label 255.
 
+    A regional value system (docs/definitions.md §21) is a stack of K matrices and a RoI map:
+    pixel x is decided as above with the matrix ``C_{r(x)}`` of its RoI id r(x).
+
     Args:
         probs: (B, N, H, W) class probabilities >= 0, any float type and device.
         cost: (N, N) cost matrix (rows: predicted class, columns: true class), or (N + 1, N) with
-            a defer row (N <= 255); None: symmetric.
+            a defer row (N <= 255); None: symmetric. A regional value system: (K, N, N) or
+            (K, N + 1, N), matrix r that of RoI id r (0: the default).
         priors: None, (N,) global or (N, H, W) pixel-wise priors π > 0.
+        roi: with a regional ``cost``, (H, W), (1, H, W) or (B, H, W) integer RoI ids < K (one
+            map for every image, or one per image); unused with one matrix.
 
     Returns:
         (B, H, W) int64 class indices, 255 where deferring costs least.
@@ -44,9 +53,14 @@ def decide_reference(
     (0, 1)
     >>> decide_reference(p, torch.cat([C, torch.full((1, 3), 0.4)])).item()  # 0.4 < 0.7
     255
+    >>> stack = torch.stack([1 - torch.eye(3), C])  # RoI 0: argmax; RoI 1: C
+    >>> decide_reference(p.expand(1, 3, 1, 2), stack, roi=torch.tensor([[0, 1]])).tolist()
+    [[[0, 1]]]
     """
     cost = cost_or_symmetric(cost, probs.shape[1])
     check_defer(cost, probs.shape[1])
+    if cost.ndim == 3:
+        return labels_of(regional_rows(probs, cost, priors, check_roi(roi, probs, cost)), cost)
     return labels_of(reference_rows(probs, cost, priors), cost)
 
 
@@ -56,6 +70,23 @@ def reference_rows(probs: torch.Tensor, cost: torch.Tensor, priors) -> torch.Ten
     b, _, h, w = probs.shape
     shifted = shift(cost.detach().to(probs.device, torch.float64))
     return reference_labels(_q(probs, priors), shifted[None]).view(b, h, w)
+
+
+REGIONAL_STEP = 1 << 14  # pixels at once: their (step, M, N) float64 matrices
+
+
+def regional_rows(probs: torch.Tensor, stack: torch.Tensor, priors, roi: torch.Tensor):
+    """(B, H, W) int64 rows of the argmin of a regional value system, by definition: each pixel's
+    sums with the shifted matrix of its RoI id, ``S_{r(x)}``, as :func:`reference_labels` sums
+    (``stack``: (K, M, N); ``roi``: checked (B' , H, W) ids, B' = 1 or B)."""
+    b, _, h, w = probs.shape
+    shifted = shift(stack.detach().to(probs.device, torch.float64))  # each matrix's own shift
+    ids = roi.to(probs.device).long().expand(b, h, w).reshape(-1)
+    q, rows = _q(probs, priors), torch.empty(b * h * w, dtype=torch.long, device=probs.device)
+    for s in range(0, len(q), REGIONAL_STEP):
+        part = slice(s, s + REGIONAL_STEP)
+        rows[part] = reference_labels(q[part], shifted[ids[part]])  # (P, M, N): one per pixel
+    return rows.view(b, h, w)
 
 
 def decide_mixtures_reference(
@@ -114,7 +145,7 @@ def shift(costs: torch.Tensor) -> torch.Tensor:
 
 def reference_labels(q: torch.Tensor, shifted: torch.Tensor) -> torch.Tensor:
     """The reference's sums and argmin: (R, N) float64 q and (..., R or 1, M, N) shifted matrices
-    (M = N, or N + 1 with a defer row) → (..., R) int64 rows of the argmin."""
+    (M = N, or N + 1 with a defer row; R: one per pixel) → (..., R) int64 rows of the argmin."""
     costs = torch.zeros((), dtype=torch.float64, device=q.device)
     for k in range(q.shape[1]):  # ascending k, product and sum each rounded once
         costs = costs + shifted[..., k] * q[:, k, None]  # broadcasts to (..., R, M)
@@ -122,11 +153,16 @@ def reference_labels(q: torch.Tensor, shifted: torch.Tensor) -> torch.Tensor:
 
 
 def expected_costs(
-    probs: torch.Tensor, cost: torch.Tensor | None = None, priors: torch.Tensor | None = None
+    probs: torch.Tensor,
+    cost: torch.Tensor | None = None,
+    priors: torch.Tensor | None = None,
+    roi: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """(B, K, H, W) float64 expected cost ``Σ_k C[k', k] q_k`` of each decision k' (the rows of
     ``cost``, a defer row last; None: symmetric), with ``q = p / π`` (``priors``: None, (N,) or
-    (N, H, W)). The rule decides the row of least expected cost (docs/definitions.md §1).
+    (N, H, W)). The rule decides the row of least expected cost (docs/definitions.md §1). A
+    regional stack (R + 1, K, N) with its ``roi`` map: each pixel's costs with its RoI's matrix
+    (docs/definitions.md §21).
 
     >>> p = torch.tensor([0.5, 0.25, 0.25]).view(1, 3, 1, 1)
     >>> expected_costs(p).flatten().tolist()
@@ -134,4 +170,13 @@ def expected_costs(
     """
     q = over_priors(probs, priors)
     cost = cost_or_symmetric(cost, probs.shape[1]).to(q)
-    return torch.einsum("jk,bkhw->bjhw", cost, q)
+    if cost.ndim == 2:
+        return torch.einsum("jk,bkhw->bjhw", cost, q)
+    b, n, h, w = q.shape
+    ids = check_roi(roi, probs, cost).expand(b, h, w).reshape(-1)
+    q = q.permute(0, 2, 3, 1).reshape(-1, n)
+    out = q.new_empty(len(q), cost.shape[1])
+    for r, matrix in enumerate(cost):  # each RoI's pixels with its matrix
+        mine = (ids == r).nonzero()[:, 0]
+        out[mine] = q[mine] @ matrix.t()
+    return out.view(b, h, w, -1).permute(0, 3, 1, 2)

@@ -8,7 +8,8 @@ certified gap, so does every mixture. Elsewhere only classes that no vertex winn
 every vertex can win; two or three such candidates are decided by the signs of mixed cost
 differences, more by mixing their costs; the pairs left open go to
 :meth:`~.certified.CertifiedCosts.settle` on the mixed matrices of ``mix_costs``. A defer row
-(docs/definitions.md §14) is one more candidate, after the classes, everywhere.
+(docs/definitions.md §14) is one more candidate, after the classes, everywhere. A regional value
+system (§21): each distinct matrix decides its pixels, gathered (:func:`~.regions.by_region`).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import torch
 from costseg.decision import certificate as cert
 from costseg.decision import certified
 from costseg.decision.certified import CertifiedCosts, top
+from costseg.decision.regions import by_region
 
 NAME = "torch"
 
@@ -41,6 +43,10 @@ def decide(probs: torch.Tensor, cost: torch.Tensor, priors) -> torch.Tensor:
 
     certified.decide_in_chunks(fast, out, None, chunk, shifted)
     return out.view(len(probs), *probs.shape[2:])
+
+
+decide_regional = by_region(decide)
+"""(B, H, W) rows of a regional value system's argmins: (K, M, N) stack, (B', H, W) RoI ids."""
 
 
 def decide_mixtures(probs, vertices, weights, priors) -> torch.Tensor:

@@ -23,22 +23,27 @@ from costseg.rules import Rule
 
 
 def anomaly_scores(
-    probs: Tensor, rules: Sequence[Rule], priors: Tensor | None, expected_entropy: Tensor | None
+    probs: Tensor,
+    rules: Sequence[Rule],
+    priors: Tensor | None,
+    expected_entropy: Tensor | None,
+    roi: Tensor | None = None,
 ) -> dict[str, Tensor]:
-    """name → (B, H, W) score, in the order of the module's docstring."""
+    """name → (B, H, W) score, in the order of the module's docstring (``roi``: the RoI map of a
+    regional rule)."""
     maps = heat_maps(probs, None, None, expected_entropy)
     scores = {"max_softmax": 1 - probs.float().amax(1), "entropy": maps["E"]}
     if "MI" in maps:
         scores["mutual_information"] = maps["MI"] / math.log(probs.shape[1])
     for rule in rules:
-        margin = cost_margin(probs, rule, priors) * _max_over_min_cost(rule, probs.shape[1])
+        margin = cost_margin(probs, rule, priors, roi) * _max_over_min_cost(rule, probs.shape[1])
         scores[f"cost_margin/{rule.name}"] = 1 / (1 + margin)
     return scores
 
 
 def _max_over_min_cost(rule: Rule, n: int) -> float:
     """R is in units of the largest off-diagonal cost; this turns it into units of the
-    smallest."""
+    smallest (of a regional rule: over all its matrices)."""
     off = off_diagonal(cost_or_symmetric(rule.cost, n))
     return float(off.max() / off.min())
 
@@ -62,11 +67,12 @@ class AnomalyPass:
         priors: Tensor | None,
         expected_entropy: Tensor | None,
         positions: Sequence[int],
+        roi: Tensor | None = None,
     ) -> None:
         """``images`` (B, 3, H, W) uint8; ``preds``: (B, R, H, W) the named rules' label maps;
         ``positions``: the images' positions among the reported ones (the first
-        ``num_examples`` are kept for the figures)."""
-        scores = anomaly_scores(probs, self.rules, priors, expected_entropy)
+        ``num_examples`` are kept for the figures); ``roi``: the RoI map of regional rules."""
+        scores = anomaly_scores(probs, self.rules, priors, expected_entropy, roi)
         for i, position in enumerate(positions):
             if position < self.num_examples:
                 maps = {k: v[i].half().cpu() for k, v in scores.items()}

@@ -24,7 +24,7 @@ from costseg.networks.protocols import OPTIONS, Protocol
 from costseg.networks.sources import resolve_device
 from costseg.options import EvalOptions, candidate_flags, changed, check_needs, check_values
 from costseg.report.outputs import check_free
-from costseg.rules import RuleGroup, parse_rules, vertex_matrices
+from costseg.rules import RuleGroup, named_group, parse_rules, plain_rules, vertex_matrices
 from costseg.rules.design_spaces import aggregate_template, constraint_kind
 
 
@@ -65,6 +65,8 @@ def check_groups(opts: EvalOptions, groups: list[RuleGroup]) -> None:
     without one sweep to choose from, rules that need priors the data cannot give."""
     check_selection(opts, groups)
     _check_priors(opts, groups)
+    if opts.conformal is not None and opts.conformal_loss == "cost":
+        plain_rules(named_group(groups).rules, "--conformal_loss cost (class weights of a matrix)")
 
 
 def check_shifts(shifts: list[str]) -> None:
@@ -148,7 +150,7 @@ def check_design(opts: EvalOptions) -> None:
     if opts.design == "lagrangian":
         for t in req.constraints:
             constraint_kind(t.metric)
-        base = parse_rules([opts.design_base or "robotistic"])[0]
+        base = plain_rules(parse_rules([opts.design_base or "robotistic"]), "--design_base")[0]
         if base.priors_alpha or (base.defers and opts.design_defer):
             raise ValueError(
                 f"--design_base {base.name}: C0 of --design lagrangian is a cost matrix (not ml)"

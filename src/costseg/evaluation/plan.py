@@ -55,6 +55,7 @@ from costseg.rules import (
     named_group,
     parse_rules,
     require_priors,
+    require_roi,
     rules_group,
     temperature_group,
 )
@@ -165,6 +166,9 @@ def plan(
         print(note)
     priors = PriorMaps(pixel_priors, CLASS_NAMES, device, geometric)
     require_priors(groups, priors.priors)
+    require_roi(
+        groups, priors.roi_map(), "pass --priors FILE (a run's priors.pt) or --roi geometric"
+    )
     measured, note = instance_classes(dataset, opts.classes)
     check_instance_targets(opts, measured, note)
     reported_images = dataset

@@ -3,8 +3,9 @@
 
 The options are checked (one source, no Monte-Carlo dropout, outputs free or ``--overwrite``)
 before the network loads. The graph is traced with torch's TorchScript-based exporter (dynamic
-batch, height, width and matrix rows), run once by onnxruntime at a size other than the traced
-one and compared with the reference decision on PyTorch's probabilities, and only then written.
+batch, height, width and matrix rows; with ``--regional`` the stack's matrices and the RoI map's
+size too), run once by onnxruntime at a size other than the traced one and compared with the
+reference decision on PyTorch's probabilities, and only then written.
 """
 
 from __future__ import annotations
@@ -19,9 +20,9 @@ import torch
 
 from costseg.atomic import AtomicFile
 from costseg.classes import CLASS_NAMES, NUM_CLASSES
-from costseg.costs import PRESETS, load_cost, symmetric_cost
-from costseg.data.priors import save_priors
-from costseg.export.graph import INPUTS, OUTPUTS, DecisionGraph
+from costseg.costs import COSTS_DIR, PRESETS, load_cost, symmetric_cost
+from costseg.data.priors import geometric_roi_map, save_priors
+from costseg.export.graph import INPUTS, OUTPUTS, REGIONAL_INPUTS, DecisionGraph, graph_roi
 from costseg.export.parity import Parity, parity
 from costseg.networks.onnx import GRAPH_METADATA
 from costseg.options import ExportOptions
@@ -45,6 +46,7 @@ class ExportPlan:
     network: str | None
     output: Path
     probabilities: bool
+    regional: bool = False
 
     @property
     def sidecar(self) -> Path:
@@ -93,7 +95,9 @@ def plan_export(opts: ExportOptions) -> ExportPlan:
     spec = network[0] if network else None
     if spec is not None and spec.startswith("onnx:"):
         raise ValueError(f"{spec} is an ONNX file already: export a PyTorch network")
-    plan = ExportPlan(ckpt_path[0] if ckpt_path else None, spec, Path(output), opts.probabilities)
+    plan = ExportPlan(
+        ckpt_path[0] if ckpt_path else None, spec, Path(output), opts.probabilities, opts.regional
+    )
     if plan.output.suffix != ".onnx":
         raise ValueError(f"--output {output} should end in .onnx")
     for path in (plan.output, plan.sidecar, plan.priors_file):
@@ -113,7 +117,7 @@ def export(plan: ExportPlan) -> Exported:
         the files written and the graph's check.
     """
     network, priors, source = _load(plan)
-    graph = DecisionGraph(network, probabilities=True)
+    graph = DecisionGraph(network, probabilities=True, regional=plan.regional)
     model = trace_graph(graph)
     checked, result = _check(graph, model)
     if not plan.probabilities:  # the probabilities stay inside; only the output goes
@@ -144,21 +148,36 @@ def _load(plan: ExportPlan) -> tuple[torch.nn.Module, torch.Tensor | None, str]:
     return checkpoint.network.eval(), checkpoint.priors, f"costseg:{path}"
 
 
-def sample_inputs(size: tuple[int, int], batch: int = 2, seed: int = 0) -> tuple[torch.Tensor, ...]:
+def sample_inputs(
+    size: tuple[int, int], batch: int = 2, seed: int = 0, regional: bool = False
+) -> tuple[torch.Tensor, ...]:
     """Random uint8 images of ``size`` with the symmetric matrix, no priors (ones) and
-    temperature 1: inputs of the graph.
+    temperature 1: inputs of the graph. ``regional``: the packaged ``street_person.yaml``
+    stack (:data:`REGIONAL_EXAMPLE`) and the geometric RoI map at half the images' size, in
+    place of the matrix.
 
     >>> [tuple(t.shape) for t in sample_inputs((4, 6))]
     [(2, 3, 4, 6), (19, 19), (19, 1, 1), ()]
+    >>> [tuple(t.shape) for t in sample_inputs((4, 6), regional=True)]
+    [(2, 3, 4, 6), (5, 19, 19), (19, 1, 1), (), (2, 3)]
     """
     gen = torch.Generator().manual_seed(seed)
     image = torch.randint(0, 256, (batch, 3, *size), generator=gen, dtype=torch.uint8)
-    cost = symmetric_cost(NUM_CLASSES, torch.float32)
-    return image, cost, torch.ones(NUM_CLASSES, 1, 1), torch.tensor(1.0)
+    common = (torch.ones(NUM_CLASSES, 1, 1), torch.tensor(1.0))
+    if not regional:
+        return image, symmetric_cost(NUM_CLASSES, torch.float32), *common
+    stack = load_cost(COSTS_DIR / REGIONAL_EXAMPLE).float()
+    roi = geometric_roi_map((max(1, size[0] // 2), max(1, size[1] // 2))).to(torch.uint8)
+    return image, stack, *common, roi
+
+
+REGIONAL_EXAMPLE = "street_person.yaml"
+"""The regional cost file the graph of ``--regional`` is traced and checked with."""
 
 
 def trace_graph(graph: DecisionGraph):
-    """The graph as an ONNX model (in memory), every output dynamic in batch, height, width."""
+    """The graph as an ONNX model (in memory), every output dynamic in batch, height, width (a
+    regional graph: the stack's matrices and the RoI map's size too)."""
     import io
 
     import onnx
@@ -172,13 +191,14 @@ def trace_graph(graph: DecisionGraph):
         # favour of torch.export, which cannot export dynamic heights and widths here.
         warnings.simplefilter("ignore", torch.jit.TracerWarning)
         warnings.simplefilter("ignore", DeprecationWarning)
+        regional = {"cost": {0: "regions", 1: "rows"}, "roi": {0: "roi_height", 1: "roi_width"}}
         torch.onnx.export(
             graph,
-            sample_inputs(TRACE_SIZE),
+            sample_inputs(TRACE_SIZE, regional=graph.regional),
             buffer,
             dynamo=False,
             opset_version=OPSET,
-            input_names=list(INPUTS),
+            input_names=list(REGIONAL_INPUTS if graph.regional else INPUTS),
             output_names=list(OUTPUTS),
             dynamic_axes={
                 "image": axes,
@@ -187,6 +207,7 @@ def trace_graph(graph: DecisionGraph):
                 "labels": maps,
                 "margin": maps,
                 "probabilities": axes,
+                **(regional if graph.regional else {}),
             },
         )
     return onnx.load_from_string(buffer.getvalue())
@@ -199,12 +220,16 @@ def _check(graph: DecisionGraph, model) -> tuple[list[list[int]], Parity]:
     from costseg.export.runtime import run_graph
     from costseg.networks.onnx import onnx_session
 
-    image, cost, priors, temperature = sample_inputs(CHECK_SIZE, batch=1, seed=1)
+    image, cost, priors, temperature, *roi = sample_inputs(
+        CHECK_SIZE, batch=1, seed=1, regional=graph.regional
+    )
+    roi = roi[0] if roi else None
     session = onnx_session(model.SerializeToString())
-    labels, _, probs = run_graph(session, image, cost, priors, temperature, probabilities=True)
+    labels, _, probs = run_graph(session, image, cost, priors, temperature, True, roi)
     with torch.no_grad():
         reference = graph.network(image).softmax(1)
-    result = parity(reference, probs, labels, cost)
+    resized = None if roi is None else graph_roi(roi, CHECK_SIZE).view(CHECK_SIZE)
+    result = parity(reference, probs, labels, cost, roi=resized)
     if result.outside:
         raise ValueError(
             f"the exported graph disagrees with PyTorch at {CHECK_SIZE[0]} x {CHECK_SIZE[1]} on "
@@ -235,6 +260,7 @@ def _sidecar(
             "with a defer row last",
             "priors": "(N, H, W) or (N, 1, 1) float32 > 0; ones (N, 1, 1) for rules without priors",
             "temperature": "() float32 > 0; 1: the network's own softmax",
+            **(REGIONAL_SIDECAR if plan.regional else {}),
         },
         "outputs": {
             "labels": "(B, H, W) uint8 train ids, 255 = deferred",
@@ -251,5 +277,16 @@ def _sidecar(
             "ml": {"cost": symmetric_cost(NUM_CLASSES).tolist(), "priors": True},
         },
         "priors": plan.priors_file.name if has_priors else None,
+        "regional": plan.regional,
         "opset": OPSET,
     }
+
+
+REGIONAL_SIDECAR = {
+    "cost": "(K, N, N) float32, a regional value system's stack (docs/definitions.md §21): "
+    "matrix 0 the default, matrix r that of RoI r; or (K, N + 1, N) with defer rows; (1, N, N) "
+    "with a RoI map of zeros: one matrix everywhere",
+    "roi": "(h, w) uint8 RoI ids < K (0 none, 1 street, 2 sidewalk, 3 building, 4 sky), of the "
+    "images' shape at any size: the graph resizes it to the labels (nearest neighbour)",
+}
+"""The sidecar's inputs of a ``--regional`` graph that differ from a plain one's."""

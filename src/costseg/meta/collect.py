@@ -26,10 +26,12 @@ def rule_segments(
     priors: torch.Tensor | None,
     expected_entropy: torch.Tensor | None,
     gt: np.ndarray | None = None,
+    roi: torch.Tensor | None = None,
 ) -> SegmentTable:
     """The segments of ``labels`` (H, W), ``rule``'s decisions on the one image in ``probs``
-    (1, N, H, W), with the features of the rule's heat maps (and the targets of ``gt``)."""
-    maps = heat_maps(probs, rule, priors, expected_entropy)
+    (1, N, H, W), with the features of the rule's heat maps (and the targets of ``gt``; ``roi``:
+    the RoI map a regional rule decides with)."""
+    maps = heat_maps(probs, rule, priors, expected_entropy, roi)
     heat = {name: m[0].cpu().numpy() for name, m in maps.items()}
     return segment_features(labels, probs[0].float().cpu().numpy(), heat, gt)
 
@@ -71,10 +73,12 @@ class SegmentCollector:
         expected_entropy: torch.Tensor | None,
         stems: Sequence[str],
         positions: Sequence[int] | None = None,
+        roi: torch.Tensor | None = None,
     ) -> None:
         """One batch: (B, N, H, W) probabilities, (B, K, H, W) label maps of the K rules,
         (B, H, W) ground truth or None, the priors and the runs' expected entropy (or None),
-        the images' names and positions (default: after the images added so far)."""
+        the images' names and positions (default: after the images added so far), the (H, W)
+        RoI map (for regional rules)."""
         if positions is None:
             positions = range(len(self.records), len(self.records) + len(stems))
         for b, (stem, position) in enumerate(zip(stems, positions, strict=True)):
@@ -83,7 +87,7 @@ class SegmentCollector:
             columns, maps = {}, {}
             for k, rule in enumerate(self.rules):
                 labels_k = preds[b, k].cpu().numpy()
-                table = rule_segments(probs[b : b + 1], labels_k, rule, priors, runs, gt)
+                table = rule_segments(probs[b : b + 1], labels_k, rule, priors, runs, gt, roi)
                 columns[rule.name] = dict(table.columns)
                 maps[rule.name] = table.ids
             kept = maps if position < self.keep_maps else None

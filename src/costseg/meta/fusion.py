@@ -22,7 +22,7 @@ import torch
 
 from costseg.meta.collect import rule_segments
 from costseg.meta.models import MetaModels
-from costseg.rules.base import Rule, RuleGroup, needs_priors
+from costseg.rules.base import Rule, RuleGroup, needs_priors, plain_rules
 from costseg.rules.named import apply_rules
 
 FUSION_MODEL = "gradient_boosting"  # MetaFusion's
@@ -84,7 +84,7 @@ class FusedRules:
             )
         return replace(self, models=models)
 
-    def __call__(self, probs: torch.Tensor, priors: torch.Tensor | None) -> torch.Tensor:
+    def __call__(self, probs: torch.Tensor, priors: torch.Tensor | None, roi=None) -> torch.Tensor:
         if self.models is None:
             raise RuntimeError("FusedRules needs its meta models (using()) before it decides")
         decided = apply_rules(probs, (self.base, *self.fused), priors).cpu().numpy()
@@ -119,6 +119,7 @@ def fusion_group(
     fused; several τ are the candidates of ``--target`` and ``--guarantee``)."""
     if not fused:
         raise ValueError("--fuse needs at least one rule")
+    plain_rules([base, *fused], "--fuse")
     taus = tuple(float(t) for t in taus)
     if any(not 0 <= t <= 1 for t in taus):
         raise ValueError(f"--fuse_tau values must lie in [0, 1], got {list(taus)}")

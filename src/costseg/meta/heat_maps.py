@@ -36,6 +36,7 @@ def heat_maps(
     rule: Rule | None = None,
     priors: Tensor | None = None,
     expected_entropy: Tensor | None = None,
+    roi: Tensor | None = None,
 ) -> dict[str, Tensor]:
     """(B, H, W) float32 maps E, D, and R for ``rule``, MI with ``expected_entropy``.
 
@@ -44,6 +45,7 @@ def heat_maps(
         rule: the rule whose cost margin R is wanted (None: no R).
         priors: (N, H, W) pixel-wise priors, for a rule that divides by them.
         expected_entropy: (B, H, W) mean entropy of the runs (None: one run, no MI).
+        roi: (H, W) RoI ids, for a regional rule (docs/definitions.md §21).
     """
     p = probs.float()
     n = p.shape[1]
@@ -51,22 +53,27 @@ def heat_maps(
     top = p.topk(2, dim=1).values
     maps["D"] = 1 - top[:, 0] + top[:, 1]
     if rule is not None:
-        maps["R"] = cost_margin(p, rule, priors)
+        maps["R"] = cost_margin(p, rule, priors, roi)
     if expected_entropy is not None:
         maps["MI"] = (entropy(p) - expected_entropy.float()).clamp_min(0)
     return maps
 
 
-def cost_margin(probs: Tensor, rule: Rule, priors: Tensor | None = None) -> Tensor:
+def cost_margin(
+    probs: Tensor, rule: Rule, priors: Tensor | None = None, roi: Tensor | None = None
+) -> Tensor:
     """(B, H, W) (second-lowest − lowest expected cost) / largest off-diagonal cost of ``rule``.
 
     Expected costs are ``Σ_k C[k', k] q_k`` for each decision k' (rows of C: the predicted class,
-    a defer row last), with ``q = p / π_α`` for a rule with priors, else ``q = p``.
+    a defer row last), with ``q = p / π_α`` for a rule with priors, else ``q = p``; a regional
+    rule: with the matrix of the pixel's RoI in ``roi``, and its largest off-diagonal cost.
     """
     pi = None
     if rule.priors_alpha:
         pi = given_priors(priors, f"the rule {rule.name}")
         pi = adapted_priors(pi.double(), rule.priors_alpha)
-    low = expected_costs(probs, rule.cost, pi).topk(2, dim=1, largest=False).values
-    largest = off_diagonal(cost_or_symmetric(rule.cost, probs.shape[1])).max()
+    low = expected_costs(probs, rule.cost, pi, roi).topk(2, dim=1, largest=False).values
+    largest = off_diagonal(cost_or_symmetric(rule.cost, probs.shape[1])).amax(-1)
+    if rule.regional:  # each pixel's own matrix's
+        largest = largest.to(low.device)[torch.as_tensor(roi, device=low.device).long()]
     return ((low[:, 1] - low[:, 0]) / largest.to(low)).float()

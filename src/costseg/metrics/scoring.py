@@ -118,12 +118,12 @@ def score_batch(
         probs: (B, N, H, W) probabilities.
         labels: (B, H, W) train ids (255 = ignore).
         priors: None, (N,) or (N, H, W) pixel-wise priors.
-        roi: None or (H, W) RoI ids.
+        roi: None or (H, W) RoI ids (a regional rule decides with them).
         instances: None or (B, H, W) instance ids (for groups with instance metrics).
 
     Returns:
         the (B, K, H, W) label maps.
     """
-    preds = group.decide(probs, priors)
+    preds = group.decide(probs, priors, roi)
     metrics.update(preds, labels, roi, instances)
     return preds

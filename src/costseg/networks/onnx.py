@@ -199,6 +199,8 @@ def _decision_graph(path: Path, session) -> _OnnxLogits:
         "priors": np.ones((n, 1, 1), np.float32),
         "temperature": np.ones((), np.float32),
     }
+    if "roi" in [i.name for i in session.get_inputs()]:  # a regional graph: one matrix, RoI 0
+        feeds |= {"cost": feeds["cost"][None], "roi": np.zeros((1, 1), np.uint8)}
     return _OnnxLogits(path, session, feeds, "probabilities", probabilities=True)
 
 

@@ -32,6 +32,7 @@ from costseg.rules import (
     apply_rules,
     parse_rules,
     require_priors,
+    require_roi,
     rules_group,
     vertex_matrices,
 )
@@ -84,6 +85,8 @@ def plan(opts: PredictOptions, source: Opener | None = None) -> PredictPlan:
     if opts.priors is not None:
         priors = read_priors_file(opts.priors, CLASS_NAMES)["priors"]
     require_priors([rules_group(rules)], priors)
+    maps = PriorMaps(priors, CLASS_NAMES, device, geometric=opts.roi == "geometric")
+    require_roi([rules_group(rules)], maps.roi_map(), "pass --priors FILE or --roi geometric")
     if meta_models:
         _require_runs(meta_models, source)
     base = source.default_output("prediction", "predict")
@@ -97,7 +100,7 @@ def plan(opts: PredictOptions, source: Opener | None = None) -> PredictPlan:
         source=source,
         rules=rules,
         output_dir=claimed or claim_output_dir(None, False, base),
-        priors=PriorMaps(priors, CLASS_NAMES, device),
+        priors=maps,
         meta_models=meta_models,
     )
 
@@ -131,7 +134,7 @@ def _require_runs(models: dict[str, MetaModels], source: Source) -> None:
 def _is_argmax(rule: Rule) -> bool:
     """Whether a rule decides as argmax: no priors, no defer row, and a symmetric matrix (one
     positive cost off the diagonal, 0 on it)."""
-    if rule.priors_alpha or rule.defers:
+    if rule.priors_alpha or rule.defers or rule.regional:
         return False
     cost = rule.cost
     if cost is None:
@@ -165,20 +168,22 @@ def decide_image(
         if plan.options.save_probs:
             probs = probs.half().float()
         priors, roi = plan.priors.at(image.shape[:2])
-        maps = apply_rules(probs, plan.rules, priors)[0]
+        maps = apply_rules(probs, plan.rules, priors, roi)[0]
     labels = maps.to(torch.uint8).cpu().numpy()
     segment_iou = None
     if plan.meta_models:
         segment_iou = [
-            _predicted_iou(plan.meta_models[r.name], probs, labels[k], r, priors, expected_entropy)
+            _predicted_iou(
+                plan.meta_models[r.name], probs, labels[k], r, priors, expected_entropy, roi
+            )
             for k, r in enumerate(plan.rules[: len(plan.rule_names)])
         ]
     return probs[0], labels, None if roi is None else roi.cpu().numpy(), uncertainty, segment_iou
 
 
-def _predicted_iou(models: MetaModels, probs, labels, rule, priors, expected_entropy):
+def _predicted_iou(models: MetaModels, probs, labels, rule, priors, expected_entropy, roi):
     """(H, W) float64 predicted IoU of each segment of ``labels``, NaN off the segments."""
-    table = rule_segments(probs, labels, rule, priors, expected_entropy)
+    table = rule_segments(probs, labels, rule, priors, expected_entropy, roi=roi)
     return painted(table.ids, models.predicted_iou(SHOWN_MODEL, table.columns))
 
 
@@ -193,6 +198,7 @@ def run(job: PredictPlan) -> Path:
     folder."""
     opts = job.options
     k = len(job.rule_names)
+    roi_record = _write_roi_map(job)
     writer = PredictionWriter(job.output_dir, job.rules[:k], opts.save_probs)
     argmax = next((i for i, r in enumerate(job.rules) if _is_argmax(r)), k)
     desc = "predict" if opts.progress else None
@@ -206,10 +212,39 @@ def run(job: PredictPlan) -> Path:
         _run_video(job, writer, item, argmax, desc)
     if opts.explorer:
         _write_explorer(job)
-    writer.finish({"source": job.source.description, "input": [str(p) for p in job.inputs.paths]})
+    writer.finish(
+        {
+            "source": job.source.description,
+            "input": [str(p) for p in job.inputs.paths],
+            "roi_map": roi_record,
+        }
+    )
     mark_complete(job.output_dir)
     print(f"predictions written to {job.output_dir}")
     return job.output_dir
+
+
+def _write_roi_map(job: PredictPlan) -> str:
+    """``roi_map.png``, the RoI map the counts and the regional rules use (resized to each
+    image), and what it is, for counts.json; said on the console for regional rules."""
+    roi = job.priors.roi_map()
+    if roi is None:
+        return "none: no priors (counts over the whole image)"
+    if job.options.roi == "geometric":
+        record = "the geometric map of a street camera (docs/definitions.md §3)"
+    else:
+        given = job.options.priors
+        record = f"the priors of {given}" if given else "the priors of the network's checkpoint"
+        record = f"from {record} (docs/definitions.md §3)"
+    from costseg.report.files import save_figure
+    from costseg.report.priors import plot_roi_map  # matplotlib: only where a map is drawn
+
+    save_figure(plot_roi_map(roi), job.output_dir / "roi_map.png")
+    regional = [r.name for r in job.rules if r.regional]
+    if regional:
+        print(f"{', '.join(regional)}: each RoI decided with its own matrix; RoI map {record}, "
+              f"drawn in {job.output_dir / 'roi_map.png'}")  # fmt: skip
+    return record
 
 
 def _run_video(

@@ -14,10 +14,11 @@ from pathlib import Path
 
 import torch
 
-from costseg.classes import CLASS_NAMES
+from costseg.classes import CLASS_NAMES, ROI_NAMES
+from costseg.decision.regions import distinct
 from costseg.report.drawing import Drawing, Job, job
 from costseg.report.results import Example
-from costseg.rules import RuleGroup, masked_groups, named_group
+from costseg.rules import Rule, RuleGroup, masked_groups, named_group
 
 
 class EarlyFigures:
@@ -71,11 +72,39 @@ def plan_figures(group: RuleGroup, roi: torch.Tensor | None) -> list[tuple[str, 
     from costseg.report.cost_matrix import cost_matrix_figures
     from costseg.report.priors import roi_map_figures
 
-    costs = [(f"cost_{r.name}", r.cost, r.name) for r in group.rules if r.cost is not None]
+    costs = [shown for r in group.rules if r.cost is not None for shown in shown_matrices(r)]
     jobs = [("evaluation", job(cost_matrix_figures, costs, CLASS_NAMES))]
     return jobs + (
         [] if roi is None else [("evaluation", job(roi_map_figures, roi.to(torch.uint8)))]
     )
+
+
+def shown_matrices(rule: Rule) -> list[tuple[str, torch.Tensor, str]]:
+    """``(tag, matrix, title)`` of each matrix of ``rule``: its one matrix, or each distinct
+    matrix of a regional rule with the RoIs that use it (docs/definitions.md §21).
+
+    >>> from costseg.costs import symmetric_cost
+    >>> stack = torch.stack([symmetric_cost(2)] * 5)
+    >>> stack[1] *= 2
+    >>> [(tag, title) for tag, _, title in shown_matrices(Rule("s", stack))]
+    [('cost_s', 's: default (RoIs 2, 3, 4)'), ('cost_s_roi1', 's: RoI 1 (street)')]
+    """
+    if not rule.regional:
+        return [(f"cost_{rule.name}", rule.cost, rule.name)]
+    matrices, index = distinct(rule.cost)
+    shown = []
+    for d, matrix in enumerate(matrices):
+        rois = [r for r in range(len(index)) if index[r] == d]
+        ids, names = ", ".join(str(r) for r in rois if r), ", ".join(ROI_NAMES[r] for r in rois)
+        if 0 in rois:
+            tag, where = f"cost_{rule.name}", "default" + (f" (RoIs {ids})" if ids else "")
+        else:
+            tag, where = (
+                f"cost_{rule.name}_roi{rois[0]}",
+                f"RoI{'s' * (len(rois) > 1)} {ids} ({names})",
+            )
+        shown.append((tag, matrix, f"{rule.name}: {where}"))
+    return shown
 
 
 def mask_names(groups: Sequence[RuleGroup]) -> list[str]:

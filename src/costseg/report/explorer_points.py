@@ -37,7 +37,7 @@ def named_points(
     """
     points, n = [], vertices.shape[-1]
     for rule in rules:
-        if rule.priors_alpha:
+        if rule.priors_alpha or rule.regional:  # no point of the triangle
             continue
         cost = cost_or_symmetric(rule.cost, n)[:n]
         cost = rescale(cost) if scaling == "mean" else cost

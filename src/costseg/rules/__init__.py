@@ -17,7 +17,9 @@ from costseg.rules.base import (
     adapted_priors,
     masked_groups,
     named_group,
+    plain_rules,
     require_priors,
+    require_roi,
 )
 from costseg.rules.defer_sweep import DEFER_FAMILY, defer_costs, defer_group
 from costseg.rules.named import RULE_NAMES, apply_rules, parse_rules, rules_group
@@ -42,8 +44,10 @@ __all__ = [
     "masked_groups",
     "named_group",
     "parse_rules",
+    "plain_rules",
     "point_name",
     "require_priors",
+    "require_roi",
     "rules_group",
     "temperature_group",
     "vertex_matrices",

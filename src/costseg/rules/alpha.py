@@ -14,7 +14,7 @@ import torch
 
 from costseg.classes import CLASS_NAMES
 from costseg.decision import decide
-from costseg.rules.base import RuleGroup, adapted_priors, given_priors
+from costseg.rules.base import RuleGroup, adapted_priors, given_priors, plain_rules
 from costseg.rules.named import parse_rules
 from costseg.values import steps_per_unit
 
@@ -26,7 +26,7 @@ class PriorAdapted:
     cost: torch.Tensor | None
     alphas: tuple[float, ...]
 
-    def __call__(self, probs: torch.Tensor, priors: torch.Tensor | None) -> torch.Tensor:
+    def __call__(self, probs: torch.Tensor, priors: torch.Tensor | None, roi=None) -> torch.Tensor:
         priors = given_priors(priors, "the α sweep")
         return torch.stack(
             [decide(probs, self.cost, adapted_priors(priors, a)) for a in self.alphas], 1
@@ -47,7 +47,9 @@ def alpha_group(
     step: float, cost_name: str | None = None, class_names: Sequence[str] = CLASS_NAMES
 ) -> RuleGroup:
     """The prior-adapted rule on ``p / π_α`` for α = 0, step, …, 1 (0 = Bayes, 1 = ML)."""
-    base = parse_rules([cost_name], class_names)[0] if cost_name else None
+    base = (
+        plain_rules(parse_rules([cost_name], class_names), "--alpha_cost")[0] if cost_name else None
+    )
     if base is not None and base.priors_alpha:
         raise ValueError("--alpha_cost must be a cost matrix, not 'ml'")
     if base is not None and base.defers:

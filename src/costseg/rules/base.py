@@ -4,6 +4,10 @@ A rule family (named rules, the value triangle, the α path, temperatures) is on
 :mod:`costseg.rules` that builds a :class:`RuleGroup`; the group carries everything the
 evaluation and the reports need (its label, its result columns, where its rules lie for figures,
 each rule's cost matrix), so any group is evaluated and written without special cases.
+
+A group decides ``decide(probs, priors, roi=None)``: the pixel-wise priors for rules that divide
+by them (``ml``), the RoI map for rules that need one (a regional value system,
+docs/definitions.md §21); every other group ignores them.
 """
 
 from __future__ import annotations
@@ -13,9 +17,11 @@ from dataclasses import dataclass, field
 
 import torch
 
-from costseg.costs import has_defer_row, mix_costs
+from costseg.costs import has_defer_row, is_regional, mix_costs
 
-Decider = Callable[[torch.Tensor, torch.Tensor | None], torch.Tensor]
+Decider = Callable[..., torch.Tensor]
+"""``decide(probs (B, N, H, W), priors (N, H, W) or None, roi=(H, W) RoI ids or None)`` →
+(B, K, H, W) labels."""
 
 DEFER_COLUMN = "defer"
 """The column of a rule's defer cost in result rows (:attr:`Rule.defer_cost`), beside
@@ -29,7 +35,8 @@ class Rule:
     Attributes:
         name: shown in tables, files and TensorBoard tags.
         cost: (N, N) float64 matrix, or (N + 1, N) with a defer row (docs/definitions.md §14);
-            ``None`` = the symmetric matrix.
+            ``None`` = the symmetric matrix; a regional value system's (R + 1, N, N) or
+            (R + 1, N + 1, N) stack, decided with the RoI map (docs/definitions.md §21).
         priors_alpha: 0 = no priors; α in (0, 1] = the rule on ``p / π_α`` with
             ``π_α = (1 - α) + α π`` (1 = maximum likelihood when ``cost`` is None).
     """
@@ -44,9 +51,16 @@ class Rule:
         return self.cost is not None and has_defer_row(self.cost)
 
     @property
-    def defer_cost(self) -> float | list[float] | None:
-        """The rule's cost of deferring: one number when it is the same for every true class,
-        else one per class; None when the rule never defers.
+    def regional(self) -> bool:
+        """Whether the rule is a regional value system (a matrix per RoI, decided with the RoI
+        map: docs/definitions.md §21)."""
+        return is_regional(self.cost)
+
+    @property
+    def defer_cost(self) -> float | list | None:
+        """The rule's cost of deferring: one number when it is the same for every true class
+        (and region), else one per class (a regional rule whose regions' rows differ: one list
+        per region, the default first); None when the rule never defers.
 
         >>> from costseg.costs import with_defer
         >>> Rule("a", with_defer(torch.ones(2, 2), 0.25)).defer_cost, Rule("b", None).defer_cost
@@ -54,8 +68,10 @@ class Rule:
         """
         if not self.defers:
             return None
-        row = self.cost[-1].tolist()
-        return row[0] if len(set(row)) == 1 else row
+        rows = (self.cost[:, -1] if self.regional else self.cost[-1:]).tolist()
+        if len({v for row in rows for v in row}) == 1:
+            return rows[0][0]
+        return rows[0] if all(row == rows[0] for row in rows) else rows
 
 
 def needs_priors(rules: Iterable[Rule]) -> bool:
@@ -65,6 +81,32 @@ def needs_priors(rules: Iterable[Rule]) -> bool:
     (True, False)
     """
     return any(r.priors_alpha for r in rules)
+
+
+def needs_roi(rules: Iterable[Rule]) -> bool:
+    """Whether one of ``rules`` is a regional value system, decided with the RoI map.
+
+    >>> needs_roi([Rule("a", torch.ones(5, 2, 2) - torch.eye(2))]), needs_roi([Rule("a", None)])
+    (True, False)
+    """
+    return any(r.regional for r in rules)
+
+
+def plain_rules(rules: Sequence[Rule], what: str) -> Sequence[Rule]:
+    """``rules``; ValueError naming the first regional one, where ``what`` takes one matrix.
+
+    >>> plain_rules([Rule("a", torch.ones(5, 2, 2) - torch.eye(2))], "--vertices")
+    Traceback (most recent call last):
+    ...
+    ValueError: --vertices takes one matrix; a is a regional value system (a matrix per RoI)
+    """
+    for rule in rules:
+        if rule.regional:
+            raise ValueError(
+                f"{what} takes one matrix; {rule.name} is a regional value system (a matrix "
+                "per RoI)"
+            )
+    return rules
 
 
 def given_priors(priors: torch.Tensor | None, what: str) -> torch.Tensor:
@@ -98,6 +140,7 @@ class RuleGroup:
         masks: whether its rules join the named ones in the example mask figures.
         heatmaps: whether FP/FN location maps are kept (off for sweeps of many rules).
         needs_priors: whether some rule divides by the pixel-wise priors.
+        needs_roi: whether some rule is a regional value system, decided with the RoI map.
         candidates: whether ``--target`` and ``--guarantee`` choose among its rules.
         output: file stem of its own result rows and figures (``sweep`` → ``sweep.csv``), or
             None when it is written with the headline results or elsewhere.
@@ -128,6 +171,7 @@ class RuleGroup:
     masks: bool = False
     heatmaps: bool = False
     needs_priors: bool = False
+    needs_roi: bool = False
     candidates: bool = False
     output: str | None = None
     rules: list[Rule] = field(default_factory=list)
@@ -147,8 +191,9 @@ class RuleGroup:
         return any(r.defers for r in self.rules)
 
     def cost(self, k: int) -> torch.Tensor | None:
-        """The (N, N) (or (N + 1, N), with a defer row) cost matrix of rule k, or None when the
-        rule is no plain matrix (it uses the priors, or is the symmetric matrix of argmax)."""
+        """The (N, N) (or (N + 1, N), with a defer row) cost matrix of rule k (a regional
+        value system: its stack), or None when the rule is no plain matrix (it uses the priors,
+        or is the symmetric matrix of argmax)."""
         if self.vertices is not None and self.weights is not None:
             return mix_costs(self.vertices, self.weights[k : k + 1])[0]
         if self.rules and not self.rules[k].priors_alpha:
@@ -167,6 +212,29 @@ def require_priors(groups: Sequence[RuleGroup], priors: torch.Tensor | None) -> 
         raise ValueError(
             f"{' and '.join(needing)} {verb} pixel-wise priors, and there are none for these "
             "images: pass --priors FILE (a run's priors.pt, or scripts/count_priors.py's)"
+        )
+
+
+def require_roi(
+    groups: Sequence[RuleGroup],
+    roi: torch.Tensor | None,
+    how: str = "give the images priors or the geometric RoI map",
+) -> None:
+    """ValueError if a rule of ``groups`` is a regional value system and there is no RoI map
+    (``roi`` None: no priors and no geometric map); ``how`` says what to give (the command's
+    options).
+
+    >>> require_roi([RuleGroup("r", ["s"], None, [], rules=[Rule("s", torch.ones(5, 2, 2))],
+    ...                        needs_roi=True)], None)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    ValueError: s decides each RoI with its own matrix and needs a RoI map, and there is none ...
+    """
+    needing = dict.fromkeys(r.name for g in groups if g.needs_roi for r in g.rules if r.regional)
+    if roi is None and needing:
+        raise ValueError(
+            f"{', '.join(needing)} decides each RoI with its own matrix and needs a RoI map, and "
+            f"there is none for these images: {how} (docs/definitions.md §3)"
         )
 
 

@@ -23,7 +23,7 @@ from collections.abc import Sequence
 
 from costseg.classes import CLASS_NAMES
 from costseg.costs import cost_or_symmetric, with_defer
-from costseg.rules.base import Rule, RuleGroup, needs_priors
+from costseg.rules.base import Rule, RuleGroup, needs_priors, needs_roi
 from costseg.rules.named import NamedRules, parse_rules, rule_columns
 
 DEFER_FAMILY = "defer"
@@ -67,7 +67,8 @@ def defer_costs(start: float, stop: float, step: float) -> list[float]:
 def defer_group(
     cost_names: Sequence[str], costs: Sequence[float], class_names: Sequence[str] = CLASS_NAMES
 ) -> RuleGroup:
-    """The rules of ``cost_names`` (N x N, or ``ml``) with a defer row of each of ``costs``
+    """The rules of ``cost_names`` (N x N, a regional stack of them, or ``ml``) with a defer row
+    of each of ``costs``
     (ascending), rule after rule, as one group whose rules are the candidates of ``--target``.
 
     Raises:
@@ -94,6 +95,7 @@ def defer_group(
         NamedRules(tuple(rules)),
         [rule_columns(r, True) for r in rules],
         needs_priors=needs_priors(rules),
+        needs_roi=needs_roi(rules),
         candidates=True,
         output="defer_sweep",
         rules=rules,

@@ -1,8 +1,9 @@
 """The named rules of ``--cost``: the presets, ``ml`` and YAML cost files (docs/definitions.md §1,
-§2), decided together as one group.
+§2; a regional file, §21), decided together as one group.
 
-A :class:`~costseg.rules.base.Rule` is a cost matrix (``None`` = the symmetric one) and whether it
-acts on ``p / π`` with the pixel-wise priors π (``ml`` is the symmetric matrix on ``p / π``).
+A :class:`~costseg.rules.base.Rule` is a cost matrix (``None`` = the symmetric one; a regional
+value system's stack, decided with the RoI map) and whether it acts on ``p / π`` with the
+pixel-wise priors π (``ml`` is the symmetric matrix on ``p / π``).
 
 >>> [r.name for r in parse_rules(["robotistic", "ml"])]
 ['robotistic', 'ml']
@@ -31,6 +32,7 @@ from costseg.rules.base import (
     adapted_priors,
     given_priors,
     needs_priors,
+    needs_roi,
 )
 
 RULE_NAMES = (*PRESETS, "ml")
@@ -39,13 +41,15 @@ RULE_NAMES = (*PRESETS, "ml")
 def parse_rules(
     names: Sequence[str], class_names: Sequence[str] = CLASS_NAMES, defer: float | None = None
 ) -> list[Rule]:
-    """Rules from names: the presets, ``ml``, or paths to YAML cost files.
+    """Rules from names: the presets, ``ml``, or paths to YAML cost files (a file with
+    ``regions:``: a regional rule, docs/definitions.md §21).
 
     Args:
         names: the rules of ``--cost``.
         class_names: the network's classes.
-        defer: ``--defer``: every rule gains a defer row of this cost (docs/definitions.md §14);
-            a cost file may instead hold its own ``defer:`` section.
+        defer: ``--defer``: every rule gains a defer row of this cost (docs/definitions.md §14;
+            a regional rule: every matrix of it); a cost file may instead hold its own
+            ``defer:`` section.
 
     Raises:
         ValueError: an unknown name (listing the valid ones), an invalid cost file, or ``defer``
@@ -79,23 +83,34 @@ def parse_rules(
 
 
 def apply_rules(
-    probs: torch.Tensor, rules: Sequence[Rule], priors: torch.Tensor | None = None
+    probs: torch.Tensor,
+    rules: Sequence[Rule],
+    priors: torch.Tensor | None = None,
+    roi: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Decisions of every rule: probs (B, N, H, W) → (B, K, H, W) int64.
 
     Each rule is one :func:`decide` call (for a few named rules faster than one
     :func:`decide_mixtures` pass with identity weights: scripts/bench_predict.py); a rule with
-    priors needs ``priors`` ((N,) or (N, H, W)).
+    priors needs ``priors`` ((N,) or (N, H, W)), a regional rule ``roi`` ((H, W) RoI ids).
     """
     shape = probs.shape[0], len(rules), *probs.shape[2:]
     out = empty_labels(*shape, dtype=torch.long, device=probs.device)
     for k, rule in enumerate(rules):
-        if not rule.priors_alpha:
+        if rule.regional:
+            out[:, k] = decide(probs, rule.cost, roi=_given_roi(roi, rule))
+        elif not rule.priors_alpha:
             out[:, k] = decide(probs, rule.cost)
         else:
             pi = given_priors(priors, f"the rule {rule.name}")
             out[:, k] = decide(probs, rule.cost, adapted_priors(pi, rule.priors_alpha))
     return out
+
+
+def _given_roi(roi: torch.Tensor | None, rule: Rule) -> torch.Tensor:
+    if roi is None:
+        raise ValueError(f"the rule {rule.name} decides each RoI with its own matrix: a RoI map")
+    return roi
 
 
 def rule_columns(rule: Rule, defer: bool) -> dict[str, object]:
@@ -106,13 +121,13 @@ def rule_columns(rule: Rule, defer: bool) -> dict[str, object]:
 
 @dataclass(frozen=True)
 class NamedRules:
-    """``probs, priors → (B, K, H, W)`` for named rules (a class, not a closure: groups travel
-    to DDP worker processes with the LightningModule, so they must pickle)."""
+    """``probs, priors, roi → (B, K, H, W)`` for named rules (a class, not a closure: groups
+    travel to DDP worker processes with the LightningModule, so they must pickle)."""
 
     rules: tuple[Rule, ...]
 
-    def __call__(self, probs: torch.Tensor, priors: torch.Tensor | None) -> torch.Tensor:
-        return apply_rules(probs, self.rules, priors)
+    def __call__(self, probs: torch.Tensor, priors: torch.Tensor | None, roi=None) -> torch.Tensor:
+        return apply_rules(probs, self.rules, priors, roi)
 
 
 def rules_group(rules: Sequence[Rule]) -> RuleGroup:
@@ -128,5 +143,6 @@ def rules_group(rules: Sequence[Rule]) -> RuleGroup:
         is_named=True,
         heatmaps=True,
         needs_priors=needs_priors(rules),
+        needs_roi=needs_roi(rules),
         rules=rules,
     )

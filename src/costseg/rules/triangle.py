@@ -16,7 +16,7 @@ import torch
 from costseg.classes import CLASS_NAMES
 from costseg.costs import barycentric_grid, cost_or_symmetric, rescale
 from costseg.decision import decide_mixtures
-from costseg.rules.base import RuleGroup, needs_priors
+from costseg.rules.base import RuleGroup, needs_priors, plain_rules
 from costseg.rules.named import parse_rules
 
 WEIGHT_COLUMNS = ("alpha", "beta", "gamma")
@@ -31,7 +31,7 @@ class Mixtures:
     vertices: torch.Tensor
     weights: torch.Tensor
 
-    def __call__(self, probs: torch.Tensor, priors: torch.Tensor | None) -> torch.Tensor:
+    def __call__(self, probs: torch.Tensor, priors: torch.Tensor | None, roi=None) -> torch.Tensor:
         return decide_mixtures(probs, self.vertices, self.weights)
 
 
@@ -43,7 +43,7 @@ def vertex_matrices(
         raise ValueError(f"a sweep needs exactly 3 vertex costs, got {len(names)}: {list(names)}")
     if scaling not in ("none", "mean"):
         raise ValueError(f"vertex scaling must be 'none' or 'mean', got {scaling!r}")
-    rules = parse_rules(names, class_names)
+    rules = plain_rules(parse_rules(names, class_names), "a vertex of the triangle")
     if needs_priors(rules):
         raise ValueError("'ml' uses pixel-wise priors and is no matrix: it cannot be a vertex")
     if any(r.defers for r in rules):

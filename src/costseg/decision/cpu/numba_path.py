@@ -4,7 +4,9 @@ A single rule: one compiled pass over the matrix's sparse part, rows that share 
 together, certified row by row (:mod:`.sparse_rule`). Mixtures: the vertex costs of each block
 of pixels computed in cache and mixed there (:mod:`.mixer`, :mod:`.mixture_kernel`). The
 kernels (and numba) are imported on first use: loading them takes about 0.8 s, which pays off
-at Cityscapes scale, not for one small image.
+at Cityscapes scale, not for one small image. A regional value system (docs/definitions.md
+§21): the same single-rule kernel on the runs of pixels of each distinct matrix, in place (no
+pixel is copied; a run is at most a block).
 """
 
 from __future__ import annotations
@@ -15,6 +17,9 @@ from costseg.decision import certificate as cert
 from costseg.decision import certified
 from costseg.decision.cpu import VERTICES
 from costseg.decision.inputs import Inputs
+from costseg.decision.label_maps import empty_labels
+from costseg.decision.reference import shift
+from costseg.decision.regions import distinct, matrix_ids
 
 NAME = "numba"
 COMPILED_MIN_PIXELS = 1 << 20  # single rules: chosen from this image size on
@@ -56,6 +61,36 @@ def decide(probs: torch.Tensor, cost: torch.Tensor, priors) -> torch.Tensor:
     rule = SparseRule(fast, cost, shifted())
     certified.decide_in_chunks(fast, out, rule.step, rule.chunk, shifted)
     return out.view(len(probs), *probs.shape[2:])
+
+
+def decide_regional(probs: torch.Tensor, stack: torch.Tensor, priors, roi: torch.Tensor):
+    """(B, H, W) rows of a regional value system's argmins: (K, M, N) float64 stack, (B', H, W)
+    RoI ids (inputs checked by ``decide``). Each chunk's runs of pixels of one distinct matrix
+    go to that matrix's kernel (:class:`.sparse_rule.RegionalRule`); the pixels each leaves
+    open, to its ``CertifiedCosts.settle``."""
+    from costseg.decision.cpu.sparse_rule import RegionalRule, SparseRule  # numba: where used
+
+    matrices, index = distinct(stack)
+    eps = cert.reference_eps(probs.shape[1], mixtures=False)
+    shifted = [shift(matrices[d : d + 1]) for d in range(len(matrices))]
+    fasts = [certified.prepare(m[None], probs, priors, eps) for m in matrices]
+    rules = [SparseRule(f, matrices[d : d + 1], shifted[d]) for d, f in enumerate(fasts)]
+    regional, step = RegionalRule(rules), rules[0].step
+    b, _, h, w = probs.shape
+    out = empty_labels(b, h * w, dtype=torch.long, device=probs.device)
+    ids = matrix_ids(roi.cpu(), index).numpy()
+    for i in range(b):
+        redo, q64 = [[] for _ in rules], [[] for _ in rules]
+        for s, q in fasts[0].chunks(i, step):
+            image_ids = ids[i if len(ids) > 1 else 0, s : s + q.shape[1]]
+            for d, left in enumerate(regional.chunk(q, image_ids, out[i, s : s + q.shape[1]])):
+                redo[d].append(left + s)
+                q64[d].append(fasts[0].exact_q(i, left + s))  # while the chunk is in cache
+        for d, fast in enumerate(fasts):
+            pixels = torch.cat(redo[d])
+            if len(pixels):
+                out[i, pixels] = fast.settle(torch.cat(q64[d]), shifted[d])
+    return out.view(b, h, w)
 
 
 def decide_mixtures(probs, vertices, weights, priors) -> torch.Tensor:

@@ -1,6 +1,8 @@
 """The compiled single-rule kernel (numba) behind :class:`.sparse_rule.SparseRule`: the grouped
 sparse part of a matrix summed block by block of pixels in cache, the best two and their
-certificate, the open pixels' q gathered; and the reference for those pixels, compiled."""
+certificate, the open pixels' q gathered; and the reference for those pixels, compiled. A
+regional value system (docs/definitions.md §21) decides runs of pixels of one matrix each
+(:func:`decide_runs`): a block is then a run's piece, at most ``BLOCK`` pixels."""
 
 from __future__ import annotations
 
@@ -19,8 +21,8 @@ JIT = dict(nogil=True, cache=True, boundscheck=False, error_model="numpy", fastm
 
 
 @numba.njit(**JIT)
-def _sums(q, s, cols, vals, first, stop, prefix, out):
-    """``out = prefix + Σ_t vals[t] q[cols[t], s : s + BLOCK]`` for t in ``first:stop``, up to
+def _sums(q, s, size, cols, vals, first, stop, prefix, out):
+    """``out = prefix + Σ_t vals[t] q[cols[t], s : s + size]`` for t in ``first:stop``, up to
     four terms per pass (loads and stores, not arithmetic, bound a pass). Each term is rounded
     at most four times in its pass and once in each later one. ``prefix`` is another row than
     ``out``: loops on two rows that might overlap would not vectorise."""
@@ -28,39 +30,39 @@ def _sums(q, s, cols, vals, first, stop, prefix, out):
         count, last = min(PASS, stop - t), stop - 1
         tb, tc, td = min(t + 1, last), min(t + 2, last), min(t + 3, last)
         a, b, c, d = vals[t], vals[tb], vals[tc], vals[td]
-        row_a, row_b = q[cols[t], s : s + BLOCK], q[cols[tb], s : s + BLOCK]
-        row_c, row_d = q[cols[tc], s : s + BLOCK], q[cols[td], s : s + BLOCK]
+        row_a, row_b = q[cols[t], s : s + size], q[cols[tb], s : s + size]
+        row_c, row_d = q[cols[tc], s : s + size], q[cols[td], s : s + size]
         if t == first:
             if count == 4:
-                for i in range(BLOCK):
+                for i in range(size):
                     pair = a * row_a[i] + b * row_b[i]
                     out[i] = prefix[i] + (pair + (c * row_c[i] + d * row_d[i]))
             elif count == 3:
-                for i in range(BLOCK):
+                for i in range(size):
                     out[i] = prefix[i] + ((a * row_a[i] + b * row_b[i]) + c * row_c[i])
             elif count == 2:
-                for i in range(BLOCK):
+                for i in range(size):
                     out[i] = prefix[i] + (a * row_a[i] + b * row_b[i])
             else:
-                for i in range(BLOCK):
+                for i in range(size):
                     out[i] = prefix[i] + a * row_a[i]
         elif count == 4:
-            for i in range(BLOCK):
+            for i in range(size):
                 out[i] += (a * row_a[i] + b * row_b[i]) + (c * row_c[i] + d * row_d[i])
         elif count == 3:
-            for i in range(BLOCK):
+            for i in range(size):
                 out[i] += (a * row_a[i] + b * row_b[i]) + c * row_c[i]
         elif count == 2:
-            for i in range(BLOCK):
+            for i in range(size):
                 out[i] += a * row_a[i] + b * row_b[i]
         else:
-            for i in range(BLOCK):
+            for i in range(size):
                 out[i] += a * row_a[i]
 
 
 @numba.njit(**JIT)
-def _best_two(q, s, work, rows, best, second, arg):
-    """Smallest and second smallest of the costs ``work[prefix] + val q[col, s : s + BLOCK]``
+def _best_two(q, s, size, work, rows, best, second, arg):
+    """Smallest and second smallest of the costs ``work[prefix] + val q[col, s : s + size]``
     for ``rows = (prefix, col, val)`` (a multiple of four; ties keep the first), four per pass.
     Plain selects, which compile to min and max instructions: NaN costs are skipped, but a
     pixel with any (from a NaN or infinite q) has a non-finite ``Σ_k q_k`` and is never
@@ -70,10 +72,10 @@ def _best_two(q, s, work, rows, best, second, arg):
     for j in range(0, len(prefix), 4):
         row_a, row_b = work[prefix[j]], work[prefix[j + 1]]
         row_c, row_d = work[prefix[j + 2]], work[prefix[j + 3]]
-        q_a, q_b = q[cols[j], s : s + BLOCK], q[cols[j + 1], s : s + BLOCK]
-        q_c, q_d = q[cols[j + 2], s : s + BLOCK], q[cols[j + 3], s : s + BLOCK]
+        q_a, q_b = q[cols[j], s : s + size], q[cols[j + 1], s : s + size]
+        q_c, q_d = q[cols[j + 2], s : s + size], q[cols[j + 3], s : s + size]
         a, b, c, d = vals[j], vals[j + 1], vals[j + 2], vals[j + 3]
-        for i in range(BLOCK):
+        for i in range(size):
             low, high, label = best[i], second[i], arg[i]
             low, high, label = keep(row_a[i] + a * q_a[i], np.int32(j), low, high, label)
             low, high, label = keep(row_b[i] + b * q_b[i], np.int32(j + 1), low, high, label)
@@ -116,19 +118,19 @@ def scratch(program):
 
 
 @numba.njit(**JIT)
-def decide_block(q, s, program, certificate, buffers, out):
-    """The block of pixels ``s : s + BLOCK`` of (N, P) float32 q: each pixel's row of the argmin
-    written to ``out`` (BLOCK,), and ``flags`` of ``buffers`` (:func:`scratch`) set to 1 where it
-    is left open (argument meanings: :func:`decide_blocks`)."""
+def decide_block(q, s, program, certificate, buffers, out, size=BLOCK):
+    """The block of pixels ``s : s + size`` (``size`` <= BLOCK) of (N, P) float32 q: each pixel's
+    row of the argmin written to ``out`` (size,), and ``flags`` of ``buffers`` (:func:`scratch`)
+    set to 1 where it is left open (argument meanings: :func:`decide_blocks`)."""
     passes, cols, vals, results, _ = program
     coef, support, reference = certificate
     work, best, second, arg, flags = buffers
     total = work[TOTAL]
     for p in range(len(passes)):
         target, prefix, first, last = passes[p]
-        _sums(q, s, cols, vals, first, last, work[prefix], work[target])
-    _best_two(q, s, work, results, best, second, arg)
-    for i in range(BLOCK):  # M_a <= r_a Σ_k q_k over a's support
+        _sums(q, s, size, cols, vals, first, last, work[prefix], work[target])
+    _best_two(q, s, size, work, results, best, second, arg)
+    for i in range(size):  # M_a <= r_a Σ_k q_k over a's support
         label, gap = arg[i], second[i] - best[i]
         need = coef[label] * work[support[label], i] + reference * total[i]
         sure = (gap > need + np.float32(TINY)) & (gap < np.inf)
@@ -152,24 +154,60 @@ def decide_blocks(q, program, certificate, labels, start, stop):
             ``Σ_k q_k`` for the reference's rounding.
         labels: (P,) int64 output.
     """
-    n = q.shape[0]
-    buffers = scratch(program)
-    flags, index = buffers[4], np.empty(BLOCK, np.int64)
-    opened, count = np.empty(1024, np.int64), 0
-    values = np.empty((1024, n), np.float32)
+    buffers, gathered = scratch(program), _opened(q.shape[0])
     for s in range(start, stop, BLOCK):
-        decide_block(q, s, program, certificate, buffers, labels[s : s + BLOCK])
-        unsure = 0
-        for i in range(BLOCK):  # the pixels left open, gathered
-            index[unsure] = i
-            unsure += flags[i]
-        opened, values = room(opened, values, count + unsure)
-        for r in range(unsure):
-            opened[count + r] = s + index[r]
-            for k in range(n):
-                values[count + r, k] = q[k, s + index[r]]
-        count += unsure
+        gathered = _decide_gather(q, s, BLOCK, program, certificate, buffers, labels, gathered)
+    opened, values, count = gathered
     return opened[:count].copy(), values[:count].copy()
+
+
+@numba.njit(**JIT)
+def decide_runs(q, programs, certificates, starts, sizes, which, labels, first, last):
+    """Runs ``first:last`` of pixels of (N, P) float32 q, in the order given: run t is the pixels
+    ``starts[t] : starts[t] + sizes[t]`` (``sizes[t]`` <= BLOCK), decided with matrix
+    ``which[t]``, whose program and certificate are ``programs[which[t]]`` and
+    ``certificates[which[t]]`` (typed lists: a regional value system's distinct matrices,
+    docs/definitions.md §21); returns the pixels left open and their (R, N) q, as
+    :func:`decide_blocks` does (argument meanings there). Runs in the image's order read q as
+    one stream, whichever matrix decides them."""
+    buffers = [scratch(programs[0])]
+    for d in range(1, len(programs)):
+        buffers.append(scratch(programs[d]))
+    gathered = _opened(q.shape[0])
+    for t in range(first, last):
+        d, s, size = which[t], starts[t], sizes[t]
+        program, certificate = programs[d], certificates[d]
+        gathered = _decide_gather(q, s, size, program, certificate, buffers[d], labels, gathered)
+    opened, values, count = gathered
+    return opened[:count].copy(), values[:count].copy()
+
+
+@numba.njit(**JIT)
+def _opened(n):
+    """No pixel left open yet: (opened (1024,) int64, their q (1024, N) float32, count 0)."""
+    return np.empty(1024, np.int64), np.empty((1024, n), np.float32), 0
+
+
+@numba.njit(**JIT)
+def _decide_gather(q, s, size, program, certificate, buffers, labels, gathered):
+    """Pixels ``s : s + size`` decided into ``labels[s : s + size]`` (:func:`decide_block`), those
+    left open appended to ``gathered`` (:func:`_opened`) with their q, while in cache."""
+    opened, values, count = gathered
+    if size == BLOCK:  # the default: a compiled version whose loops have a known length
+        decide_block(q, s, program, certificate, buffers, labels[s : s + BLOCK])
+    else:
+        decide_block(q, s, program, certificate, buffers, labels[s : s + size], size)
+    flags, unsure = buffers[4], 0
+    for i in range(size):  # the pixels left open, gathered (flags[unsure] is free: unsure <= i)
+        opened_at = flags[i]
+        flags[unsure] = i
+        unsure += opened_at
+    opened, values = room(opened, values, count + unsure)
+    for r in range(unsure):
+        opened[count + r] = s + flags[r]
+        for k in range(q.shape[0]):
+            values[count + r, k] = q[k, s + flags[r]]
+    return opened, values, count + unsure
 
 
 @numba.njit(**JIT)

@@ -32,11 +32,17 @@ from functools import lru_cache
 
 import numpy as np
 import torch
+from numba.typed import List
 
 from costseg.decision import certificate as cert
 from costseg.decision.certified import CertifiedCosts
 from costseg.decision.cpu.row_groups import PASS, program, shared_rows, supports, with_zeros
-from costseg.decision.cpu.sparse_kernel import BLOCK, decide_blocks, reference_pixels
+from costseg.decision.cpu.sparse_kernel import (
+    BLOCK,
+    decide_blocks,
+    decide_runs,
+    reference_pixels,
+)
 from costseg.workers import in_pieces
 
 CHUNK = 1 << 20  # pixels converted to float32 q at once (other types, pixel-wise priors)
@@ -83,13 +89,66 @@ class SparseRule:
             out[whole:] = tail_labels[: p - whole]
             pieces.append((opened[opened < p - whole] + whole, values[opened < p - whole]))
         opened = np.concatenate([part[0] for part in pieces])
-        values = np.concatenate([part[1] for part in pieces])
+        return self.reference(opened, np.concatenate([part[1] for part in pieces]), out)
+
+    def reference(
+        self, opened: np.ndarray, values: np.ndarray, out: np.ndarray, threads: bool = True
+    ) -> torch.Tensor:
+        """The pixels the kernel left ``opened`` (their q: ``values``) decided into ``out`` by
+        the compiled reference where q is exactly p (on the threads, or this one); returns the
+        pixels left to ``CertifiedCosts.settle``."""
         if self.reference64 is not None and len(opened):  # the reference, on these q
             decided = np.empty(len(opened), np.int64)
-            in_pieces(reference_pixels, (values, *self.reference64, decided), len(opened))
+            args = (values, *self.reference64, decided)
+            if threads:
+                in_pieces(reference_pixels, args, len(opened))
+            else:
+                reference_pixels(*args, 0, len(opened))
             out[opened] = decided
             opened = opened[decided < 0]
         return torch.from_numpy(opened)
+
+
+class RegionalRule:
+    """A regional value system's distinct matrices (docs/definitions.md §21), each a
+    :class:`SparseRule`, deciding the runs of pixels of their RoIs in one pass over the image
+    (:func:`.sparse_kernel.decide_runs`), in place."""
+
+    def __init__(self, rules: list[SparseRule]) -> None:
+        self.rules = rules
+        self.programs, self.certificates = List(), List()
+        for rule in rules:
+            self.programs.append(rule.program)
+            self.certificates.append(rule.certificate)
+
+    def chunk(self, q: torch.Tensor, ids: np.ndarray, labels: torch.Tensor) -> list[torch.Tensor]:
+        """(N, P) float32 q and (P,) uint8 each pixel's matrix → (P,) int64 labels written into
+        ``labels``; returns, per matrix, the pixels left to its ``CertifiedCosts.settle``."""
+        out, runs = labels.numpy(), runs_of(ids)
+        args = (q.contiguous().numpy(), self.programs, self.certificates, *runs, out)
+        pieces = in_pieces(decide_runs, args, len(runs[0]), work=runs[1])  # pieces of equal pixels
+        opened = np.concatenate([part[0] for part in pieces])
+        values = np.concatenate([part[1] for part in pieces])
+        matrix, left = ids[opened], []
+        for d, rule in enumerate(self.rules):
+            mine = matrix == d  # a few pixels: the reference on this thread
+            left.append(rule.reference(opened[mine], values[mine], out, mine.sum() > BLOCK))
+        return left
+
+
+def runs_of(ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The runs of equal values of (P,) ``ids`` (a regional value system's matrix of each pixel),
+    cut to at most ``BLOCK`` pixels: (T,) int64 starts and sizes, (T,) the value of each run.
+
+    >>> [a.tolist() for a in runs_of(np.array([0] * 3 + [2] * (BLOCK + 1), np.uint8))]
+    [[0, 3, 1027], [3, 1024, 1], [0, 2, 2]]
+    """
+    bounds = np.concatenate([[0], np.flatnonzero(ids[1:] != ids[:-1]) + 1, [len(ids)]])
+    pieces = -(-np.diff(bounds) // BLOCK)
+    within = np.arange(pieces.sum()) - np.repeat(np.cumsum(pieces) - pieces, pieces)
+    starts = (np.repeat(bounds[:-1], pieces) + BLOCK * within).astype(np.int64)
+    sizes = np.minimum(BLOCK, np.repeat(bounds[1:], pieces) - starts).astype(np.int64)
+    return starts, sizes, ids[starts]
 
 
 @lru_cache(maxsize=32)

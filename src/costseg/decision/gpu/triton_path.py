@@ -2,7 +2,9 @@
 
 The kernel (:mod:`.triton_kernel`) sums the costs in float64 in registers and certifies them,
 K mixtures in the same read of the probabilities; the pairs it leaves open go to
-``CertifiedCosts.settle``. A defer row is one more candidate row (docs/definitions.md §14). It
+``CertifiedCosts.settle``. A defer row is one more candidate row (docs/definitions.md §14); a
+regional value system (§21) decides each distinct matrix's pixels, gathered, one matrix at a
+time (:func:`~costseg.decision.regions.by_region`). It
 runs on CUDA tensors, or on the CPU under Triton's interpreter
 (``TRITON_INTERPRET=1``, set before Triton is imported: tests). Triton is optional, imported on
 first use.
@@ -17,6 +19,7 @@ import torch
 
 from costseg.decision import certified
 from costseg.decision.inputs import Inputs
+from costseg.decision.regions import by_region
 
 NAME = "triton"
 
@@ -56,6 +59,10 @@ def decide(probs: torch.Tensor, cost: torch.Tensor, priors) -> torch.Tensor:
             redo = opened[0].nonzero()[:, 0]
             out[i, redo] = fast.settle(fast.exact_q(i, redo), shifted())
     return out.view(len(probs), *probs.shape[2:])
+
+
+decide_regional = by_region(decide)
+"""(B, H, W) rows of a regional value system's argmins: (K, M, N) stack, (B', H, W) RoI ids."""
 
 
 def decide_mixtures(probs, vertices, weights, priors) -> torch.Tensor:

@@ -199,8 +199,8 @@ class Decisions(Sequence):
 
     def __getitem__(self, index: int) -> torch.Tensor:
         if index not in self.maps:
-            group = self.seen.context.groups[index]
-            self.maps[index] = group.decide(self.seen.tempered(group.temperature), self.seen.priors)
+            group, seen = self.seen.context.groups[index], self.seen
+            self.maps[index] = group.decide(seen.tempered(group.temperature), seen.priors, seen.roi)
         return self.maps[index]
 
 

@@ -25,7 +25,7 @@ class Anomalies(Analysis):
         batch = seen.batch
         self.found.update(
             batch.images, seen.probs, batch.anomalies, seen.named, seen.priors,
-            batch.expected_entropy, seen.positions,
+            batch.expected_entropy, seen.positions, seen.roi,
         )  # fmt: skip
 
     def gather(self) -> None:

@@ -45,7 +45,7 @@ class Segments(Analysis):
             batch = seen.batch
             self.collector.add(
                 seen.probs, seen.named, batch.labels, seen.priors, batch.expected_entropy,
-                batch.stems, seen.positions,
+                batch.stems, seen.positions, seen.roi,
             )  # fmt: skip
 
     def gather(self) -> None:
@@ -90,7 +90,7 @@ def _decided(seen: Seen, named: RuleGroup, rule: Rule) -> torch.Tensor:
     """(B, 1, H, W) ``rule``'s label maps: the named group's, or a fused rule's own."""
     if rule.name in named.names:
         return seen.named[:, [named.names.index(rule.name)]]
-    return apply_rules(seen.probs, [rule], seen.priors)
+    return apply_rules(seen.probs, [rule], seen.priors, seen.roi)
 
 
 def _fit_meta(context: Context, meta: bool) -> tuple[dict[str, MetaModels], RuleGroup | None]:
@@ -106,7 +106,13 @@ def _fit_meta(context: Context, meta: bool) -> tuple[dict[str, MetaModels], Rule
             batch = seen.batch
             preds = torch.cat([_decided(seen, named, r) for r in rules], 1)
             collector.add(
-                seen.probs, preds, batch.labels, seen.priors, batch.expected_entropy, batch.stems
+                seen.probs,
+                preds,
+                batch.labels,
+                seen.priors,
+                batch.expected_entropy,
+                batch.stems,
+                roi=seen.roi,
             )
     fitting = "meta models, rule by rule" if plan.progress else None
     models = {
