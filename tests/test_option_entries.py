@@ -171,7 +171,7 @@ def test_evaluate_checks_every_option_once_on_each_entry(monkeypatch, tmp_path):
     monkeypatch.setattr(checks, "check_values", lambda opts: checked.append(check(opts)))
     planned = []
     monkeypatch.setattr(run, "plan", lambda *a: planned.append(len(checked)) or sys.exit(0))
-    monkeypatch.setattr(run.workers, "start", lambda: None)
+    monkeypatch.setattr(run.workers, "start", lambda preload=(): None)
     with pytest.raises(SystemExit):
         evaluate_main(["--output_dir", str(tmp_path / "cli")])
     with pytest.raises(SystemExit):
