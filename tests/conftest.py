@@ -159,3 +159,16 @@ def every_output(tiny_run, tmp_path_factory) -> list[Path]:
             (out / "stdout.txt").write_text(printed.getvalue())
             folders.append(out)
     return folders
+
+
+@pytest.fixture(autouse=True)
+def recorded_figures(request, monkeypatch):
+    """Figures are recorded, not drawn, unless the test is marked ``figures`` (it reads them):
+    :mod:`figure_recorder`."""
+    if request.node.get_closest_marker("figures") is None:
+        from figure_recorder import RecordedDrawing
+
+        from costseg.report import early_figures
+
+        monkeypatch.setattr(early_figures, "Drawing", RecordedDrawing)
+    yield

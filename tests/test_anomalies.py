@@ -230,6 +230,7 @@ def test_the_metric_adds_up_across_batches_and_counts_the_rules_decisions():
         assert a["decided"][r].tolist() == want
 
 
+@pytest.mark.figures
 def test_evaluate_with_anomalies_end_to_end(tiny_run, tmp_path):
     """results.json's anomaly section: the rules' decisions count every unknown object's pixel,
     and max-softmax's pixel AUROC is sklearn's on the saved probabilities (up to the bins)."""

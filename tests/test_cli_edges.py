@@ -23,6 +23,8 @@ from costseg.options import EvalOptions
 from costseg.progress import Progress
 from costseg.report.outputs import INCOMPLETE
 
+pytestmark = pytest.mark.e2e  # commands interrupted in subprocesses
+
 
 @pytest.fixture(scope="module")
 def ckpt(tiny_run):

@@ -34,6 +34,7 @@ def _rows(path: Path, rule: str) -> list[dict]:
                 if r["matrix"] == rule and r["roi"] in "012"]  # fmt: skip
 
 
+@pytest.mark.figures
 def test_the_designed_cost_file_reproduces_the_rows_of_the_design(ckpt, tmp_path):
     out = tmp_path / "design"
     evaluate_main([*ARGS, "--ckpt_path", ckpt, "--output_dir", str(out), "--design",

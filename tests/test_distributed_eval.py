@@ -16,6 +16,8 @@ from costseg.cli import evaluate_main, evaluate_parser
 from costseg.evaluation.analyses import ANALYSES, wanted
 from costseg.options import EvalOptions
 
+pytestmark = pytest.mark.e2e  # torchrun with two processes against one
+
 ROOT = Path(__file__).resolve().parents[1]
 
 EVERY_ANALYSIS = {
@@ -46,6 +48,7 @@ def test_the_evaluation_runs_every_analysis():
     assert ran == {e.module for e in ANALYSES}
 
 
+@pytest.mark.figures
 @pytest.mark.parametrize("case", sorted(EVERY_ANALYSIS))
 def test_two_processes_equal_one(case, tiny_run, tmp_path):
     ckpt = find_checkpoint(None, runs_dir=tiny_run[2])

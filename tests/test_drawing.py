@@ -137,6 +137,7 @@ def busy_threads(stop: threading.Event) -> list[threading.Thread]:
     return started
 
 
+@pytest.mark.figures
 def test_the_example_figures_never_hang_behind_busy_threads(tmp_path, monkeypatch):
     """20 times, each under a deadline: the evaluation's mask figures at 256 × 512 (float16
     uncertainty maps above torch's grain size) started while torch's pool and other threads run."""

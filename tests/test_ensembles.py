@@ -192,6 +192,7 @@ def _member_probs(paths, image: torch.Tensor) -> list[np.ndarray]:
         ]
 
 
+@pytest.mark.figures
 def test_evaluate_with_two_members_records_both_and_saves_their_uncertainty(checkpoints, tmp_path):
     out = tmp_path / "eval"
     evaluate_main(["--ckpt_path", *map(str, checkpoints), "--cost", "robotistic", "--limit", "1",

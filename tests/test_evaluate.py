@@ -89,6 +89,7 @@ def test_prediction_pngs_decode_to_the_same_labels(evaluated):
         assert torch.equal(torch.from_numpy(LABEL_ID_TO_TRAIN_ID[label_ids]).long(), labels)
 
 
+@pytest.mark.figures
 def test_sweep_points_equal_single_rule_evaluations(tiny_run, tmp_path):
     _, _, runs = tiny_run
     vertices = torch.stack([load_cost(n) for n in ("robotistic", "altruistic", "egoistic")])

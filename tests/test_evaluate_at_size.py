@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 from conftest import write_cityscapes_item
 from interrupts import deadline
 from PIL import Image
@@ -14,6 +15,7 @@ from costseg.checkpoints import find_checkpoint
 from costseg.cli import evaluate_main
 
 
+@pytest.mark.figures
 def test_an_evaluation_of_256x512_cityscapes_images_finishes_with_its_figures(tiny_run, tmp_path):
     tree, out = tmp_path / "cityscapes", tmp_path / "out"
     for split, item in (("train", 0), ("val", 1), ("val", 2)):

@@ -15,6 +15,7 @@ def ckpt(tiny_run):
     return str(find_checkpoint(None, runs_dir=tiny_run[2]))
 
 
+@pytest.mark.figures
 def test_temperature_scaling_and_sweep(ckpt, tmp_path):
     out = tmp_path / "out"
     args = ["--ckpt_path", ckpt, "--cost", "robotistic", "egoistic", "--calibrate", "temperature"]

@@ -71,6 +71,7 @@ def _run(ckpt: Path, root: Path, out: Path, *extra: str) -> dict:
     return json.loads((out / "results.json").read_text())
 
 
+@pytest.mark.figures
 def test_instance_rows_equal_the_brute_force_loop(tiny_run, tree, tmp_path) -> None:
     ckpt = find_checkpoint(None, runs_dir=tiny_run[2])
     results = _run(ckpt, tree, tmp_path / "eval", "--save-predictions")
@@ -155,6 +156,7 @@ def test_mc_dropout_refusals_are_one_line(tmp_path, capsys) -> None:
     assert len(err.splitlines()) == 1 and "saved probabilities" in err
 
 
+@pytest.mark.figures
 def test_sweep_draws_and_targets_instance_recall(tiny_run, tree, tmp_path) -> None:
     ckpt = find_checkpoint(None, runs_dir=tiny_run[2])
     out = tmp_path / "sweep"

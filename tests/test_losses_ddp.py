@@ -4,6 +4,7 @@ processes are the ones :mod:`test_metrics_ddp` starts (each spawn costs seconds)
 
 from __future__ import annotations
 
+import pytest
 import torch
 import torch.distributed as dist
 from test_losses import CLASSES, make_losses
@@ -11,6 +12,8 @@ from torch import nn
 from torch.nn.parallel import DistributedDataParallel
 
 from costseg.training.losses import batch_mean
+
+pytestmark = pytest.mark.e2e  # DDP processes
 
 WORLD = 2
 PRIORS = torch.tensor([0.4, 0.3, 0.2, 0.1])

@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 import socket
 
+import pytest
 import torch
 import torch.distributed as dist
 import torch.multiprocessing as mp
@@ -15,6 +16,8 @@ from test_instances import CLASSES, predictions, roi_blocks, scenes
 from test_losses_ddp import check_losses, expected_losses
 
 from costseg.metrics import InstanceMisses, RoIPrecisionRecall, SegmentErrors
+
+pytestmark = pytest.mark.e2e  # DDP processes
 
 WORLD = 2
 

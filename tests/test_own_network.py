@@ -22,6 +22,8 @@ from costseg.models.entries import network_from_entry
 from costseg.networks.base import IMAGENET_MEAN, IMAGENET_STD
 from costseg.networks.costseg import load_costseg_checkpoint
 
+pytestmark = pytest.mark.e2e  # trainings of other networks
+
 ADAPTER = "costseg.models.adapter.NetworkAdapter"
 MOBILENET = "torchvision.models.segmentation.deeplabv3_mobilenet_v3_large"
 NO_WEIGHTS = "{weights: null, weights_backbone: null}"  # random weights: nothing downloaded

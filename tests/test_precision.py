@@ -7,6 +7,8 @@ from conftest import TINY_TRAIN
 from costseg.cli import train_main
 from costseg.training import precision
 
+pytestmark = pytest.mark.e2e  # trainings at each precision
+
 UNSET = [a for a in TINY_TRAIN if not a.startswith("--trainer.precision")]
 
 

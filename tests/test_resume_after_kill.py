@@ -7,12 +7,15 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 import torch
 import yaml
 from conftest import TINY_TRAIN
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from costseg import CONFIGS
+
+pytestmark = pytest.mark.e2e  # a training killed and resumed
 
 ROOT = Path(__file__).resolve().parents[1]
 EVERY = 3

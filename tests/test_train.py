@@ -15,6 +15,8 @@ from costseg.data.toy import StreetScenes
 from costseg.models.deeplabv3plus import DeepLabV3Plus
 from costseg.training.module import SegmentationModule
 
+pytestmark = pytest.mark.e2e  # trainings
+
 
 def _last(runs: Path) -> Path:
     return find_checkpoint(None, runs_dir=runs)

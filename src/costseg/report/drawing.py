@@ -81,9 +81,7 @@ class Drawing:
     def submit(self, prefix: str, drawn_job: Job) -> None:
         """Queue ``drawn_job`` (its figures logged under ``prefix``); it must pickle without a
         tensor (:func:`job` makes one)."""
-        buffer = io.BytesIO()
-        _NoTensors(buffer, protocol=pickle.HIGHEST_PROTOCOL).dump(drawn_job)
-        self.tasks.put((len(self.prefixes), buffer.getvalue()))
+        self.tasks.put((len(self.prefixes), payload(drawn_job)))
         self.prefixes.append(prefix)
 
     def finish(self) -> list[tuple[str, Drawn]]:
@@ -147,6 +145,14 @@ class Drawing:
                 worker.kill()
                 worker.join(timeout=5)
         self.tasks.cancel_join_thread()  # jobs no worker will read must not hold up the exit
+
+
+def payload(drawn_job: Job) -> bytes:
+    """``drawn_job`` as a worker receives it: pickled, refusing any torch object (a worker
+    must not run torch)."""
+    buffer = io.BytesIO()
+    _NoTensors(buffer, protocol=pickle.HIGHEST_PROTOCOL).dump(drawn_job)
+    return buffer.getvalue()
 
 
 class _NoTensors(pickle.Pickler):
