@@ -4,13 +4,14 @@ and stalled workers end in one error; drawing cannot hang behind this process's 
 from __future__ import annotations
 
 import os
+import sys
 import threading
 import time
 
 import numpy as np
 import pytest
 import torch
-from interrupts import deadline
+from interrupts import deadline, interrupt_when, start_job
 from matplotlib.figure import Figure
 
 from costseg import workers
@@ -170,3 +171,42 @@ def test_the_example_figures_never_hang_behind_busy_threads(tmp_path, monkeypatc
         stop.set()
         for thread in running:
             thread.join()
+
+
+SLOW_FORKSERVER = """import os, time
+from pathlib import Path
+
+parent = os.getppid()
+Path(__file__).with_name("started").touch()
+deadline = time.monotonic() + 120
+while os.getppid() == parent and time.monotonic() < deadline:
+    time.sleep(0.05)
+"""
+"""A module the forkserver imports after its preloads, as a forkserver slowed down by a busy machine
+would be: it says that it has started, then waits until its parent has ended."""
+
+STARTS_WORKERS = """import os, sys, time
+from pathlib import Path
+
+os.environ["PYTHONPATH"] += os.pathsep + sys.argv[1]  # the forkserver's path
+from costseg import workers
+
+workers.CONTEXT.set_forkserver_preload([*workers.PRELOAD, "slow_forkserver"])
+from costseg.cli import user_errors
+from costseg.report.drawing import Drawing
+
+with user_errors():
+    Drawing(Path(sys.argv[1]) / "figures", 2)  # waits for the forkserver to fork a worker
+    time.sleep(600)
+"""
+"""A job that starts the figure workers as an evaluation does, its Ctrl-C turned into one line."""
+
+
+def test_ctrl_c_while_the_workers_start_leaves_one_line(tmp_path):
+    """Ctrl-C while the forkserver has yet to fork the figure workers: the job prints its one
+    line and ends; the worker forked after it ended (its queues gone) ends without a word."""
+    (tmp_path / "slow_forkserver.py").write_text(SLOW_FORKSERVER)
+    job = start_job([sys.executable, "-c", STARTS_WORKERS, str(tmp_path)])
+    _, err = interrupt_when(job, (tmp_path / "started").exists)
+    assert job.returncode == 130, err
+    assert err.splitlines() == ["interrupted"], err

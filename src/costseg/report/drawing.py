@@ -26,6 +26,7 @@ import queue
 import time
 import traceback
 from collections.abc import Callable, Iterable
+from multiprocessing.reduction import ForkingPickler
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -70,7 +71,7 @@ class Drawing:
         self.folder, self.prefixes = folder, []
         workers.start()
         self.tasks, self.reports = workers.CONTEXT.Queue(), workers.CONTEXT.Queue()
-        args = (folder, self.tasks, self.reports)
+        args = (folder, _Queues(self.tasks, self.reports))
         self.workers = [
             workers.CONTEXT.Process(target=_work, args=args, daemon=True)
             for _ in range(max(1, processes))
@@ -164,16 +165,43 @@ class _NoTensors(pickle.Pickler):
         return NotImplemented
 
 
+class _Queues:
+    """A worker's two queues as it receives them: pickled while it starts, unpickled by the worker
+    itself (:meth:`open`). A queue's semaphores are gone once this process has ended (Ctrl-C
+    while the forkserver had yet to fork a worker): the worker then ends quietly, where
+    multiprocessing's own start-up would print a traceback."""
+
+    def __init__(self, tasks, reports) -> None:
+        self.queues = (tasks, reports)
+
+    def __getstate__(self) -> bytes:
+        return bytes(ForkingPickler.dumps(self.queues))  # as the worker starts: fds, semaphores
+
+    def __setstate__(self, state: bytes) -> None:
+        self.pickled = state
+
+    def open(self) -> tuple | None:
+        """(tasks, reports), or None once the process that made them has ended."""
+        try:
+            return pickle.loads(self.pickled)
+        except FileNotFoundError:  # a semaphore that its process unlinked as it ended
+            return None
+
+
 def figure_path(folder: Path, tag: str) -> Path:
     """Where the figure ``tag`` is written in ``folder``."""
     return folder / f"{tag.replace('/', '_')}.png"
 
 
-def _work(folder: Path, tasks, reports) -> None:
+def _work(folder: Path, queues: _Queues) -> None:
     """A worker: for each job until ``None``, report ``("start", pid, index, None)``, then
     ``("figure", pid, index, (tag, shape))`` per figure and ``("done", pid, index, None)``, or
     ``("error", pid, index, OSError or traceback)``. Ctrl-C is the parent's to handle: the
-    forkserver's children ignore it (:func:`costseg.workers.start`)."""
+    forkserver's children ignore it (:func:`costseg.workers.start`); a worker forked after the
+    parent ended ends at once, without a word."""
+    if (opened := queues.open()) is None:
+        return
+    tasks, reports = opened
     import matplotlib
 
     from costseg.report.files import render, write_png
