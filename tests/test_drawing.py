@@ -90,11 +90,12 @@ def stalls(seconds: float):
 
 
 def test_a_stalled_worker_ends_the_wait_naming_where_it_stopped(tmp_path, monkeypatch):
-    monkeypatch.setattr(workers, "STALL_SECONDS", 2.0)
+    workers.start()  # the forkserver's own start is not the stall measured here
+    monkeypatch.setattr(workers, "STALL_SECONDS", 10.0)  # a worker's start on a busy machine
     start = time.monotonic()
     with pytest.raises(Stalled, match=r"drew nothing for \d+ s \(pid \d+ after prefix/before\)"):
         draw([job(stalls, 600)], tmp_path, processes=1)
-    assert time.monotonic() - start < 30
+    assert time.monotonic() - start < 60
 
 
 def test_a_job_that_carries_a_tensor_is_refused(tmp_path):

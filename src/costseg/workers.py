@@ -35,10 +35,16 @@ from typing import TypeVar
 
 T = TypeVar("T")
 
-PRELOAD = ["costseg.report.drawing", "costseg.data.toy"]
+PRELOAD = [
+    "costseg.report.drawing",
+    "matplotlib.figure",
+    "matplotlib.backends.backend_agg",
+    "costseg.data.toy",
+]
 """Modules the forkserver imports once, so that a worker forked from it starts at once: the
-drawing workers' loop and the procedural scenes' (a Cityscapes loader's workers import torchvision
-themselves, 1.3 s, rather than every evaluation's forkserver). A job adds the modules of the
+drawing workers' loop and what every figure needs, and the procedural scenes' (a Cityscapes
+loader's workers import torchvision themselves, 1.3 s, rather than every evaluation's
+forkserver). A job adds the modules of the
 figures it will draw (:func:`start`: an evaluation's analyses declare theirs)."""
 
 STALL_SECONDS = 600.0
