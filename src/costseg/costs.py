@@ -194,27 +194,54 @@ def save_cost(
     class_names: Sequence[str] = CLASS_NAMES,
     header: str = "",
 ) -> None:
-    """Write ``cost`` as a full-matrix YAML file (a defer row as ``defer`` per class) that
-    :func:`load_cost` reads back exactly; ``header``'s lines first, as YAML comments. A regional
-    stack (R + 1, M, N) is written as ``default:`` and, for each RoI whose matrix differs from
-    it, an entry of ``regions:``, each an inline full matrix."""
+    """Write ``cost`` as a full-matrix YAML file (a defer row as ``defer`` per class; one line
+    per matrix row) that :func:`load_cost` reads back exactly; ``header``'s lines first, as YAML
+    comments. A regional stack (R + 1, M, N) is written as ``default:`` and, for each RoI whose
+    matrix differs from it, an entry of ``regions:``, each an inline full matrix; a stack whose
+    matrices are all equal, as that one matrix (the same decisions, docs/definitions.md §21).
+
+    >>> import tempfile
+    >>> path = Path(tempfile.mkdtemp()) / "c.yaml"
+    >>> save_cost(path, symmetric_cost(2), "two", ["a", "b"])
+    >>> print(path.read_text().strip())
+    name: two
+    classes: [a, b]
+    matrix:
+    - [0.0, 1.0]
+    - [1.0, 0.0]
+    """
     if is_regional(cost):
         cost = validate_regional_cost(cost, class_names)
+    if is_regional(cost) and any(not torch.equal(m, cost[0]) for m in cost[1:]):
         spec = {"name": name, "default": _full_spec(cost[0], class_names), "regions": {}}
         for r in range(1, len(cost)):
             if not torch.equal(cost[r], cost[0]):
                 spec["regions"][ROI_NAMES[r]] = _full_spec(cost[r], class_names)
     else:
-        spec = {"name": name} | _full_spec(validate_cost(cost, class_names), class_names)
+        plain = cost[0] if is_regional(cost) else cost
+        spec = {"name": name} | _full_spec(validate_cost(plain, class_names), class_names)
     comments = "".join(f"# {line}".rstrip() + "\n" for line in header.splitlines())
-    text = comments + yaml.safe_dump(spec, sort_keys=False, width=1000)
+    text = comments + yaml.dump(spec, Dumper=_RowDumper, sort_keys=False, width=1000)
     write_bytes(path, text.encode("utf-8"))
+
+
+class _Row(list):
+    """A matrix row or a list of names, written on one line (YAML's flow style)."""
+
+
+class _RowDumper(yaml.SafeDumper):
+    """``yaml.safe_dump`` with :class:`_Row` lists on one line each."""
+
+
+_RowDumper.add_representer(
+    _Row, lambda dumper, row: dumper.represent_sequence("tag:yaml.org,2002:seq", row, True)
+)
 
 
 def _full_spec(cost: torch.Tensor, class_names: Sequence[str]) -> dict:
     """The full-matrix form of a validated matrix (a defer row as ``defer`` per class)."""
     n = len(class_names)
-    spec = {"classes": list(class_names), "matrix": cost[:n].tolist()}
+    spec = {"classes": _Row(class_names), "matrix": [_Row(row) for row in cost[:n].tolist()]}
     if has_defer_row(cost):
         spec["defer"] = dict(zip(class_names, cost[n].tolist(), strict=True))
     return spec

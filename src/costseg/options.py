@@ -359,18 +359,19 @@ class EvalOptions(SourceOptions):
         needs="conformal",
     )
 
-    design: Literal["triangle", "lagrangian", "aggregate"] | None = option(
+    design: Literal["triangle", "lagrangian", "aggregate", "regional"] | None = option(
         help="design a cost matrix meeting every --require, jointly with probability 1 - δ "
         "(--design_delta): searched in this space on a random half of the held-out images "
-        "(--seed), certified on the other half by Pareto Testing; writes designed_cost.yaml",
+        "(--seed), certified on the other half by Pareto Testing; writes designed_cost.yaml "
+        "(regional: a matrix per RoI, each requirement moving its own RoI's; needs a RoI map)",
         group=DESIGN,
     )
     design_search: Literal["grid", "continuous"] | None = option(
-        help="how --design lagrangian searches its multipliers: every point of a log grid, or "
-        "Optuna's TPE sampler over log μ (--seed); default: the grid when it has at least 8 "
-        "values per multiplier within --design_budget, else continuous",
+        help="how --design lagrangian or regional searches its multipliers: every point of a log "
+        "grid, or Optuna's TPE sampler over log μ (--seed); default: the grid when it has at "
+        "least 8 values per multiplier within --design_budget, else continuous",
         group=DESIGN,
-        needs="design=lagrangian",
+        needs="design=lagrangian|regional",
     )
     require: list[str] | None = option(
         help="the requirements of --design, e.g. 'person:roi1:recall>=0.8' "
@@ -408,8 +409,9 @@ class EvalOptions(SourceOptions):
         needs="design",
     )
     design_base: str | None = option(
-        help="the matrix C0 of --design lagrangian (default robotistic), the aggregate cost file "
-        "of --design aggregate (default altruistic): a name or a .yaml",
+        help="the matrix C0 of --design lagrangian (default robotistic; regional: a regional "
+        "file too), the aggregate cost file of --design aggregate (default altruistic): a name "
+        "or a .yaml",
         group=DESIGN,
         needs="design",
     )
@@ -488,7 +490,7 @@ def _check_value(value: Any, hint: Any, meta: Any) -> None:
 
 def check_needs(opts: Any) -> None:
     """ValueError when an option is given without the option it ``needs`` (its metadata: a
-    field's name, or ``name=value``).
+    field's name, or ``name=value`` with one value or several, ``name=a|b``).
 
     >>> check_needs(EvalOptions(conformal_sets="aps"))
     Traceback (most recent call last):
@@ -501,9 +503,11 @@ def check_needs(opts: Any) -> None:
         name, _, value = f.metadata.get("needs", "").partition("=")
         if not name or not changed(opts, [f.name]):
             continue
-        if (str(getattr(opts, name)) != value) if value else not changed(opts, [name]):
+        values = value.split("|") if value else []
+        if (str(getattr(opts, name)) not in values) if values else not changed(opts, [name]):
             flag = changed(opts, [f.name])[0]
-            raise ValueError(f"{flag} goes with --{name}" + (f" {value}" if value else ""))
+            raise ValueError(f"{flag} goes with --{name}" + (f" {' or '.join(values)}"
+                                                              if values else ""))  # fmt: skip
 
 
 def candidate_flags() -> str:

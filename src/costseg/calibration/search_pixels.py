@@ -10,9 +10,12 @@ holding every candidate's class rows and ``E_k(C) = Σ_j C[k, j] p_j``, that hol
     min_{C ∈ hull} (E_c(C) − E_k(C)) > 0   for some class k ≠ c
 
 (E is linear in C: the smallest value over the hull is the smallest over its vertices plus the
-negative part of each generator), since then k always costs less than c. A space without a hull
-keeps every labelled pixel of r. So each image's constraint losses on the kept pixels equal those
-on every pixel, for every candidate, and no image leaves a constraint's mean because of sampling.
+negative part of each generator), since then k always costs less than c. A regional space
+(docs/definitions.md §21) gives a hull per RoI
+(:class:`~costseg.rules.design_spaces.RegionalHull`): a pixel is bounded by its own RoI's, which
+only the constraints that move that RoI's matrix widen. A space without a hull keeps every
+labelled pixel of r. So each image's constraint losses on the kept pixels equal those on every
+pixel, for every candidate, and no image leaves a constraint's mean because of sampling.
 
 >>> import torch
 >>> from costseg.costs import symmetric_cost
@@ -30,7 +33,7 @@ from collections.abc import Sequence
 import torch
 
 from costseg.classes import IGNORE_INDEX
-from costseg.rules.design_spaces import Hull
+from costseg.rules.design_spaces import Hull, RegionalHull
 
 CHUNK = 1 << 16
 """Pixels whose expected costs are bounded at once (every vertex and generator)."""
@@ -83,7 +86,7 @@ def constraint_pixels(
     labels: torch.Tensor,
     roi: torch.Tensor | None,
     constraints: Sequence[PixelNeed],
-    hull: Hull | None,
+    hull: Hull | RegionalHull | None,
     ignore_index: int = IGNORE_INDEX,
 ) -> torch.Tensor:
     """The pixels that can change a constraint's per-image loss under some candidate.
@@ -92,8 +95,8 @@ def constraint_pixels(
         probs: (B, N, H, W); labels: (B, H, W); roi: None or (B, H, W) RoI ids (None: RoI 0 only).
         constraints: what each constraint counts (:data:`PixelNeed`); a class of None
             (``coverage`` over every class) keeps every labelled pixel of its RoI.
-        hull: the space's bound, or None: every labelled pixel of a precision or Dice
-            constraint's RoI.
+        hull: the space's bound (a regional space's: one per RoI id, each pixel bounded by its
+            own RoI's), or None: every labelled pixel of a precision or Dice constraint's RoI.
         ignore_index: the label of unlabelled pixels (never kept: they count nowhere).
 
     Returns:
@@ -118,10 +121,23 @@ def constraint_pixels(
             keep |= region
             continue
         open_ = region & ~keep  # only these may still be left out
-        where = open_.nonzero(as_tuple=True)
-        pixels = probs.permute(1, 0, 2, 3)[:, where[0], where[1], where[2]]  # (N, P)
-        keep[where] = could_decide(pixels, cls, hull)
+        if isinstance(hull, RegionalHull):
+            ids = torch.zeros_like(labels) if roi is None else roi
+            for r, own in enumerate(hull.regions):
+                keep |= _decidable(probs, open_ & (ids == r), cls, own)
+        else:
+            keep |= _decidable(probs, open_, cls, hull)
     return keep
+
+
+def _decidable(probs: torch.Tensor, pixels: torch.Tensor, cls: int, hull: Hull) -> torch.Tensor:
+    """(B, H, W) bool: the ``pixels`` (a (B, H, W) mask) some matrix of ``hull`` may decide
+    ``cls`` (:func:`could_decide`)."""
+    out = torch.zeros_like(pixels)
+    where = pixels.nonzero(as_tuple=True)
+    values = probs.permute(1, 0, 2, 3)[:, where[0], where[1], where[2]]  # (N, P)
+    out[where] = could_decide(values, cls, hull)
+    return out
 
 
 def gather_pixels(

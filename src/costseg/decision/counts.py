@@ -13,7 +13,7 @@ the certificate cannot settle are decided again exactly. Elsewhere, ``decide`` a
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
@@ -26,6 +26,7 @@ from costseg.decision import inputs as checks
 from costseg.decision.api import decide
 from costseg.decision.label_maps import DEFERRED
 from costseg.decision.reference import shift
+from costseg.decision.regions import distinct
 
 ALIGN = 1024  # pixels padded to a multiple of the compiled kernel's block
 PATHS = ("numba", "torch")
@@ -69,11 +70,24 @@ class CountInputs:
     q: np.ndarray | None
     images: int
     rois: int
+    by_roi: dict = field(default_factory=dict, compare=False, repr=False)  # of_roi's, kept
 
     @property
     def classes(self) -> int:
         """N."""
         return self.probs.shape[1]
+
+    def of_roi(self, r: int) -> CountInputs | None:
+        """The pixels of RoI id r alone (None: there are none), prepared once and kept: what a
+        regional value system's matrix of r decides (docs/definitions.md §21)."""
+        if r not in self.by_roi:
+            n, valid = self.classes, self.cell >= 0
+            ids = torch.where(
+                valid, torch.div(self.cell, n, rounding_mode="floor") % (self.rois + 1), -1
+            )
+            take = (ids == r).nonzero()[:, 0]
+            self.by_roi[r] = _taken(self, take) if len(take) else None
+        return self.by_roi[r]
 
 
 def prepare_counts(
@@ -150,7 +164,9 @@ def count_decisions(
 
     Args:
         inputs: the pixels (:func:`prepare_counts`), for any number of matrices.
-        cost: (N, N) cost matrix or (N + 1, N) with a defer row; None: symmetric.
+        cost: (N, N) cost matrix or (N + 1, N) with a defer row; None: symmetric; a regional
+            value system's (R + 1, N(+1), N) stack: each pixel decided by its RoI's matrix
+            (docs/definitions.md §21).
         path: ``numba`` (the compiled pass: CPU, the default there) or ``torch`` (``decide``
             and a bincount: any device, the default elsewhere).
 
@@ -166,6 +182,9 @@ def count_decisions(
     """
     n = inputs.classes
     cost = checks.check_cost(cost, n)
+    if len(distinct(cost)[0]) > 1:
+        return _by_roi(inputs, cost, path)
+    cost = cost[:1]
     path = path or ("numba" if inputs.q is not None else "torch")
     if path not in PATHS or (path == "numba" and inputs.q is None):
         raise ValueError(f"count path must be one of {', '.join(PATHS)} (numba: on the CPU)")
@@ -202,6 +221,43 @@ def decide_counts(
     ([0, 0, 0, 1], [0])
     """
     return count_decisions(prepare_counts(probs, labels, roi, priors, num_rois), cost)
+
+
+def _by_roi(inputs: CountInputs, stack: torch.Tensor, path: str | None) -> DecisionCounts:
+    """The counts of a regional stack (R + 1, M, N): each RoI's pixels counted under its own
+    matrix (:meth:`CountInputs.of_roi`), the counts summed (each pixel lies in one RoI)."""
+    if len(stack) != inputs.rois + 1:
+        raise ValueError(f"a regional value system for {inputs.rois} RoIs stacks "
+                         f"{inputs.rois + 1} matrices, got {len(stack)}")  # fmt: skip
+    b, n = inputs.images, inputs.classes
+    confusion = torch.zeros(b, inputs.rois + 1, n, n + 1, dtype=torch.int64)
+    agree = torch.zeros(b, dtype=torch.int64)
+    for r, matrix in enumerate(stack):
+        pixels = inputs.of_roi(r)
+        if pixels is not None:
+            counts = count_decisions(pixels, matrix, path=path)
+            confusion, agree = confusion + counts.confusion.cpu(), agree + counts.agree.cpu()
+    device = inputs.probs.device
+    return DecisionCounts(confusion.to(device), agree.to(device))
+
+
+def _taken(inputs: CountInputs, take: torch.Tensor) -> CountInputs:
+    """The prepared pixels at positions ``take`` (P',), padded again to a multiple of
+    :data:`ALIGN` (probabilities 0, priors 1, cell -1)."""
+    pad = -len(take) % ALIGN
+
+    def taken(values: torch.Tensor, fill: float) -> torch.Tensor:  # (..., P) → (..., P' + pad)
+        part = values.index_select(-1, take.to(values.device))
+        return torch.cat([part, part.new_full((*part.shape[:-1], pad), fill)], -1)
+
+    priors = inputs.priors
+    if priors is not None and priors.ndim > 1:
+        priors = taken(priors, 1.0)
+    q = None
+    if inputs.q is not None:
+        q = taken(torch.from_numpy(inputs.q), 0.0).contiguous().numpy()
+    return CountInputs(taken(inputs.probs, 0.0), priors, taken(inputs.cell, -1),
+                       taken(inputs.argmax, 0), q, inputs.images, inputs.rois)  # fmt: skip
 
 
 def _compiled(inputs: CountInputs, cost: torch.Tensor) -> DecisionCounts:

@@ -89,7 +89,9 @@ def _check_priors(opts: EvalOptions, groups: list[RuleGroup]) -> None:
     if opts.data_root is None or (Path(opts.data_root) / "gtFine" / "train").is_dir():
         return
     if opts.roi != "geometric" or any(g.needs_priors for g in groups):
-        raise ValueError(no_priors(opts.data_root, geometric=opts.roi != "geometric"))
+        why = "--design regional gives each RoI its own matrix and needs a RoI map: "
+        raise ValueError((why if opts.design == "regional" else "")
+                         + no_priors(opts.data_root, geometric=opts.roi != "geometric"))  # fmt: skip
 
 
 def check_selection(opts, groups: list[RuleGroup]) -> None:
@@ -147,19 +149,21 @@ def check_design(opts: EvalOptions) -> None:
     if opts.limit is not None and opts.calibration_split is None:  # at most half of --limit
         check_design_size(design_settings(opts), opts.limit // 2, own_split=False)
     vertex_matrices(opts.vertices, opts.vertex_scaling)  # the triangle, searched to compare
-    if opts.design == "lagrangian":
+    if opts.design in ("lagrangian", "regional"):
         for t in req.constraints:
             constraint_kind(t.metric)
-        base = plain_rules(parse_rules([opts.design_base or "robotistic"]), "--design_base")[0]
+        bases = parse_rules([opts.design_base or "robotistic"])
+        base = (bases if opts.design == "regional" else plain_rules(bases, "--design_base"))[0]
         if base.priors_alpha or (base.defers and opts.design_defer):
             raise ValueError(
-                f"--design_base {base.name}: C0 of --design lagrangian is a cost matrix (not ml)"
-                + (", without a defer row when --design_defer gives one" if base.defers else "")
-            )
+                f"--design_base {base.name}: C0 of --design {opts.design} is a cost matrix (not "
+                "ml)" + (", without a defer row when --design_defer gives one" if base.defers
+                         else "")
+            )  # fmt: skip
     elif opts.design == "aggregate":
         aggregate_template(opts.design_base or "altruistic")
     elif opts.design_base is not None:
-        raise ValueError("--design_base goes with --design lagrangian or aggregate")
+        raise ValueError("--design_base goes with --design lagrangian, regional or aggregate")
 
 
 def _check_meta(opts: EvalOptions) -> None:

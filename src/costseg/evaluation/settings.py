@@ -59,7 +59,7 @@ class SweepChoice:
 class DesignSettings:
     """``--design``: a cost matrix designed from requirements (docs/definitions.md §20)."""
 
-    space: Literal["triangle", "lagrangian", "aggregate"]
+    space: Literal["triangle", "lagrangian", "aggregate", "regional"]
     search: Literal["grid", "continuous"] | None  # the multipliers' search (None: by the budget)
     requirements: tuple[str, ...]  # --require
     maximize: str | None

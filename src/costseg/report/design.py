@@ -14,7 +14,7 @@ import torch
 from costseg.calibration.design_search import Candidates
 from costseg.calibration.pareto_testing import ParetoTestingResult
 from costseg.classes import CLASS_NAMES, ROI_NAMES
-from costseg.costs import load_cost, save_cost
+from costseg.costs import is_regional, load_cost, save_cost
 from costseg.metrics.names import INSTANCE_RATES, SEGMENT_RATES
 from costseg.metrics.requirements import Requirements
 from costseg.metrics.selection import Target, metric_values
@@ -68,21 +68,25 @@ class Split:
 class SearchOutcome:
     """One searched space: its candidates (scored on D1), Pareto Testing's outcome, the chosen
     candidate (None: nothing certified), the objective on all held-out images (NaN off the
-    front), and the shares of labelled pixels the chosen (else the best) candidate defers on
-    all held-out images (None without a defer row)."""
+    front), the shares of labelled pixels the chosen (else the best) candidate defers on
+    all held-out images (None without a defer row), and the share of labelled held-out pixels
+    it decides otherwise than argmax (``changed``)."""
 
     candidates: Candidates
     testing: ParetoTestingResult
     chosen: int | None
     objective_all: np.ndarray
-    designed: bool = True  # False: the triangle, searched beside another space to compare
+    designed: bool = True  # False: a space searched beside the design's to compare
     deferred: dict | None = None
+    changed: float | None = None
 
     @property
     def rule_name(self) -> str:
         """The chosen matrix's name in the reported rows."""
         if self.designed:
             return DESIGNED
+        if self.candidates.space != "triangle":
+            return f"best {self.candidates.space}"
         weights = self.candidates.parameters[self.chosen, :3].tolist()
         return f"best triangle {point_name(weights)}"
 
@@ -118,6 +122,8 @@ class SearchOutcome:
         }  # fmt: skip
         if self.deferred is not None:
             out["deferred_share"] = self.deferred
+        if self.changed is not None:
+            out["changed_share"] = self.changed
         if self.chosen is not None:
             k = self.chosen
             return out | {
@@ -206,17 +212,13 @@ class SearchOutcome:
         )
 
     def notes(self, req: Requirements) -> list[str]:
-        """What a reader should know of the shown candidate: a multiplier at the top of its
-        range (a larger range might do better), a recall that deferring can only lower."""
+        """What a reader should know of the shown candidate: a multiplier at an edge of the
+        values searched (the top: a larger range might do better; the smallest above 0: a
+        smaller one might), a recall that deferring can only lower."""
         c, k, out = self.candidates, self.shown, []
-        if k is not None and c.space == "lagrangian":
-            top = float(np.nanmax(c.parameters[:, : len(req.texts)]))
+        if k is not None and c.space in ("lagrangian", "regional"):
             for i, text in enumerate(req.texts):
-                if c.parameters[k, i] >= top > 0:
-                    out.append(
-                        f"μ_{i + 1} ({text}) is {top:g}, the top of its range: the space may "
-                        f"hold a better matrix beyond it"
-                    )
+                out += _edge_note(c.parameters[:, i], k, i, text)
         if self.deferred is not None:
             out += [
                 f"{text}: a deferred pixel counts as a miss; handled_recall counts it as handled"
@@ -297,6 +299,8 @@ class DesignOutcome(Result):
             lines.append(f"{name}: " + s.line(req, self.delta, self.n2))
             if s.designed and s.chosen is not None:
                 lines += [f"{name}: {note}" for note in s.notes(req)]
+        if self.changes():
+            lines.append(f"design: {self.changes()}")
         images = self.searches[0].images(req)
         if images:
             lines.append(
@@ -305,6 +309,18 @@ class DesignOutcome(Result):
                 + "; ".join(f"{t} {v['search']}, {v['certification']}" for t, v in images.items())
             )
         return lines
+
+    def changes(self) -> str:
+        """The share of labelled held-out pixels each search's chosen (else best) matrix decides
+        otherwise than argmax, in words ("" with a single search)."""
+        shown = [s for s in self.searches if s.changed is not None]
+        if len(self.searches) < 2 or not shown:
+            return ""
+        return "labelled held-out pixels decided otherwise than argmax: " + ", ".join(
+            f"{s.candidates.space} {_share(s.changed)}"
+            + ("" if s.chosen is not None else " (not certified)")
+            for s in shown
+        )
 
     def guarantee(self) -> str:
         """What the certificate says, in words."""
@@ -355,6 +371,13 @@ class DesignOutcome(Result):
         if own.deferred is not None:
             lines.append(f"defers {_share(own.deferred['all pixels'])} of the labelled "
                          "held-out pixels")  # fmt: skip
+        if own.candidates.space == "regional":
+            moved = ", ".join(
+                f"{t} moves {_region_words(c.roi)}"
+                for t, c in zip(req.texts, req.constraints, strict=True)
+            )
+            lines.append(f"regions (docs/definitions.md §21): {moved}; every other region keeps "
+                         "C0, decided with the RoI map above")  # fmt: skip
         wrapped = [
             textwrap.fill(
                 line, 98, subsequent_indent="  ", break_long_words=False, break_on_hyphens=False
@@ -425,6 +448,8 @@ class DesignOutcome(Result):
                 shares = ", ".join(f"{k} {_share(v)}" for k, v in s.deferred.items())
                 lines += ["", f"{s.candidates.space}: deferred share of labelled held-out "
                           f"pixels: {shares}."]  # fmt: skip
+        if self.changes():
+            lines += ["", f"Pixels changed: {self.changes()}."]
         lines += _reported_table(record["reported"])
         return "\n".join(lines) + "\n"
 
@@ -435,7 +460,7 @@ class DesignOutcome(Result):
         matrices = []
         if own.chosen is not None:
             matrices = [
-                (DESIGNED, own.candidates.matrices[own.chosen]),
+                *shown_matrices(DESIGNED, own.candidates.matrices[own.chosen]),
                 ("robotistic", load_cost("robotistic")),
             ]
         fronts = []
@@ -446,6 +471,22 @@ class DesignOutcome(Result):
             fronts.append((s.candidates.space, arguments, (t.risks_d2, t.order)))
         title = f"designed value system, {figure_subject(results.source, [])}"
         return job(design_figures, matrices, list(CLASS_NAMES), fronts, title)
+
+
+def _edge_note(values: np.ndarray, k: int, i: int, text: str) -> list[str]:
+    """A note when candidate k's multiplier ``values[k]`` lies at an edge of the (L,) values
+    searched: the largest, or the smallest above 0."""
+    tried = values[values > 0]
+    if not len(tried) or values[k] <= 0 or tried.min() == tried.max():
+        return []
+    if values[k] >= tried.max():
+        return [f"μ_{i + 1} ({text}) is {values[k]:g}, the top of the values searched: the "
+                "space may hold a better matrix beyond it"]  # fmt: skip
+    if values[k] <= tried.min():
+        return [f"μ_{i + 1} ({text}) is {values[k]:g}, the smallest value searched above 0: a "
+                "smaller multiplier may do better (--design_search continuous searches "
+                "between the grid's values)"]  # fmt: skip
+    return []
 
 
 def _candidate(c: Candidates, t: ParetoTestingResult, k: int, req: Requirements) -> dict:
@@ -464,6 +505,27 @@ def _parameters(c: Candidates, k: int) -> str:
     if len(values) > 6:  # the aggregate space: 30 costs
         return f"{len(values)} aggregate costs (design_candidates.csv)"
     return ", ".join(f"{n}={v:.3g}" for n, v in zip(c.names, values, strict=True))
+
+
+def shown_matrices(name: str, cost: torch.Tensor) -> list[tuple[str, torch.Tensor]]:
+    """The matrices a figure shows of ``cost``: itself; of a regional stack, the default and
+    each RoI's matrix that differs from it.
+
+    >>> stack = torch.stack([torch.eye(2)] * 2 + [2 * torch.eye(2)] * 3)
+    >>> [n for n, _ in shown_matrices("d", stack)]
+    ['d (default)', 'd, RoI 2 (sidewalk)', 'd, RoI 3 (building)', 'd, RoI 4 (sky)']
+    """
+    if not is_regional(cost):
+        return [(name, cost)]
+    return [(f"{name} (default)", cost[0])] + [
+        (f"{name}, {_region_words(r)}", m)
+        for r, m in enumerate(cost)
+        if r and not torch.equal(m, cost[0])
+    ]
+
+
+def _region_words(roi: int) -> str:
+    return "the whole image" if roi == 0 else f"RoI {roi} ({ROI_NAMES[roi]})"
 
 
 def _risks(values) -> str:

@@ -138,6 +138,8 @@ class RuleGroup:
         columns: per rule, the columns that identify it in result rows.
         is_named: the rules named by ``--cost``: the headline tables, masks and saved label maps.
         masks: whether its rules join the named ones in the example mask figures.
+        headline: whether its rules join the named ones in the headline tables (table.md's
+            main and mIoU tables, the console's).
         heatmaps: whether FP/FN location maps are kept (off for sweeps of many rules).
         needs_priors: whether some rule divides by the pixel-wise priors.
         needs_roi: whether some rule is a regional value system, decided with the RoI map.
@@ -169,6 +171,7 @@ class RuleGroup:
     columns: list[dict[str, object]]
     is_named: bool = False
     masks: bool = False
+    headline: bool = False
     heatmaps: bool = False
     needs_priors: bool = False
     needs_roi: bool = False

@@ -7,6 +7,8 @@ part of it (then the scalar defer cost is the space's last parameter):
 * :class:`TriangleSpace`: the mixtures ``α·A + β·B + γ·C`` of three vertices (§2, §7's grid);
 * :class:`LagrangianSpace`: ``C(μ) = C₀ + Σ_i μ_i A_i``, one multiplier per constraint, on a
   log-spaced grid of μ (:func:`lagrangian_directions`, :func:`multiplier_grid`);
+* :class:`RegionalLagrangianSpace`: the same by region (§21), a stack (R + 1, N(+1), N) of
+  matrices ``C_r(μ) = C₀_r + Σ_{i : r_i = r or r_i = 0} μ_i A_i``, decided with the RoI map;
 * :class:`AggregateSpace`: the aggregate matrix of §2 with its off-diagonal entries free in a box
   (log scale), expanded to the class matrix by :func:`costseg.costs.expand_aggregates`.
 
@@ -35,12 +37,13 @@ from typing import Literal
 
 import torch
 
-from costseg.classes import CLASS_NAMES
+from costseg.classes import CLASS_NAMES, NUM_ROIS
 from costseg.costs import (
     COSTS_DIR,
     PRESETS,
     barycentric_grid,
     expand_aggregates,
+    is_regional,
     mix_costs,
     off_diagonal,
     read_yaml,
@@ -248,6 +251,14 @@ class Hull:
 
 
 @dataclass(frozen=True)
+class RegionalHull:
+    """A :class:`Hull` per RoI id (index 0: the pixels in no RoI) of a regional space: a pixel
+    of RoI r is decided by a matrix of ``regions[r]``."""
+
+    regions: tuple[Hull, ...]
+
+
+@dataclass(frozen=True)
 class TriangleSpace:
     """The mixtures ``α·A + β·B + γ·C`` of three vertex matrices on a barycentric grid of
     ``step`` (:func:`costseg.costs.barycentric_grid`), parameters ``(alpha, beta, gamma)`` and,
@@ -341,6 +352,69 @@ class LagrangianSpace:
         if self.deferring is not None:
             row = row + (mu[:, None] * torch.as_tensor(self.deferring, dtype=torch.float64)).sum(0)
         return with_defer(cost, row)
+
+
+def constraint_regions(regions: Sequence[int], region: int) -> torch.Tensor:
+    """(K,) float64 1 for each constraint whose RoI ``regions[i]`` moves the matrix of RoI
+    ``region`` (its own RoI, or RoI 0, the whole image, which moves every matrix), else 0.
+
+    >>> constraint_regions([1, 0, 3], 1).tolist(), constraint_regions([1, 0, 3], 0).tolist()
+    ([1.0, 1.0, 0.0], [0.0, 1.0, 0.0])
+    """
+    return torch.tensor([float(r in (region, 0)) for r in regions], dtype=torch.float64)
+
+
+@dataclass(frozen=True)
+class RegionalLagrangianSpace(LagrangianSpace):
+    """The Lagrangian space by region (docs/definitions.md §21): constraint i, on RoI
+    ``regions[i]``, moves only that RoI's matrix (RoI 0, the whole image, moves every one):
+    ``C_r(μ) = C₀_r + Σ_{i : r_i = r or r_i = 0} μ_i A_i`` for r = 0 … R (0: the pixels in no
+    RoI), the rest of the image keeping C₀. ``base`` is one matrix (every region's C₀) or a
+    regional stack (R + 1, N(+1), N); a candidate is the stack (R + 1, N(+1), N). Parameters,
+    grid, defer costs as :class:`LagrangianSpace`; each region's matrix is that space's with the
+    directions of the constraints that move it (:meth:`region`).
+
+    >>> from costseg.costs import symmetric_cost
+    >>> space = RegionalLagrangianSpace(symmetric_cost(2), lagrangian_directions([(1, "recall")],
+    ...                                 2), size=2, regions=(1,))
+    >>> stack = space.matrix([3.0])
+    >>> stack.shape, stack[1, 0, 1].item(), stack[2, 0, 1].item()   # RoI 1 moves, RoI 2 stays
+    (torch.Size([5, 2, 2]), 4.0, 1.0)
+    """
+
+    regions: tuple[int, ...] = ()
+    name: str = "regional"
+
+    def __post_init__(self) -> None:
+        if len(self.regions) != len(self.directions):
+            raise ValueError(f"{len(self.directions)} constraints need as many RoIs, got "
+                             f"{list(self.regions)}")  # fmt: skip
+        if not all(0 <= r <= NUM_ROIS for r in self.regions):
+            raise ValueError(f"RoIs of the constraints lie in 0 … {NUM_ROIS}, got "
+                             f"{list(self.regions)}")  # fmt: skip
+        self.region(0)  # the checks of a plain space
+
+    def bases(self) -> torch.Tensor:
+        """(R + 1, N(+1), N) every region's C₀."""
+        base = torch.as_tensor(self.base, dtype=torch.float64)
+        return base if is_regional(base) else base.expand(NUM_ROIS + 1, *base.shape)
+
+    def region(self, r: int) -> LagrangianSpace:
+        """The plain Lagrangian space of RoI r's matrix: its C₀ and the directions (and defer
+        directions) of the constraints that move it, zero for the others."""
+        moves = constraint_regions(self.regions, r)
+        deferring = None if self.deferring is None else self.deferring * moves[:, None]
+        return LagrangianSpace(self.bases()[r], self.directions * moves[:, None, None], self.size,
+                               self.low, self.high, self.defer_costs, deferring)  # fmt: skip
+
+    def hull(self) -> RegionalHull:
+        """Each region's :meth:`LagrangianSpace.hull`: a pixel of RoI r is changed only by the
+        constraints that move r."""
+        return RegionalHull(tuple(self.region(r).hull() for r in range(NUM_ROIS + 1)))
+
+    def matrix(self, values: Sequence[float] | torch.Tensor) -> torch.Tensor:
+        """(R + 1, N(+1), N): each region's matrix at ``values``."""
+        return torch.stack([self.region(r).matrix(values) for r in range(NUM_ROIS + 1)])
 
 
 @dataclass(frozen=True)

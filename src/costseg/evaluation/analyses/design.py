@@ -25,7 +25,7 @@ from costseg.calibration.guarantee import defined_risks
 from costseg.calibration.pareto_testing import choose, pareto_testing, split_images
 from costseg.calibration.search_pixels import constraint_pixels, gather_pixels
 from costseg.classes import CLASS_NAMES, IGNORE_INDEX
-from costseg.costs import cost_or_symmetric
+from costseg.costs import cost_or_symmetric, is_regional
 from costseg.decision import (
     CountInputs,
     DecisionCounts,
@@ -41,10 +41,13 @@ from costseg.metrics.per_image import per_image_counts, per_image_loss
 from costseg.metrics.requirements import Requirements
 from costseg.report.design import DESIGNED_FAMILY, DesignOutcome, SearchOutcome, Split
 from costseg.rules import Rule, RuleGroup, parse_rules, vertex_matrices
+from costseg.rules.base import needs_roi
 from costseg.rules.design_spaces import (
     AggregateSpace,
     Hull,
     LagrangianSpace,
+    RegionalHull,
+    RegionalLagrangianSpace,
     TriangleSpace,
     aggregate_template,
     defer_directions,
@@ -149,18 +152,21 @@ def design(context: Context, settings: DesignSettings) -> DesignOutcome:
         chosen = choose(result, objective_all, req.maximize)
         shown = chosen if chosen is not None else result.best
         defers = candidates.matrices.shape[-2] > candidates.matrices.shape[-1]
-        deferred = None
-        if defers and shown is not None and pooled[shown] is not None:
-            deferred = pooled[shown].deferred(req)
+        deferred, changed = None, None
+        if shown is not None and pooled[shown] is not None:
+            deferred = pooled[shown].deferred(req) if defers else None
+            changed = pooled[shown].changed()
         outcomes.append(SearchOutcome(candidates, result, chosen, objective_all, designed=i == 0,
-                                      deferred=deferred))  # fmt: skip
+                                      deferred=deferred, changed=changed))  # fmt: skip
     split = Split(seed, d1.tolist(), d2.tolist(), found.stems, settings.held_out)
     return DesignOutcome(req, delta, split, share, outcomes, roi=settings.roi,
                          defer=settings.defer)  # fmt: skip
 
 
 def spaces(settings: DesignSettings, req: Requirements) -> list[Space]:
-    """The space of ``--design`` and, when it is another, the triangle (the comparison)."""
+    """The space of ``--design`` and, to compare: the triangle when it is another; for the
+    regional space, also the whole-image Lagrangian space (every constraint moving every
+    region's matrix)."""
     defer = settings.defer
     budget = settings.budget // max(1, len(defer))
     n = max(1, int((np.sqrt(8 * budget + 1) - 3) / 2))  # (n + 1)(n + 2) / 2 <= budget
@@ -168,18 +174,29 @@ def spaces(settings: DesignSettings, req: Requirements) -> list[Space]:
     triangle = TriangleSpace(corners, 1 / n, defer)
     if settings.space == "triangle":
         return [triangle]
-    if settings.space == "lagrangian":
-        base = parse_rules([settings.base or "robotistic"])[0]
-        pairs = [(t.cls, t.metric) for t in req.constraints]
-        size = grid_size(settings.budget, len(pairs), len(defer))
-        base_cost = cost_or_symmetric(base.cost, len(CLASS_NAMES))
-        n = len(CLASS_NAMES)
-        own = LagrangianSpace(base_cost, lagrangian_directions(pairs, n), size, defer_costs=defer,
-                              deferring=defer_directions(pairs, n))  # fmt: skip
-    else:
+    if settings.space == "aggregate":
         box = (min(defer), max(defer)) if defer else None
         own = AggregateSpace(aggregate_template(settings.base or "altruistic"), defer_box=box)
-    return [own, triangle]
+        return [own, triangle]
+    base = parse_rules([settings.base or "robotistic"])[0]
+    pairs = [(t.cls, t.metric) for t in req.constraints]
+    n = len(CLASS_NAMES)
+    base_cost = cost_or_symmetric(base.cost, n)
+    common = {
+        "directions": lagrangian_directions(pairs, n),
+        "size": grid_size(settings.budget, len(pairs), len(defer)),
+        "defer_costs": defer,
+        "deferring": defer_directions(pairs, n),
+    }
+    if is_regional(base_cost):  # a regional C₀: the whole-image space moves every region
+        whole = RegionalLagrangianSpace(base_cost, **common, regions=(0,) * len(pairs),
+                                        name="lagrangian")  # fmt: skip
+    else:
+        whole = LagrangianSpace(base_cost, **common)
+    if settings.space == "lagrangian":
+        return [whole, triangle]
+    regions = tuple(t.roi for t in req.constraints)
+    return [RegionalLagrangianSpace(base_cost, **common, regions=regions), whole, triangle]
 
 
 def continuous(space: Space, settings: DesignSettings) -> bool:
@@ -213,6 +230,11 @@ class Pooled:
 
     def value(self, req: Requirements) -> float:
         return req.value(self.confusion, self.agree)
+
+    def changed(self) -> float | None:
+        """The share of labelled pixels decided otherwise than argmax (None: no pixels)."""
+        labelled = int(self.confusion[0].sum()) if torch.is_tensor(self.confusion) else 0
+        return 1 - int(self.agree) / labelled if labelled else None
 
     def deferred(self, req: Requirements) -> dict[str, float | None]:
         """The share of labelled pixels deferred: of all, and of each constraint's class in its
@@ -261,7 +283,7 @@ class SearchImages:
         d1: np.ndarray,
         share: float,
         req: Requirements,
-        hulls: list[Hull | None],
+        hulls: list[Hull | RegionalHull | None],
         seed: int,
     ) -> SearchImages:
         found, first, searched = cls(), 0, set(d1.tolist())
@@ -294,7 +316,7 @@ class SearchImages:
         roi: torch.Tensor | None,
         share: float,
         req: Requirements,
-        hulls: list[Hull | None],
+        hulls: list[Hull | RegionalHull | None],
         seeds: list[int],
     ) -> None:
         """(B, N, H, W) ``probs``, (B, H, W) ``labels`` and RoIs of B search images, prepared:
@@ -347,11 +369,12 @@ class SearchImages:
 def image_losses(req: Requirements, counts, matrix, whole=None) -> torch.Tensor:
     """(B, K) per-image constraint losses from a batch's decision ``counts`` (and, where a
     constraint counts segments or instances, ``whole``: the batch's probabilities, labels,
-    RoIs and instance ids, decided again under ``matrix``)."""
+    RoIs and instance ids, decided again under ``matrix``, a regional stack with the RoIs)."""
     if whole is None:
         return req.losses(counts.confusion)
     probs, labels, roi, ids = whole
-    return req.losses(counts.confusion, decide(probs, matrix), labels, roi, ids)
+    preds = decide(probs, matrix, roi=roi if is_regional(matrix) else None)
+    return req.losses(counts.confusion, preds, labels, roi, ids)
 
 
 def _front(losses_d1: np.ndarray, objective, req: Requirements, delta: float) -> np.ndarray:
@@ -396,8 +419,9 @@ def _test_fronts(context: Context, d2: np.ndarray, req: Requirements, searches) 
 
 
 def designed_group(outcome: DesignOutcome) -> RuleGroup | None:
-    """The certified designed matrix and the best certified triangle point as one rule group
-    (measured on the reported images like every other), or None when neither exists."""
+    """The certified designed matrix and the best certified matrix of each space searched to
+    compare, as one rule group (measured on the reported images like every other, shown in
+    the headline tables), or None when none exists."""
     rules = [
         Rule(found.rule_name, found.candidates.matrices[found.chosen])
         for found in outcome.searches
@@ -412,6 +436,8 @@ def designed_group(outcome: DesignOutcome) -> RuleGroup | None:
         NamedRules(tuple(rules)),
         [rule_columns(r, defer) for r in rules],
         masks=True,
+        headline=True,
+        needs_roi=needs_roi(rules),
         rules=rules,
         output=DESIGNED_FAMILY,
         note=f"designed in the {outcome.searches[0].candidates.space} space for "
