@@ -187,6 +187,20 @@ def load_cost(name_or_path: str | Path, class_names: Sequence[str] = CLASS_NAMES
     return cost
 
 
+def cost_name(name_or_path: str | Path) -> str:
+    """The rule name of a cost: a preset's own, a file's ``name:`` (else its file name without
+    the suffix).
+
+    >>> cost_name("egoistic"), cost_name(COSTS_DIR / "street_person.yaml")
+    ('egoistic', 'street_person')
+    """
+    path = Path(name_or_path)
+    if path.suffix not in (".yaml", ".yml"):
+        return str(name_or_path)
+    name = read_yaml(path).get("name")
+    return str(name) if isinstance(name, str | int | float) and str(name).strip() else path.stem
+
+
 def save_cost(
     path: str | Path,
     cost: torch.Tensor,

@@ -90,8 +90,8 @@ def _check_priors(opts: EvalOptions, groups: list[RuleGroup]) -> None:
         return
     if opts.roi != "geometric" or any(g.needs_priors for g in groups):
         why = "--design regional gives each RoI its own matrix and needs a RoI map: "
-        raise ValueError((why if opts.design == "regional" else "")
-                         + no_priors(opts.data_root, geometric=opts.roi != "geometric"))  # fmt: skip
+        line = no_priors(opts.data_root, geometric=opts.roi != "geometric")
+        raise ValueError((why if opts.design == "regional" else "") + line)
 
 
 def check_selection(opts, groups: list[RuleGroup]) -> None:

@@ -22,7 +22,14 @@ from pathlib import Path
 import torch
 
 from costseg.classes import CLASS_NAMES
-from costseg.costs import PRESETS, cost_or_symmetric, has_defer_row, load_cost, with_defer
+from costseg.costs import (
+    PRESETS,
+    cost_name,
+    cost_or_symmetric,
+    has_defer_row,
+    load_cost,
+    with_defer,
+)
 from costseg.decision import decide
 from costseg.decision.label_maps import empty_labels
 from costseg.rules.base import (
@@ -42,7 +49,8 @@ def parse_rules(
     names: Sequence[str], class_names: Sequence[str] = CLASS_NAMES, defer: float | None = None
 ) -> list[Rule]:
     """Rules from names: the presets, ``ml``, or paths to YAML cost files (a file with
-    ``regions:``: a regional rule, docs/definitions.md §21).
+    ``regions:``: a regional rule, docs/definitions.md §21), each named by its file's ``name:``
+    (else, or where two files share it, by its file name).
 
     Args:
         names: the rules of ``--cost``.
@@ -63,7 +71,7 @@ def parse_rules(
         if name == "ml":
             rule = Rule("ml", None, 1.0)
         elif name in PRESETS or Path(name).suffix in (".yaml", ".yml"):
-            rule = Rule(Path(name).stem, load_cost(name, class_names))
+            rule = Rule(cost_name(name), load_cost(name, class_names))
         else:
             raise ValueError(
                 f"unknown cost {name!r}: expected one of {', '.join(RULE_NAMES)} "
@@ -77,9 +85,22 @@ def parse_rules(
             cost = cost_or_symmetric(rule.cost, len(class_names))
             rule = Rule(rule.name, with_defer(cost, defer), rule.priors_alpha)
         rules.append(rule)
+    rules = _distinct_names(rules, names)
     if len({r.name for r in rules}) != len(rules):
         raise ValueError(f"cost rules must have distinct names, got {[r.name for r in rules]}")
     return rules
+
+
+def _distinct_names(rules: list[Rule], names: Sequence[str]) -> list[Rule]:
+    """``rules``, those of files whose ``name:`` another rule shares named by their file name
+    instead (two designed files, both ``name: designed``)."""
+    taken = [r.name for r in rules]
+    return [
+        Rule(Path(given).stem, r.cost, r.priors_alpha)
+        if taken.count(r.name) > 1 and Path(given).suffix in (".yaml", ".yml")
+        else r
+        for r, given in zip(rules, names, strict=True)
+    ]
 
 
 def apply_rules(
