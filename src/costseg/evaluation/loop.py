@@ -56,6 +56,7 @@ def run(
         source=_describe_source(plan),
         probabilities=_describe_probabilities(plan, context.scaling),
         class_ids=plan.class_ids,
+        rois=plan.rois,
         roi=plan.priors.roi_map(),
         num_images=plan.num_reported,
         analyses=[r for r in ran.values() if r is not None],

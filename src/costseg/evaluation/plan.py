@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -39,6 +40,8 @@ from costseg.evaluation.checks import (
 from costseg.evaluation.priors import evaluation_priors
 from costseg.evaluation.processes import on_rank0, share, world_size
 from costseg.evaluation.settings import certified_choice, design_settings
+from costseg.metrics.requirements import OBJECTIVES
+from costseg.metrics.selection import Metric, parse_metric
 from costseg.networks.ensemble import open_sources
 from costseg.networks.protocols import Protocol
 from costseg.networks.sources import Source, resolve_device
@@ -82,7 +85,8 @@ class EvalPlan:
     batch_size: int
     num_workers: int
     groups: tuple[RuleGroup, ...]
-    class_ids: list[int]
+    class_ids: list[int]  # --classes, then every other class a target or requirement names
+    rois: tuple[int, ...]  # the RoIs a target or requirement names (shown beside the paper's)
     output_dir: Path
     priors: PriorMaps
     canvas: tuple[int, int]
@@ -171,6 +175,7 @@ def plan(
     )
     measured, note = instance_classes(dataset, opts.classes)
     check_instance_targets(opts, measured, note)
+    class_ids, named = class_indices(opts.classes), named_metrics(opts)
     reported_images = dataset
     if len(shifts) == 1:
         from costseg.data.shift import ShiftedDataset
@@ -191,7 +196,8 @@ def plan(
         batch_size=batch_size,
         num_workers=min(images.num_workers, -(-count // batch_size)),  # no idle workers
         groups=tuple(groups),
-        class_ids=class_indices(opts.classes),
+        class_ids=[*class_ids, *(m.cls for m in named if m.cls not in (None, *class_ids))],
+        rois=tuple(sorted({m.roi for m in named})),
         priors=priors,
         canvas=heatmap_canvas(dataset),
         instance_classes=(measured, note),
@@ -203,6 +209,14 @@ def plan(
         round_probs=opts.save_probs,
         progress=opts.progress,
     )
+
+
+def named_metrics(opts: EvalOptions) -> list[Metric]:
+    """The metrics ``--target``, ``--require`` and the objectives name (``miou`` and
+    ``agreement`` name none)."""
+    texts = (*(opts.target or ()), *(opts.require or ()), opts.maximize, opts.design_maximize,
+             opts.design_minimize)  # fmt: skip
+    return [parse_metric(re.split(r"[<>=]", t)[0]) for t in texts if t and t not in OBJECTIVES]
 
 
 def checked_groups(opts: EvalOptions) -> list[RuleGroup]:

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from costseg.classes import CLASS_NAMES
+from costseg.classes import CLASS_NAMES, ROI_NAMES
 from costseg.metrics.names import DEFER_RULE_RATES, ERROR_COLUMNS, INSTANCE_COLUMNS
 from costseg.report.calibration import CalibrationOutputs, calibration_line
 from costseg.report.drawing import Job, job
@@ -42,16 +42,19 @@ class GroupOutputs(GroupResults, Result):
         family's files, and ``best.json`` for ``--target``."""
         named = results.named
         rows = named.rows(results.class_ids)
-        headline = [r for r in rows if r["roi"] in PAPER_ROIS]
+        shown = [named, *(g for g in results.groups if g.group.headline)]
+        rois = tuple(sorted({*PAPER_ROIS, *results.rois}))
+        headline = [r for g in shown for r in g.rows(results.class_ids, rois)]
         instances = INSTANCE_COLUMNS[:2] if named.instances else ()
-        deferral = DEFER_SUMMARY if named.group.defers else ()
+        deferral = DEFER_SUMMARY if any(g.group.defers for g in shown) else ()
+        mious = {n: v for g in shown for n, v in _miou(g).items()}
         write_csv(results.output_dir / "results.csv", rows)
         section = Section(
             json=_json(named, rows) | {"instances": self.instances},
-            table=_tables(headline, named, self._probability_note(results)),
+            table=_tables(headline, shown, rois, self._probability_note(results)),
             console=[
                 console_table(headline, (*SUMMARY_COLUMNS, *deferral, *instances)),
-                "mIoU: " + ", ".join(f"{n} {100 * v:.2f}" for n, v in _miou(named).items()),
+                "mIoU: " + ", ".join(f"{n} {100 * v:.2f}" for n, v in mious.items()),
             ],
             tables={"evaluation/results": markdown_table(rows)},
             jobs=[("evaluation", _fp_fn_figures(results))],
@@ -86,34 +89,45 @@ def _miou(result: GroupResult) -> dict[str, float]:
     return {n: result.pixels["miou"][k].item() for k, n in enumerate(result.group.names)}
 
 
-def _tables(headline: list[dict], named: GroupResult, probabilities: str) -> str:
+def _tables(
+    headline: list[dict], shown: list[GroupResult], rois: tuple[int, ...], probabilities: str
+) -> str:
+    named = set(shown[0].group.names)  # the paper compares the --cost rules only
+    where = ", ".join(f"{r} = {ROI_NAMES[r]}" for r in rois)
     return "\n\n".join(
         [
-            "# Precision and recall per cost matrix (RoI 1 = street, 2 = sidewalk)",
+            f"# Precision and recall per cost matrix (RoI {where})",
             f"Probabilities: {probabilities}.",
             paper_table(headline),
-            _miou_table(named),
+            _miou_table(shown),
             "## Next to the paper (Cityscapes val, DeepLabv3+ Xception)",
-            compare_with_paper(headline) + "\n",
+            compare_with_paper([r for r in headline if r["matrix"] in named]) + "\n",
         ]
     )
 
 
-def _miou_table(named: GroupResult) -> str:
-    """The mIoU of each named rule; where one defers, its defer cost and the share of the
-    image's pixels it deferred (a deferred pixel is a false negative of its class in IoU)."""
-    if not named.group.defers:
-        miou = "\n".join(f"| {n} | {100 * v:.2f} |" for n, v in _miou(named).items())
+def _miou_table(shown: list[GroupResult]) -> str:
+    """The mIoU of each named rule (and of each group shown beside them: a designed one);
+    where one defers, its defer cost and the share of the image's pixels it deferred (a
+    deferred pixel is a false negative of its class in IoU)."""
+    if not any(g.group.defers for g in shown):
+        miou = "\n".join(f"| {n} | {100 * v:.2f} |" for g in shown for n, v in _miou(g).items())
         return f"## mIoU (19 classes)\n\n| matrix | mIoU |\n|---|---|\n{miou}"
     lines = [
-        f"| {rule.name} | {format_value(rule.defer_cost)} | {100 * miou:.2f} | "
-        f"{format_value(named.pixels['deferred_rate'][k, 0].item(), percent=True)} |"
-        for k, (rule, miou) in enumerate(zip(named.group.rules, _miou(named).values(), strict=True))
+        f"| {name} | {format_value(g.group.rules[k].defer_cost if g.group.rules else None)} | "
+        f"{100 * miou:.2f} | {format_value(_deferred(g, k), percent=True)} |"
+        for g in shown
+        for k, (name, miou) in enumerate(_miou(g).items())
     ]
     return (
         "## mIoU (19 classes; a deferred pixel is a false negative of its class)\n\n"
         "| matrix | defer | mIoU | deferred (whole image) |\n|---|---|---|---|\n" + "\n".join(lines)
     )
+
+
+def _deferred(result: GroupResult, k: int) -> float | None:
+    """The share of the image's pixels rule k deferred (None: its group never defers)."""
+    return result.pixels["deferred_rate"][k, 0].item() if result.group.defers else None
 
 
 def _json(named: GroupResult, rows: list[dict]) -> dict:

@@ -134,6 +134,7 @@ class EvalResults:
         source: what produced the probabilities (network, checkpoint or folder).
         probabilities: which probabilities were used (raw, or the scaling and its parameters).
         class_ids: classes of the segment metrics and tables.
+        rois: the RoIs a target or requirement names, shown beside the paper's in the tables.
         roi: (H, W) RoI map at label resolution, if priors exist.
         num_images: images evaluated.
         analyses: the typed result of every analysis that ran, in the analyses' order
@@ -147,6 +148,7 @@ class EvalResults:
     source: dict
     probabilities: str
     class_ids: list[int]
+    rois: tuple[int, ...] = ()
     roi: torch.Tensor | None = None
     num_images: int = 0
     analyses: list = field(default_factory=list)

@@ -27,7 +27,8 @@ from costseg.report.tables import PAPER_ROIS
 from costseg.report.ternary import edge_tradeoff_figures, ternary_figures
 
 SWEEP_ROIS = (0, *PAPER_ROIS)
-"""The RoIs of a sweep's rows: the whole image and the paper's."""
+"""The RoIs of a sweep's rows: the whole image and the paper's (and those a target or
+requirement names)."""
 
 
 def sweep_outputs(results: EvalResults, mine: list[GroupResult]) -> Section:
@@ -38,7 +39,8 @@ def sweep_outputs(results: EvalResults, mine: list[GroupResult]) -> Section:
         group, out = result.group, results.output_dir
         if group.output is None:
             continue
-        rows = result.rows(results.class_ids, SWEEP_ROIS)
+        rois = tuple(sorted({*SWEEP_ROIS, *results.rois}))
+        rows = result.rows(results.class_ids, rois)
         write_csv(out / f"{group.output}.csv", rows)
         record = {"note": group.note, "probabilities": results.probabilities, "rows": rows}
         write_json(out / f"{group.output}.json", record)
