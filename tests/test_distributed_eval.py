@@ -63,6 +63,7 @@ def test_two_processes_equal_one(case, tiny_run, tmp_path):
     command = [*torchrun, str(ROOT / "evaluate.py"), *_arguments(ckpt, two, EVERY_ANALYSIS[case])]
     done = subprocess.run(command, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
+    assert done.stdout.count("checkpoint: ") == 1  # printed by rank 0 only
     single, double = (json.loads((d / "results.json").read_text()) for d in (one, two))
     assert single.keys() == double.keys()
     for results in (single, double):

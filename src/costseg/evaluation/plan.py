@@ -38,7 +38,7 @@ from costseg.evaluation.checks import (
     check_options,
 )
 from costseg.evaluation.priors import evaluation_priors
-from costseg.evaluation.processes import on_rank0, share, world_size
+from costseg.evaluation.processes import on_rank0, rank0_prints, share, world_size
 from costseg.evaluation.settings import certified_choice, design_settings
 from costseg.metrics.requirements import OBJECTIVES
 from costseg.metrics.selection import Metric, parse_metric
@@ -134,9 +134,9 @@ def plan(
         dist.init_process_group("nccl" if device.type == "cuda" else "gloo", timeout=timeout)
     if source is None:
         protocol = Protocol.from_options(opts)
-        source = open_sources(
-            opts.ckpt_path, opts.network, opts.probs, device, protocol, opts.mc_dropout, opts.seed
-        )
+        with rank0_prints():
+            source = open_sources(opts.ckpt_path, opts.network, opts.probs, device, protocol,
+                                  opts.mc_dropout, opts.seed)  # fmt: skip
     images = _named_images(opts, source) if dataset is None else Images(None, dataset, 1, 0)
     dataset = images.reported
     count = len(dataset) if opts.limit is None else min(opts.limit, len(dataset))
@@ -161,13 +161,14 @@ def plan(
     base = source.default_output("evaluation", "eval")
     cache = (Path(opts.output_dir).resolve().parent if opts.output_dir else base.parent) / "priors"
     geometric = opts.roi == "geometric"
-    pixel_priors, record = evaluation_priors(
-        source, opts.priors, geometric, images.config, cache, opts.progress
-    )
-    description = _description(source, record)
-    note_priors(description, opts.priors, dataset)
-    for note in certificate_notes(opts.cost, description):
-        print(note)
+    with rank0_prints():
+        pixel_priors, record = evaluation_priors(
+            source, opts.priors, geometric, images.config, cache, opts.progress
+        )
+        description = _description(source, record)
+        note_priors(description, opts.priors, dataset)
+        for note in certificate_notes(opts.cost, description):
+            print(note)
     priors = PriorMaps(pixel_priors, CLASS_NAMES, device, geometric)
     require_priors(groups, priors.priors)
     require_roi(

@@ -9,8 +9,9 @@ per image it hands to :func:`in_image_order`, and other counts to :func:`summed`
 
 from __future__ import annotations
 
+import contextlib
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import TypeVar
 
 import torch
@@ -40,6 +41,16 @@ def on_rank0(make: Callable[[], T]) -> T:
     if distributed():
         dist.broadcast_object_list(value, src=0)
     return value[0]
+
+
+@contextlib.contextmanager
+def rank0_prints() -> Iterator[None]:
+    """What is printed inside, printed once: by rank 0 (the others' stdout goes nowhere)."""
+    if rank() == 0:
+        yield
+        return
+    with open(os.devnull, "w") as nowhere, contextlib.redirect_stdout(nowhere):
+        yield
 
 
 def share(count: int) -> list[int]:
