@@ -27,11 +27,12 @@ def ckpt(tiny_run) -> str:
     return str(find_checkpoint(None, runs_dir=tiny_run[2]))
 
 
-def _rows(path: Path, rule: str) -> list[dict]:
-    """The rows of ``rule`` in RoIs 0-2 (those a sweep's file holds), without its name."""
+def _rows(path: Path, rule: str, classes=("person", "building")) -> list[dict]:
+    """The rows of ``rule`` in RoIs 0-2 (those a sweep's file holds) for ``classes``, without
+    its name."""
     with path.open() as f:
         return [{k: v for k, v in r.items() if k != "matrix"} for r in csv.DictReader(f)
-                if r["matrix"] == rule and r["roi"] in "012"]  # fmt: skip
+                if r["matrix"] == rule and r["roi"] in "012" and r["class"] in classes]  # fmt: skip
 
 
 @pytest.mark.figures
@@ -112,3 +113,58 @@ def test_the_python_api_designs_what_the_command_line_designs(ckpt, tmp_path):
     assert (cli / "design_candidates.csv").read_text() == (
         api / "design_candidates.csv"
     ).read_text()
+
+
+REGIONAL = ["person:roi0:recall>=0.05", "road:roi1:precision>=0.05", "car:roi3:recall>=0.01"]
+
+
+def test_a_regional_design_writes_a_regional_file_that_every_command_takes(ckpt, tmp_path):
+    """``--design regional`` (docs/definitions.md §21): each requirement moves its own RoI's
+    matrix, the file holds the moved RoIs, ``--cost`` reproduces the design's rows under the
+    file's name; every requirement's class and RoI are in designed.csv, table.md and the
+    console, and the designed rules in table.md's main and mIoU tables."""
+    import contextlib
+    import io
+
+    out = tmp_path / "regional"
+    with contextlib.redirect_stdout(io.StringIO()) as printed:
+        evaluate_main(["--no-progress", "--num_examples", "1", "--classes", "person", "--ckpt_path",
+                       ckpt, "--output_dir", str(out), "--design", "regional", "--design_budget",
+                       "20", "--design_delta", "0.5", "--calibration_split", "train", "--require",
+                       *REGIONAL])  # fmt: skip
+    record = json.loads((out / "design.json").read_text())
+    spaces = [s["space"] for s in record["searches"]]
+    assert spaces == ["regional", "lagrangian", "triangle"]
+    own = record["searches"][0]
+    assert "chosen" in own and 0 <= own["changed_share"] <= 1
+    mu = own["chosen"]["parameters"]
+    stack = load_cost(out / "designed_cost.yaml")
+    base, off = load_cost("robotistic"), 1 - torch.eye(19, dtype=torch.float64)
+    for r in range(5):  # person (RoI 0) everywhere, road on the street, car on buildings
+        want = base.clone()
+        want[:, 11] += mu["mu_1"] * off[:, 11]
+        want[0, :] += (mu["mu_2"] if r == 1 else 0.0) * off[0, :]
+        want[:, 13] += (mu["mu_3"] if r == 3 else 0.0) * off[:, 13]
+        torch.testing.assert_close(stack[r], want, rtol=0, atol=0)
+    header = (out / "designed_cost.yaml").read_text().split("name:")[0]
+    assert "--design regional" in header and "moves RoI 1 (street)" in header
+    with (out / "designed.csv").open() as f:
+        shown = {(r["class"], r["roi"]) for r in csv.DictReader(f) if r["matrix"] == "designed"}
+    assert {("road", "1"), ("car", "3"), ("person", "0")} <= shown
+    table = (out / "table.md").read_text().split("## Next to the paper")[0]
+    assert "| designed |" in table and "|  |  | designed |" in table and "3 building" in table
+    assert "Pixels changed: " in (out / "table.md").read_text()
+    console = printed.getvalue()
+    assert "design: labelled held-out pixels decided otherwise than argmax: regional" in console
+    assert any(line.split()[:3] == ["designed", "car", "3"] for line in console.splitlines())
+    again = tmp_path / "again"
+    evaluate_main(["--no-progress", "--num_examples", "1", "--classes", "person", "road", "car",
+                   "--ckpt_path", ckpt, "--output_dir", str(again), "--cost",
+                   str(out / "designed_cost.yaml")])  # fmt: skip
+    classes, kept = (
+        ("person", "road", "car"),
+        ("class", "roi", "precision", "recall", "fn_segments"),
+    )
+    rows = [[{k: r[k] for k in kept} for r in _rows(path, "designed", classes)]
+            for path in (again / "results.csv", out / "designed.csv")]  # fmt: skip
+    assert rows[0] == rows[1]  # instances: measured for the classes of --classes only

@@ -75,3 +75,20 @@ def test_a_designed_file_used_with_another_network_is_noted(tmp_path) -> None:
     assert certificate_notes([str(cost)], {"network": f"costseg:{moved}"}) == []
     (note,) = certificate_notes([str(cost), "robotistic"], {"network": f"costseg:{other}"})
     assert note.startswith(f"note: {cost} was certified for {made_with}") and "other.ckpt" in note
+
+
+def test_a_multiplier_at_an_edge_of_the_values_searched_is_noted() -> None:
+    """μ at the top of the values searched, or at the smallest above 0, gets a note (the
+    console, table.md and design.json show a search's notes); one inside gets none."""
+    req = Requirements.parse(REQUIRE)
+    d1 = np.full((40, 4, 2), 0.6)  # nothing certified; the notes are the shown candidate's
+    found = _outcome(d1, d1.copy())
+    mu = np.array([[0.0, 0.0], [0.01, 1.0], [1.0, 100.0], [100.0, 0.1]])
+    found.candidates = Candidates("regional", ("mu_1", "mu_2"), mu, torch.zeros(4, 5, 19, 19),
+                                  np.zeros(4))  # fmt: skip
+    smallest = "μ_1 (person:roi1:recall>=0.8) is 0.01, the smallest"
+    top = "μ_2 (rider:roi1:recall>=0.5) is 100, the top"
+    for chosen, want in ((1, [smallest]), (2, [top]), (0, [])):
+        found.chosen = chosen
+        notes = found.notes(req)
+        assert [n[: len(w)] for n, w in zip(notes, want, strict=True)] == want, notes
