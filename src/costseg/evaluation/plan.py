@@ -197,7 +197,7 @@ def plan(
         batch_size=batch_size,
         num_workers=min(images.num_workers, -(-count // batch_size)),  # no idle workers
         groups=tuple(groups),
-        class_ids=[*class_ids, *(m.cls for m in named if m.cls not in (None, *class_ids))],
+        class_ids=list(dict.fromkeys([*class_ids, *(m.cls for m in named if m.cls is not None)])),
         rois=tuple(sorted({m.roi for m in named})),
         priors=priors,
         canvas=heatmap_canvas(dataset),
