@@ -13,7 +13,7 @@ import torch
 
 from costseg.calibration.design_search import Candidates
 from costseg.calibration.pareto_testing import ParetoTestingResult
-from costseg.classes import CLASS_NAMES, ROI_NAMES
+from costseg.classes import CLASS_NAMES, ROI_NAMES, roi_label
 from costseg.costs import is_regional, load_cost, save_cost
 from costseg.metrics.names import INSTANCE_RATES, SEGMENT_RATES
 from costseg.metrics.requirements import Requirements
@@ -30,7 +30,8 @@ DESIGNED = "designed"
 """The designed matrix's rule name in the reported rows."""
 
 DESIGNED_FAMILY = "designed"
-"""The family of the rule group that holds the designed matrix and the best triangle point."""
+"""The family of the rule group that holds the designed matrix and the best matrix of each space
+searched to compare."""
 
 
 @dataclass(frozen=True)
@@ -348,7 +349,7 @@ class DesignOutcome(Result):
         req, t, k = self.requirements, own.testing, own.chosen
         lines = [
             f"designed by costseg evaluate.py --design {own.candidates.space} "
-            "(docs/definitions.md §20)",
+            f"(docs/definitions.md §20{', §21' if own.candidates.space == 'regional' else ''})",
             "guarantee: " + self.guarantee(),
         ]
         for i, (text, target) in enumerate(zip(req.texts, req.constraints, strict=True)):
@@ -373,7 +374,7 @@ class DesignOutcome(Result):
                          "held-out pixels")  # fmt: skip
         if own.candidates.space == "regional":
             moved = ", ".join(
-                f"{t} moves {_region_words(c.roi)}"
+                f"{t} moves {roi_label(c.roi)}"
                 for t, c in zip(req.texts, req.constraints, strict=True)
             )
             lines.append(f"regions (docs/definitions.md §21): {moved}; every other region keeps "
@@ -518,14 +519,10 @@ def shown_matrices(name: str, cost: torch.Tensor) -> list[tuple[str, torch.Tenso
     if not is_regional(cost):
         return [(name, cost)]
     return [(f"{name} (default)", cost[0])] + [
-        (f"{name}, {_region_words(r)}", m)
+        (f"{name}, {roi_label(r)}", m)
         for r, m in enumerate(cost)
         if r and not torch.equal(m, cost[0])
     ]
-
-
-def _region_words(roi: int) -> str:
-    return "the whole image" if roi == 0 else f"RoI {roi} ({ROI_NAMES[roi]})"
 
 
 def _risks(values) -> str:

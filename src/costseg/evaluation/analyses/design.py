@@ -7,9 +7,11 @@ space scored by one fused decide-and-count pass on every pixel that can change a
 per-image loss under some candidate, and on a seeded share of each image's labelled pixels for the
 objective (:mod:`costseg.calibration.search_pixels`), so D1's constraint losses are those of every
 pixel. D2 tests the D1 Pareto front in order on every pixel. The certified matrix best by the
-objective on all held-out images, and the best certified point of the triangle beside it, join
-the rule groups, so the reported images measure them with every usual row; their per-image
-constraint losses there (what the certificate is about) are kept beside the pooled rates.
+objective on all held-out images, and the best certified matrix of each space searched beside
+it (the triangle; for ``--design regional``, a stack of matrices decided with the RoI map, also
+the whole-image Lagrangian space), join the rule groups, so the reported images measure them
+with every usual row; their per-image constraint losses there (what the certificate is about)
+are kept beside the pooled rates.
 """
 
 from __future__ import annotations
