@@ -27,13 +27,15 @@ MATRICES = {
 
 
 def counted_by_loop(probs, cost, labels, roi, priors, num_rois):
-    """decide_reference, then every labelled pixel counted one by one."""
+    """decide_reference (a regional stack: with the RoI map), then every labelled pixel counted
+    one by one."""
     b, n, h, w = probs.shape
     confusion = torch.zeros(b, num_rois + 1, n, n + 1, dtype=torch.long)
     agree = torch.zeros(b, dtype=torch.long)
     for i in range(b):
         own = priors[i] if priors is not None and priors.ndim == 4 else priors
-        decided = decide_reference(probs[i : i + 1], cost, own)[0]
+        regions = roi if cost is not None and cost.ndim == 3 else None
+        decided = decide_reference(probs[i : i + 1], cost, own, regions)[0]
         best = probs[i].argmax(0)
         region = torch.zeros(h, w, dtype=torch.long) if roi is None else roi.expand(b, h, w)[i]
         for y in range(h):
@@ -158,3 +160,21 @@ def test_wrong_inputs_raise():
         decide_counts(probs, None, torch.zeros(1, 2, 2, dtype=torch.long), torch.full((2, 2), 9))
     with pytest.raises(ValueError, match="share"):
         subsample(probs, torch.zeros(1, 2, 2, dtype=torch.long), share=0)
+
+
+@pytest.mark.parametrize("path", ["numba", "torch"])
+@pytest.mark.parametrize("priors_kind", [None, "pixel"])
+def test_a_regional_stack_counts_each_rois_pixels_under_its_matrix(path, priors_kind):
+    """A regional stack (docs/definitions.md §21): each pixel decided by its RoI's matrix, the
+    counts those of decide_reference with the RoI map; a stack of equal matrices counts as the
+    one matrix."""
+    shape = (2, 19, 7, 13)
+    probs = torch.cat([smooth((1, 19, 7, 13), 3), tied((1, 19, 7, 13), 4)])
+    labels, roi = batch(shape, 6)
+    priors = None if priors_kind is None else torch.rand(19, 7, 13) + 0.05
+    stack = torch.stack([VERTICES[0], VERTICES[1], VERTICES[2], MATRICES["dense"], VERTICES[1]])
+    inputs = prepare_counts(probs, labels, roi, priors)
+    for cost in (stack, torch.stack([VERTICES[2]] * 5)):
+        got = count_decisions(inputs, cost, path=path)
+        confusion, agree = counted_by_loop(probs, cost, labels, roi, priors, 4)
+        assert torch.equal(got.confusion, confusion) and torch.equal(got.agree, agree)

@@ -9,6 +9,8 @@ counts each one goes to) and each matrix is one pass over them (:func:`count_dec
 CPU the pass is compiled (:mod:`.cpu.count_kernel`): each block of pixels is decided by the
 single-rule kernel, certified in float32, and counted while in cache; the few pixels whose gap
 the certificate cannot settle are decided again exactly. Elsewhere, ``decide`` and a bincount.
+A regional value system's stack (docs/definitions.md §21) counts each RoI's pixels, prepared
+apart once (:meth:`CountInputs.of_roi`), under that RoI's matrix.
 """
 
 from __future__ import annotations
