@@ -252,3 +252,18 @@ def test_mix_and_rescale():
     assert torch.allclose(mixed, 0.2 * vertices[0] + 0.3 * vertices[1] + 0.5 * vertices[2])
     off = ~torch.eye(19, dtype=torch.bool)
     assert torch.allclose(rescale(vertices)[:, off].mean(1), torch.ones(3, dtype=torch.float64))
+
+
+def test_a_cost_file_names_its_rule_and_writes_a_row_per_line(tmp_path):
+    """``--cost FILE`` takes the file's ``name:`` (a designed file says ``designed``), its file
+    name where it has none or where two files share one; a saved matrix is one line per row."""
+    from costseg.rules import parse_rules
+
+    first, second, plain = tmp_path / "a_cost.yaml", tmp_path / "b_cost.yaml", tmp_path / "c.yaml"
+    save_cost(first, load_cost("egoistic"), "designed")
+    save_cost(second, load_cost("altruistic"), "designed")
+    plain.write_text("off_diagonal: 2\n")
+    assert [r.name for r in parse_rules([str(first), str(plain)])] == ["designed", "c"]
+    assert [r.name for r in parse_rules([str(first), str(second)])] == ["a_cost", "b_cost"]
+    lines = first.read_text().splitlines()
+    assert len(lines) == 3 + 19 and lines[3].startswith("- [0.0, 1.0, 1000.0")
