@@ -122,9 +122,12 @@ def test_a_regional_design_writes_a_regional_file_that_every_command_takes(ckpt,
     """``--design regional`` (docs/definitions.md §21): each requirement moves its own RoI's
     matrix, the file holds the moved RoIs, ``--cost`` reproduces the design's rows under the
     file's name; every requirement's class and RoI are in designed.csv, table.md and the
-    console, and the designed rules in table.md's main and mIoU tables."""
+    console (of ``--cost`` too: the RoIs its certificate names), and the designed rules in
+    table.md's main and mIoU tables."""
     import contextlib
     import io
+
+    from costseg.report.certified import certified_requirements
 
     out = tmp_path / "regional"
     with contextlib.redirect_stdout(io.StringIO()) as printed:
@@ -157,10 +160,14 @@ def test_a_regional_design_writes_a_regional_file_that_every_command_takes(ckpt,
     console = printed.getvalue()
     assert "design: labelled held-out pixels decided otherwise than argmax: regional" in console
     assert any(line.split()[:3] == ["designed", "car", "3"] for line in console.splitlines())
+    assert certified_requirements(out / "designed_cost.yaml") == REGIONAL
     again = tmp_path / "again"
-    evaluate_main(["--no-progress", "--num_examples", "1", "--classes", "person", "road", "car",
-                   "--ckpt_path", ckpt, "--output_dir", str(again), "--cost",
-                   str(out / "designed_cost.yaml")])  # fmt: skip
+    with contextlib.redirect_stdout(io.StringIO()) as printed:
+        evaluate_main(["--no-progress", "--num_examples", "1", "--classes", "person", "road",
+                       "car", "--ckpt_path", ckpt, "--output_dir", str(again), "--cost",
+                       str(out / "designed_cost.yaml")])  # fmt: skip
+    lines = printed.getvalue().splitlines()  # RoI 3: the one the file's certificate names
+    assert any(line.split()[:3] == ["designed", "car", "3"] for line in lines)
     classes, kept = (
         ("person", "road", "car"),
         ("class", "roi", "precision", "recall", "fn_segments"),

@@ -8,6 +8,7 @@ plan and the analyses' settings (:mod:`costseg.evaluation.settings`), never the 
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime
 import re
@@ -46,7 +47,7 @@ from costseg.networks.ensemble import open_sources
 from costseg.networks.protocols import Protocol
 from costseg.networks.sources import Source, resolve_device
 from costseg.options import EvalOptions
-from costseg.report.certified import certificate_notes
+from costseg.report.certified import certificate_notes, certified_requirements
 from costseg.report.outputs import claim_output_dir
 from costseg.rules import (
     TEMPERATURES,
@@ -213,11 +214,15 @@ def plan(
 
 
 def named_metrics(opts: EvalOptions) -> list[Metric]:
-    """The metrics ``--target``, ``--require`` and the objectives name (``miou`` and
-    ``agreement`` name none)."""
+    """The metrics ``--target``, ``--require``, the objectives (``miou`` and ``agreement`` name
+    none) and the certificates of designed ``--cost`` files name."""
     texts = (*(opts.target or ()), *(opts.require or ()), opts.maximize, opts.design_maximize,
              opts.design_minimize)  # fmt: skip
-    return [parse_metric(re.split(r"[<>=]", t)[0]) for t in texts if t and t not in OBJECTIVES]
+    named = [parse_metric(re.split(r"[<>=]", t)[0]) for t in texts if t and t not in OBJECTIVES]
+    for text in (t for cost in opts.cost for t in certified_requirements(cost)):
+        with contextlib.suppress(ValueError):  # a header edited by hand names nothing
+            named.append(parse_metric(re.split(r"[<>=]", text)[0]))
+    return named
 
 
 def checked_groups(opts: EvalOptions) -> list[RuleGroup]:

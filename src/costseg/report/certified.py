@@ -33,16 +33,17 @@ def fingerprint(source: dict) -> str:
     return f"{spec} (sha256 {digest.hexdigest()[:16]})"
 
 
-def certified_source(path: str | Path) -> str | None:
-    """The source a cost file's header says it was certified for, or None (no such line).
+REQUIREMENT = "requirement "
+"""How each of the header's lines of a requirement begins: then its text, then ``: ``."""
 
-    >>> certified_source("no/such.yaml") is None
-    True
-    """
+
+def header_lines(path: str | Path) -> list[str]:
+    """A cost file's leading comment lines, each wrapped line joined to the one it continues
+    (none: an unreadable file, or no header)."""
     try:
         lines = Path(path).read_text(encoding="utf-8").splitlines()
     except (OSError, UnicodeDecodeError):
-        return None
+        return []
     header: list[str] = []
     for line in lines:
         if not line.startswith("#"):
@@ -52,10 +53,29 @@ def certified_source(path: str | Path) -> str | None:
             header[-1] += " " + text.strip()
         else:
             header.append(text.strip())
-    for text in header:
+    return header
+
+
+def certified_source(path: str | Path) -> str | None:
+    """The source a cost file's header says it was certified for, or None (no such line).
+
+    >>> certified_source("no/such.yaml") is None
+    True
+    """
+    for text in header_lines(path):
         if text.startswith(CERTIFIED_FOR):
             return text.removeprefix(CERTIFIED_FOR).split(";")[0]
     return None
+
+
+def certified_requirements(path: str | Path) -> list[str]:
+    """The requirements a designed cost file's header certifies (``person:roi1:recall>=0.8``),
+    in its order; none for any other file."""
+    return [
+        text.removeprefix(REQUIREMENT).split(": ")[0]
+        for text in header_lines(path)
+        if text.startswith(REQUIREMENT)
+    ]
 
 
 def same_source(first: str, second: str) -> bool:

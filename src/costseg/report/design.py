@@ -18,7 +18,7 @@ from costseg.costs import is_regional, load_cost, save_cost
 from costseg.metrics.names import INSTANCE_RATES, SEGMENT_RATES
 from costseg.metrics.requirements import Requirements
 from costseg.metrics.selection import Target, metric_values
-from costseg.report.certified import CERTIFIED_FOR, fingerprint
+from costseg.report.certified import CERTIFIED_FOR, REQUIREMENT, fingerprint
 from costseg.report.design_figures import design_figures
 from costseg.report.drawing import job
 from costseg.report.files import write_csv, write_json
@@ -354,7 +354,7 @@ class DesignOutcome(Result):
         ]
         for i, (text, target) in enumerate(zip(req.texts, req.constraints, strict=True)):
             lines.append(
-                f"requirement {text}: mean per-image {_loss_words(target)} <= "
+                f"{REQUIREMENT}{text}: mean per-image {_loss_words(target)} <= "
                 f"{req.alphas[i]:.3g}; certification risk {t.risks_d2[k, i]:.4f} on "
                 f"{t.n_d2[k, i]} of {self.n2} images (p = {t.pvalues_d2[k, i]:.3g}), search "
                 f"risk {t.risks_d1[k, i]:.4f} on {t.n_d1[k, i]} of {self.n1}"
