@@ -219,7 +219,7 @@ class SearchOutcome:
         c, k, out = self.candidates, self.shown, []
         if k is not None and c.space in ("lagrangian", "regional"):
             for i, text in enumerate(req.texts):
-                out += _edge_note(c.parameters[:, i], k, i, text)
+                out += _edge_note(c.parameters[:, i], k, i, text, c.how.startswith("a grid"))
         if self.deferred is not None:
             out += [
                 f"{text}: a deferred pixel counts as a miss; handled_recall counts it as handled"
@@ -474,9 +474,9 @@ class DesignOutcome(Result):
         return job(design_figures, matrices, list(CLASS_NAMES), fronts, title)
 
 
-def _edge_note(values: np.ndarray, k: int, i: int, text: str) -> list[str]:
+def _edge_note(values: np.ndarray, k: int, i: int, text: str, grid: bool) -> list[str]:
     """A note when candidate k's multiplier ``values[k]`` lies at an edge of the (L,) values
-    searched: the largest, or the smallest above 0."""
+    searched (on a ``grid``, or continuously): the largest, or the smallest above 0."""
     tried = values[values > 0]
     if not len(tried) or values[k] <= 0 or tried.min() == tried.max():
         return []
@@ -484,9 +484,9 @@ def _edge_note(values: np.ndarray, k: int, i: int, text: str) -> list[str]:
         return [f"μ_{i + 1} ({text}) is {values[k]:g}, the top of the values searched: the "
                 "space may hold a better matrix beyond it"]  # fmt: skip
     if values[k] <= tried.min():
+        between = " (--design_search continuous searches between the grid's values)"
         return [f"μ_{i + 1} ({text}) is {values[k]:g}, the smallest value searched above 0: a "
-                "smaller multiplier may do better (--design_search continuous searches "
-                "between the grid's values)"]  # fmt: skip
+                f"smaller multiplier may do better{between if grid else ''}"]  # fmt: skip
     return []
 
 
