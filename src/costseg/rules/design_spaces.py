@@ -14,9 +14,10 @@ part of it (then the scalar defer cost is the space's last parameter):
 
 Grid spaces list their points (``grid()``); the aggregate space gives its box (``box()``) to an
 optimiser (:mod:`costseg.calibration.design_search`), and so may the Lagrangian space (its
-multipliers on a log scale). Each space also bounds its candidates (``hull()``, a :class:`Hull`,
-or None where no bound is derived): what lets the search leave out the pixels that no candidate
-can decide as a constraint's class (:mod:`costseg.calibration.search_pixels`).
+multipliers on a log scale). Each space also bounds its candidates (``hull()``, a :class:`Hull`;
+the regional space's a :class:`RegionalHull`, one per RoI; None where no bound is derived): what
+lets the search leave out the pixels that no candidate can decide as a constraint's class
+(:mod:`costseg.calibration.search_pixels`).
 
 >>> from costseg.costs import symmetric_cost
 >>> space = LagrangianSpace(symmetric_cost(3), lagrangian_directions([(2, "recall")], 3), size=3)
@@ -354,11 +355,11 @@ class LagrangianSpace:
         return with_defer(cost, row)
 
 
-def constraint_regions(regions: Sequence[int], region: int) -> torch.Tensor:
+def constraints_moving(regions: Sequence[int], region: int) -> torch.Tensor:
     """(K,) float64 1 for each constraint whose RoI ``regions[i]`` moves the matrix of RoI
     ``region`` (its own RoI, or RoI 0, the whole image, which moves every matrix), else 0.
 
-    >>> constraint_regions([1, 0, 3], 1).tolist(), constraint_regions([1, 0, 3], 0).tolist()
+    >>> constraints_moving([1, 0, 3], 1).tolist(), constraints_moving([1, 0, 3], 0).tolist()
     ([1.0, 1.0, 0.0], [0.0, 1.0, 0.0])
     """
     return torch.tensor([float(r in (region, 0)) for r in regions], dtype=torch.float64)
@@ -402,7 +403,7 @@ class RegionalLagrangianSpace(LagrangianSpace):
     def region(self, r: int) -> LagrangianSpace:
         """The plain Lagrangian space of RoI r's matrix: its C₀ and the directions (and defer
         directions) of the constraints that move it, zero for the others."""
-        moves = constraint_regions(self.regions, r)
+        moves = constraints_moving(self.regions, r)
         deferring = None if self.deferring is None else self.deferring * moves[:, None]
         return LagrangianSpace(self.bases()[r], self.directions * moves[:, None, None], self.size,
                                self.low, self.high, self.defer_costs, deferring)  # fmt: skip
