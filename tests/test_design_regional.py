@@ -12,6 +12,7 @@ import pytest
 import torch
 
 from costseg.calibration.design_search import search
+from costseg.calibration.pareto_testing import pareto_testing
 from costseg.costs import load_cost, save_cost, symmetric_cost
 from costseg.decision import decide, decide_reference
 from costseg.metrics.requirements import Requirements
@@ -83,13 +84,17 @@ def test_every_constraint_on_roi0_searches_what_the_plain_lagrangian_space_searc
             losses = []
             candidates = search(space, found.scorer(req, losses.append), req.alphas, 12,
                                 continuous=continuous, delta=0.1)  # fmt: skip
-            searched.append((candidates, np.stack(losses)))
+            searched.append((candidates, np.stack(losses, 1)))  # (n1, L, K)
         (stacks, losses_r), (matrices, losses_p) = searched
         assert np.array_equal(stacks.parameters, matrices.parameters)
         assert np.array_equal(stacks.objective, matrices.objective)
         np.testing.assert_array_equal(losses_r, losses_p)
         assert all(torch.equal(s[r], m) for s, m in zip(stacks.matrices, matrices.matrices,
                                                       strict=True) for r in range(5))  # fmt: skip
+        tested = [pareto_testing(losses, losses[::-1], req.alphas, 0.5, found.objective)
+                  for (found, losses) in searched]  # fmt: skip
+        assert np.array_equal(tested[0].front, tested[1].front)
+        assert np.array_equal(tested[0].certified, tested[1].certified)
 
 
 def _loop_losses(probs, labels, roi, stack, req) -> torch.Tensor:
