@@ -9,8 +9,8 @@ counts each one goes to) and each matrix is one pass over them (:func:`count_dec
 CPU the pass is compiled (:mod:`.cpu.count_kernel`): each block of pixels is decided by the
 single-rule kernel, certified in float32, and counted while in cache; the few pixels whose gap
 the certificate cannot settle are decided again exactly. Elsewhere, ``decide`` and a bincount.
-A regional value system's stack (docs/definitions.md §21) counts each RoI's pixels, prepared
-apart once (:meth:`CountInputs.of_roi`), under that RoI's matrix.
+A regional value system's stack (docs/definitions.md §21) counts the pixels of the RoIs that
+share a matrix, prepared apart once (:meth:`CountInputs.of_rois`), under that matrix.
 """
 
 from __future__ import annotations
@@ -72,24 +72,22 @@ class CountInputs:
     q: np.ndarray | None
     images: int
     rois: int
-    by_roi: dict = field(default_factory=dict, compare=False, repr=False)  # of_roi's, kept
+    by_roi: dict = field(default_factory=dict, compare=False, repr=False)  # of_rois', kept
 
     @property
     def classes(self) -> int:
         """N."""
         return self.probs.shape[1]
 
-    def of_roi(self, r: int) -> CountInputs | None:
-        """The pixels of RoI id r alone (None: there are none), prepared once and kept: what a
-        regional value system's matrix of r decides (docs/definitions.md §21)."""
-        if r not in self.by_roi:
+    def of_rois(self, rois: tuple[int, ...]) -> CountInputs | None:
+        """The pixels of the RoI ids ``rois`` alone (None: there are none), prepared once and
+        kept: what one matrix of a regional value system decides (docs/definitions.md §21)."""
+        if rois not in self.by_roi:
             n, valid = self.classes, self.cell >= 0
-            ids = torch.where(
-                valid, torch.div(self.cell, n, rounding_mode="floor") % (self.rois + 1), -1
-            )
-            take = (ids == r).nonzero()[:, 0]
-            self.by_roi[r] = _taken(self, take) if len(take) else None
-        return self.by_roi[r]
+            ids = torch.div(self.cell, n, rounding_mode="floor") % (self.rois + 1)
+            take = (valid & torch.isin(ids, torch.tensor(rois, dtype=ids.dtype))).nonzero()[:, 0]
+            self.by_roi[rois] = _taken(self, take) if len(take) else None
+        return self.by_roi[rois]
 
 
 def prepare_counts(
@@ -226,16 +224,18 @@ def decide_counts(
 
 
 def _by_roi(inputs: CountInputs, stack: torch.Tensor, path: str | None) -> DecisionCounts:
-    """The counts of a regional stack (R + 1, M, N): each RoI's pixels counted under its own
-    matrix (:meth:`CountInputs.of_roi`), the counts summed (each pixel lies in one RoI)."""
+    """The counts of a regional stack (R + 1, M, N): the pixels of the RoIs that share a matrix
+    counted under it (:meth:`CountInputs.of_rois`), the counts summed (each pixel lies in one
+    RoI)."""
     if len(stack) != inputs.rois + 1:
         raise ValueError(f"a regional value system for {inputs.rois} RoIs stacks "
                          f"{inputs.rois + 1} matrices, got {len(stack)}")  # fmt: skip
     b, n = inputs.images, inputs.classes
     confusion = torch.zeros(b, inputs.rois + 1, n, n + 1, dtype=torch.int64)
     agree = torch.zeros(b, dtype=torch.int64)
-    for r, matrix in enumerate(stack):
-        pixels = inputs.of_roi(r)
+    matrices, index = distinct(stack)
+    for d, matrix in enumerate(matrices):
+        pixels = inputs.of_rois(tuple(r for r in range(len(stack)) if index[r] == d))
         if pixels is not None:
             counts = count_decisions(pixels, matrix, path=path)
             confusion, agree = confusion + counts.confusion.cpu(), agree + counts.agree.cpu()
