@@ -149,7 +149,8 @@ def test_a_regional_design_writes_a_regional_file_that_every_command_takes(ckpt,
         want[0, :] += (mu["mu_2"] if r == 1 else 0.0) * off[0, :]
         want[:, 13] += (mu["mu_3"] if r == 3 else 0.0) * off[:, 13]
         torch.testing.assert_close(stack[r], want, rtol=0, atol=0)
-    header = (out / "designed_cost.yaml").read_text().split("name:")[0]
+    lines = (out / "designed_cost.yaml").read_text().split("name:")[0].splitlines()
+    header = " ".join(line.removeprefix("#").strip() for line in lines)  # unwrapped
     assert "--design regional" in header and "moves RoI 1 (street)" in header
     with (out / "designed.csv").open() as f:
         shown = {(r["class"], r["roi"]) for r in csv.DictReader(f) if r["matrix"] == "designed"}
