@@ -21,6 +21,17 @@ import torch
 from filelock import FileLock
 from PIL import Image
 
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Under xdist, each worker's torch (and numba) threads share the CPUs with the others' (one
+    thread each on two cores): more threads than cores spin against each other."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    if workers > 1:
+        threads = max(1, len(os.sched_getaffinity(0)) // workers)
+        torch.set_num_threads(threads)
+        os.environ.setdefault("NUMBA_NUM_THREADS", str(threads))
+
+
 CITYSCAPES_SIZE = (32, 64)
 """(H, W) of every generated Cityscapes image."""
 CITYSCAPES_FILES = {
@@ -182,41 +193,60 @@ def vainf(tmp_path_factory) -> tuple[torch.nn.Module, Path]:
 
 EVERY_OUTPUT = [
     ["--cost", "robotistic", "ml", "--calibrate", "temperature", "--temperature_sweep",
-     "--sweep", "0.5", "--alpha_sweep", "0.5", "--defer_sweep", "0.2", "0.6", "0.2",
-     "--meta", "--meta_split", "train", "--meta_images", "6", "--fuse", "ml", "--fuse_tau", "0",
-     "1", "--save-segments", "--save-predictions", "--save-probs", "--explorer", "--conformal",
-     "0.3"],
-    ["--cost", "robotistic", "--anomalies", "--shift", "fog:2"],
+     "--sweep", "0.5", "--target", "person:roi0:recall>=0.05", "--maximize",
+     "person:roi0:precision", "--guarantee", "0.5", "--design", "lagrangian", "--design_budget",
+     "9", "--require", "person:roi0:recall>=0.05", "road:roi0:precision>=0.05",
+     "--design_delta", "0.5", "--meta", "--meta_split", "train", "--meta_images", "6", "--fuse",
+     "ml", "--save-segments", "--save-predictions", "--save-probs", "--explorer", "--conformal",
+     "0.3", "--anomalies", "--calibration_split", "train", "--batch_size", "1"],
+    ["--cost", "robotistic", "--anomalies", "--shift", "fog:2", "--alpha_sweep", "0.5",
+     "--defer_sweep", "0.2", "0.6", "0.2", "--meta", "--meta_split", "train", "--meta_images",
+     "6", "--fuse", "ml", "--fuse_tau", "0", "1"],
 ]  # fmt: skip
-"""Options of the evaluations of ``every_output``: together, every figure and most files."""
+"""Options of the evaluations of ``every_output``: the first runs every analysis of the table,
+together they write every file and draw every figure."""
+
+
+def every_output_arguments(ckpt: Path, out: Path, case: int) -> list[str]:
+    """The arguments of the evaluation ``EVERY_OUTPUT[case]`` (of the person class, two
+    examples) into ``out``."""
+    common = ["--ckpt_path", str(ckpt), "--output_dir", str(out), "--classes", "person"]
+    return [*common, *EVERY_OUTPUT[case], "--num_examples", "2", "--no-progress"]
 
 
 @pytest.fixture(scope="session")
 def every_output(tiny_run: TinyRun, tmp_path_factory) -> list[Path]:
-    """The folders of tiny evaluations with the options of ``EVERY_OUTPUT`` (of the person class,
-    one example), made once per test session, their figures drawn in that process by
-    ``figure_text.InProcessDrawing``. Beside the folders: the terminal's output of each
-    (``stdout.txt`` inside it) and every figure's titles and clipped texts (``figures.json``)."""
+    """The folders of the evaluations of ``EVERY_OUTPUT``, made once per test session on one
+    thread (as torchrun runs each process: the network's float sums are then the same), their
+    figures drawn in that process by ``figure_text.InProcessDrawing``. Beside each folder: the
+    terminal's output (``stdout.txt``); beside all: every figure's titles and clipped texts
+    (``figures.json``)."""
     from costseg.checkpoints import find_checkpoint
     from costseg.cli import evaluate_main
 
     def make(folder: Path) -> None:
         from figure_text import InProcessDrawing
 
-        ckpt = str(find_checkpoint(None, runs_dir=tiny_run.runs))
-        with pytest.MonkeyPatch.context() as patch:
-            patch.setattr("costseg.report.early_figures.Drawing", InProcessDrawing)
-            for i, args in enumerate(EVERY_OUTPUT):
-                out = folder / str(i) / "evaluation"
-                common = ["--ckpt_path", ckpt, "--output_dir", str(out), "--classes", "person"]
-                with contextlib.redirect_stdout(io.StringIO()) as printed:
-                    evaluate_main([*common, *args, "--num_examples", "1", "--no-progress"])
-                (out / "stdout.txt").write_text(printed.getvalue())
+        ckpt = find_checkpoint(None, runs_dir=tiny_run.runs)
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            with pytest.MonkeyPatch.context() as patch:
+                patch.setattr("costseg.report.early_figures.Drawing", InProcessDrawing)
+                for case in range(len(EVERY_OUTPUT)):
+                    arguments = every_output_arguments(
+                        ckpt, folder / str(case) / "evaluation", case
+                    )
+                    with contextlib.redirect_stdout(io.StringIO()) as printed:
+                        evaluate_main(arguments)
+                    (folder / str(case) / "stdout.txt").write_text(printed.getvalue())
+        finally:
+            torch.set_num_threads(threads)
         drawn = {"titles": InProcessDrawing.titles, "clipped": InProcessDrawing.clipped}
         (folder / "figures.json").write_text(json.dumps(drawn))
 
     folder = made_once(tmp_path_factory, "every_output", make)
-    return [folder / str(i) / "evaluation" for i in range(len(EVERY_OUTPUT))]
+    return [folder / str(case) / "evaluation" for case in range(len(EVERY_OUTPUT))]
 
 
 @pytest.fixture(scope="session")
