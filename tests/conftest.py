@@ -290,14 +290,25 @@ def imported(tiny_run: TinyRun, tmp_path_factory) -> dict[str, set[str]]:
     return {step: set(packages) for step, packages in found.items()}
 
 
+def in_this_process(num_workers: int) -> dict:
+    """:func:`costseg.workers.loader_options` for a handful of tiny images: no worker process
+    (each imports torch and the dataset's modules, seconds, to load a few images)."""
+    return {"num_workers": 0}
+
+
 @pytest.fixture(autouse=True)
-def recorded_figures(request, monkeypatch):
-    """Figures are recorded, not drawn, unless the test is marked ``figures`` (it reads them):
-    :mod:`figure_recorder`."""
+def as_in_tests(request, monkeypatch):
+    """Figures are recorded, not drawn, unless the test is marked ``figures`` (it reads them:
+    :mod:`figure_recorder`); data loaders read their items in the test process unless the test
+    is marked ``workers`` (it runs them as outside the tests)."""
     if request.node.get_closest_marker("figures") is None:
         from figure_recorder import RecordedDrawing
 
         from costseg.report import early_figures
 
         monkeypatch.setattr(early_figures, "Drawing", RecordedDrawing)
+    if request.node.get_closest_marker("workers") is None:
+        from costseg import workers
+
+        monkeypatch.setattr(workers, "loader_options", in_this_process)
     yield
