@@ -298,6 +298,7 @@ def test_train_bad_option(case, tmp_path, capsys):
     _one_line(train_main, order, capsys, *needles)
 
 
+@pytest.mark.workers
 def test_an_error_of_a_data_loader_worker_is_one_line_without_its_class_name(
     ckpt, cityscapes_root, tmp_path, capsys
 ):

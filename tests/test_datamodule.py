@@ -79,6 +79,7 @@ def _epoch(loader) -> tuple[set[int], list[list[int]], list[bool]]:
     )
 
 
+@pytest.mark.workers
 @pytest.mark.parametrize("workers", [0, 2])
 def test_loader_settings(monkeypatch, workers: int) -> None:
     """Training drops the last partial batch and shuffles; evaluation keeps every item in

@@ -53,7 +53,8 @@ def test_the_designed_cost_file_reproduces_the_rows_of_the_design(ckpt, tmp_path
     assert own["certified"] >= 1 and "chosen" in own
     assert all(own["chosen"]["certification_pvalues"][t] <= 0.5 for t in REQUIREMENTS)
     yaml_file = out / "designed_cost.yaml"
-    header = yaml_file.read_text().split("name:")[0]
+    lines = yaml_file.read_text().split("name:")[0].splitlines()
+    header = " ".join(line.removeprefix("#").strip() for line in lines)  # unwrapped
     assert "δ = 0.5" in header and "4 search, 4 certification" in header
     assert "sha256" in header and "--calibration_split train" in header
     matrix = load_cost(yaml_file)

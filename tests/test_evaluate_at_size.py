@@ -1,5 +1,6 @@
 """An evaluation of Cityscapes-layout images at 256 × 512, large enough for torch's thread pool
-to run (its grain size), finishes with its example figures, under a deadline."""
+to run (its grain size), finishes with its example figures, under a deadline (its images loaded
+by DataLoader workers, its figures drawn by the figure workers, as outside the tests)."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from costseg.cli import evaluate_main
 
 
 @pytest.mark.figures
+@pytest.mark.workers  # as users run it: the images loaded by DataLoader workers
 def test_an_evaluation_of_256x512_cityscapes_images_finishes_with_its_figures(tiny_run, tmp_path):
     tree, out = tmp_path / "cityscapes", tmp_path / "out"
     for split, item in (("train", 0), ("val", 1), ("val", 2)):
