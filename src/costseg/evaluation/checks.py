@@ -235,12 +235,16 @@ def check_design_size(settings: DesignSettings, n_images: int, own_split: bool) 
     if n_images // 2 >= 1 and n_images - n_images // 2 >= per_half:
         return
     needed = 2 * per_half
-    more = "" if own_split else "--calibration_split (another split's images) or "
+    more = (
+        "a split with more images"  # --limit does not cut --calibration_split
+        if own_split
+        else "--calibration_split (another split's images) or a larger --limit"
+    )
     raise ValueError(
         f"{n_images} held-out image(s) ({settings.held_out}) cannot certify a design at "
         f"α = {alpha:.3g}, δ = {settings.delta}: half of them certify, and even with no loss "
         f"on any image {per_half} are needed there, so at least {needed} held-out images; give "
-        f"{more}a larger --limit, or a looser --require / --design_delta"
+        f"{more}, or a looser --require / --design_delta"
     )
 
 
