@@ -66,7 +66,8 @@ def base_matrix(name: str | Path | torch.Tensor = "robotistic") -> torch.Tensor:
             raise ValueError(f"{name}: C₀ of the monitor is one cost matrix without a defer row")
         base = cost_or_symmetric(rule.cost, len(CLASS_NAMES)).to(torch.float64)
     if base.shape != (len(CLASS_NAMES), len(CLASS_NAMES)):
-        raise ValueError(f"C₀ must be ({len(CLASS_NAMES)}, {len(CLASS_NAMES)}), got {tuple(base.shape)}")
+        n = len(CLASS_NAMES)
+        raise ValueError(f"C₀ must be ({n}, {n}), got {tuple(base.shape)}")
     return base
 
 

@@ -212,7 +212,7 @@ def lagrangian_multipliers(
     scale = tolerance * max(1.0, cost.abs().max().item())
     rebuilt = base + (mu[:, None, None] * directions).sum(0)
     if (rebuilt - cost).abs().max() > scale or (mu < -scale).any():
-        raise ValueError("the matrix is not C₀ + Σ μ_i A_i with every μ_i >= 0 for these constraints")
+        raise ValueError("the matrix is not C₀ + Σ μ_i A_i, every μ_i >= 0, for these constraints")
     return mu.clamp(min=0)
 
 
