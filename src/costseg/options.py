@@ -223,7 +223,7 @@ class EvalOptions(SourceOptions):
     )
     shift_onset: int | None = option(
         help="the first N reported images stay clean and --shift starts at image N + 1: a "
-        "stream whose conditions change mid-way (--monitor)",
+        "stream whose conditions change mid-way (--monitor_require)",
         type=whole_number(1),
         metavar="N",
         needs="shift",
@@ -439,7 +439,7 @@ class EvalOptions(SourceOptions):
         needs="design",
     )
 
-    monitor: list[str] | None = option(
+    monitor_require: list[str] | None = option(
         help="keep these requirements on the reported images as a stream of frames (in their "
         "order), e.g. 'person:roi1:recall>=0.8': one multiplier each, moved by each frame's "
         "loss when its labels arrive; the syntax of --require (recall or precision)",
@@ -448,20 +448,20 @@ class EvalOptions(SourceOptions):
         group=MONITOR,
     )
     monitor_eta: float = option(
-        0.5, "the step η of every --monitor multiplier", type=positive_number, group=MONITOR,
-        needs="monitor",
+        0.5, "the step η of every --monitor_require multiplier", type=positive_number,
+        group=MONITOR, needs="monitor_require",
     )  # fmt: skip
     monitor_scale: Literal["log", "mu"] = option(
         "log", "the scale θ of the multipliers: log (log(1 + μ)) or mu (μ itself)",
-        group=MONITOR, needs="monitor",
+        group=MONITOR, needs="monitor_require",
     )  # fmt: skip
     monitor_delay: int = option(
         0, "frames until a frame's labels arrive (0: before the next frame)",
-        type=whole_number(0), group=MONITOR, needs="monitor",
+        type=whole_number(0), group=MONITOR, needs="monitor_require",
     )  # fmt: skip
     monitor_labelled: float = option(
         1.0, "share of the frames whose labels arrive at all (drawn with --seed)", type=share,
-        group=MONITOR, needs="monitor",
+        group=MONITOR, needs="monitor_require",
     )  # fmt: skip
     monitor_start: str | None = option(
         help="a cost file of the Lagrangian space, e.g. a --design lagrangian's "
@@ -469,15 +469,15 @@ class EvalOptions(SourceOptions):
         "(default μ = 0: C0)",
         metavar="FILE",
         group=MONITOR,
-        needs="monitor",
+        needs="monitor_require",
     )
     monitor_base: str = option(
         "robotistic", "the matrix C0 of the monitor's C(μ) = C0 + Σ μ_i A_i: a name or a .yaml",
-        group=MONITOR, needs="monitor",
+        group=MONITOR, needs="monitor_require",
     )  # fmt: skip
     monitor_max: float = option(
         100.0, "the cap μ_max of every multiplier (each frame's record serves μ in [0, μ_max])",
-        type=positive_number, group=MONITOR, needs="monitor",
+        type=positive_number, group=MONITOR, needs="monitor_require",
     )  # fmt: skip
 
 

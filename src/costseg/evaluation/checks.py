@@ -168,20 +168,20 @@ def check_design(opts: EvalOptions) -> None:
 
 
 def check_monitor(opts: EvalOptions) -> None:
-    """``--monitor``: its requirements (recall or precision of one class, each once), C₀, the
-    start's multipliers within the cap, and (with ``--limit``) a stream that the delay and
-    ``--shift_onset`` fit in (docs/definitions.md §22)."""
+    """``--monitor_require``: its requirements (recall or precision of one class, each once),
+    C₀, the start's multipliers within the cap, and (with ``--limit``) a stream that the delay
+    and ``--shift_onset`` fit in (docs/definitions.md §22)."""
     from costseg.metrics.monitor import base_matrix, monitored_requirements, start_multipliers
 
     if opts.shift_onset is not None and opts.limit is not None:
         check_stream(opts.shift_onset, 0, opts.limit)
-    if not opts.monitor:
+    if not opts.monitor_require:
         return
-    req = monitored_requirements(opts.monitor)
+    req = monitored_requirements(opts.monitor_require)
     same = [t[:3] for t in req.constraints]
     if len(set(same)) < len(same):
         text = req.texts[next(i for i, t in enumerate(same) if same.count(t) > 1)]
-        raise ValueError(f"--monitor gives the rate of {text} twice: keep one level")
+        raise ValueError(f"--monitor_require gives the rate of {text} twice: keep one level")
     try:
         base = base_matrix(opts.monitor_base)
     except ValueError as err:

@@ -141,8 +141,10 @@ def plan(
     if count == 0:
         raise ValueError(f"the {opts.split} split holds no images: nothing to evaluate")
     reported, calibration = _split_calibration(opts, images, count)
-    if opts.shift_onset is not None or opts.monitor:
-        check_stream(opts.shift_onset, opts.monitor_delay if opts.monitor else 0, len(reported))
+    if opts.shift_onset is not None or opts.monitor_require:
+        check_stream(
+            opts.shift_onset, opts.monitor_delay if opts.monitor_require else 0, len(reported)
+        )
     meta_images = None
     if opts.meta or opts.fuse:
         meta_images = calibration

@@ -78,7 +78,7 @@ class DesignSettings:
 
 @dataclass(frozen=True)
 class MonitorSettings:
-    """``--monitor``: requirements kept on the reported images as a stream
+    """``--monitor_require``: requirements kept on the reported images as a stream
     (docs/definitions.md §22)."""
 
     requirements: tuple[str, ...]
@@ -187,10 +187,10 @@ def design_settings(opts: EvalOptions) -> DesignSettings | None:
 
 
 def monitor_settings(opts: EvalOptions) -> MonitorSettings | None:
-    if not opts.monitor:
+    if not opts.monitor_require:
         return None
     return MonitorSettings(
-        requirements=tuple(opts.monitor),
+        requirements=tuple(opts.monitor_require),
         eta=opts.monitor_eta,
         scale=opts.monitor_scale,
         delay=opts.monitor_delay,

@@ -1,7 +1,7 @@
 """The run-time monitor of a value system (docs/definitions.md §22): requirements of §20 kept on a
 stream of frames by the controller of :mod:`costseg.calibration.monitor`, each frame decided with
 §20's Lagrangian matrix at the current multipliers. ``costseg.Monitor`` is the class a
-deployment loop drives; ``evaluate.py --monitor`` walks the reported images with it.
+deployment loop drives; ``evaluate.py --monitor_require`` walks the reported images with it.
 
 >>> import torch
 >>> monitor = Monitor(["person:roi0:recall>=0.9"], eta=0.5, scale="mu")
@@ -42,7 +42,7 @@ MONITORED = ("recall", "precision")
 """The rates the monitor keeps: pixel rates one multiplier steers (a class's column or row)."""
 
 
-def monitored_requirements(texts: Sequence[str], flag: str = "--monitor") -> Requirements:
+def monitored_requirements(texts: Sequence[str], flag: str = "--monitor_require") -> Requirements:
     """The requirements ``texts`` (``person:roi1:recall>=0.8``, the syntax of ``--require``);
     ValueError unless each is a recall or precision of one class."""
     req = Requirements.parse(texts)

@@ -1,4 +1,4 @@
-"""The outputs of ``--monitor`` (docs/definitions.md §22): per frame θ_t, each loss of the
+"""The outputs of ``--monitor_require`` (docs/definitions.md §22): per frame θ_t, each loss of the
 monitored and of the fixed (start) matrix, their running averages and the long-run bound in
 ``monitor.csv``; the long-run risks beside α and the bound, windows in violation and the
 agreement with argmax in results.json and table.md; two figures (the running risks against α

@@ -1,5 +1,5 @@
-"""``--monitor``: requirements kept on the reported images as a stream of frames, in their order
-(docs/definitions.md §22).
+"""``--monitor_require``: requirements kept on the reported images as a stream of frames, in
+their order (docs/definitions.md §22).
 
 θ_t depends on the frames before t, and under ``torchrun`` a process sees every
 ``world_size``-th image. So each image leaves an exact record while it passes
