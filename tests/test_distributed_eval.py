@@ -26,7 +26,8 @@ EVERY_ANALYSIS = {
               "--conformal", "0.3", "--explorer", "--design", "lagrangian", "--design_budget",
               "9", "--require", "person:roi0:recall>=0.05", "road:roi0:precision>=0.05",
               "--design_delta", "0.5", "--sweep", "0.5", "--target", "person:roi0:recall>=0.05",
-              "--maximize", "person:roi0:precision", "--guarantee", "0.5"],
+              "--maximize", "person:roi0:precision", "--guarantee", "0.5", "--monitor_require",
+              "person:roi0:recall>=0.5", "road:roi0:precision>=0.9", "--monitor_delay", "1"],
 }  # fmt: skip
 """One evaluation that runs every analysis of the table (a design and the sweep's certified
 choice together)."""

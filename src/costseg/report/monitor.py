@@ -12,9 +12,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from costseg.calibration.monitor import StreamTrace, running_mean, window_violations
-from costseg.report import monitor_figures
 from costseg.report.drawing import job
 from costseg.report.files import write_csv
+from costseg.report.monitor_figures import monitor_figures
 from costseg.report.results import EvalResults, figure_subject
 from costseg.report.sections import Result, Section
 from costseg.report.tables import format_value, markdown_table
@@ -215,7 +215,7 @@ class StreamOutcome(Result):
         trace = self.trace
         title = f"monitored value system, {figure_subject(results.source, [])}"
         return job(
-            monitor_figures.monitor_figures,
+            monitor_figures,
             running_mean(trace.losses),
             running_mean(self.fixed_losses),
             trace.bounds,
