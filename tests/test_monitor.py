@@ -186,5 +186,7 @@ def test_the_exported_graph_fed_the_monitors_matrices_decides_as_decide():
         matrix = monitor.matrix()
         labels, _, probs = run_graph(session, image, matrix, probabilities=True)
         assert parity(probs, probs, labels, matrix).outside == 0
-        monitor.update(probs[0], truth, None, matrix)
+        from_labels = monitor.decided_losses(labels[0], truth)
+        np.testing.assert_allclose(from_labels, monitor.losses(probs[0], truth, None, matrix))
+        monitor.update(from_labels)
     assert monitor.mu[0] > 1  # the matrices changed frame by frame

@@ -24,9 +24,10 @@ import numpy as np
 import torch
 
 from costseg.calibration.monitor import Controller, Scale, to_mu, to_theta
-from costseg.classes import CLASS_NAMES
+from costseg.classes import CLASS_NAMES, IGNORE_INDEX
 from costseg.costs import cost_or_symmetric, load_cost
 from costseg.decision import decide_counts
+from costseg.metrics.functional.roi import roi_confusion
 from costseg.metrics.names import PIXEL_RATES
 from costseg.metrics.requirements import Requirements
 from costseg.rules import parse_rules
@@ -144,6 +145,19 @@ class Monitor:
         matrix = self.matrix() if matrix is None else matrix
         counts = decide_counts(probs[None].float(), matrix, labels[None], roi)
         return self.requirements.losses(counts.confusion)[0].numpy()
+
+    def decided_losses(
+        self, decided: torch.Tensor, labels: torch.Tensor, roi: torch.Tensor | None = None
+    ) -> np.ndarray:
+        """(K,) one frame's losses from the labels it was decided with (NaN: undefined).
+
+        Args:
+            decided: (H, W) the decision (the exported graph's ``labels``; 255: deferred);
+                labels: (H, W) train ids (255 ignored); roi: None or (H, W) RoI ids.
+        """
+        confusion = roi_confusion(decided[None].long(), labels[None].long(), roi,
+                                  deferred=IGNORE_INDEX)  # fmt: skip
+        return self.requirements.losses(confusion[None])[0].numpy()
 
     def update(
         self,
