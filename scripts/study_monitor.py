@@ -9,8 +9,9 @@ recall target): a matrix designed in the Lagrangian space and certified by Paret
 then the reported images as a stream (``--frames`` of them in order), clean up to ``--onset``
 and through each shift of ``SHIFTS`` after it (``evaluate.py --monitor_require ...
 --monitor_start designed_cost.yaml --shift ... --shift_onset``, the probabilities saved), with
-the first ``--eta`` and ``--delay``; every other step size and delay replays the saved
-probabilities (``--probs``): the same frames, no network. Per set, shift, η and delay: the fixed
+the first ``--eta`` and ``--delay``; each other step size (at the first delay) and each other
+delay (at the first step size) replays the saved probabilities (``--probs``): the same frames,
+no network. Per set, shift, η and delay: the fixed
 (certified) matrix's long-run risk and the monitored one's against α and the bound, both after
 the onset, the share of 50-frame windows above α, and the agreement with argmax.
 
@@ -103,7 +104,7 @@ def summary(folder: Path, onset: int) -> dict:
 
 def stream(ckpt: str, require: list[str], start: Path | None, out: Path, frames: int,
            args: MonitorStudyOptions, onset: int) -> dict:  # fmt: skip
-    """Every shift's summary at every η and delay: ``{shift: {(η, d): summary}}``."""
+    """Every shift's summary at each η and delay run: ``{shift: {(η, d): summary}}``."""
     monitor = ["--cost", "robotistic", "--monitor_require", *require, "--limit", str(frames)]
     monitor += [] if start is None else ["--monitor_start", str(start)]
     main = out / "main"
@@ -114,15 +115,14 @@ def stream(ckpt: str, require: list[str], start: Path | None, out: Path, frames:
     for shift in ("clean", *SHIFTS):
         folder = shift if shift == "clean" else shift_folder(parse_shift(shift))
         found[shift] = {(args.eta[0], args.delay[0]): summary(main / folder, onset)}
-        for eta in args.eta:
-            for delay in args.delay:
-                if (eta, delay) in found[shift]:
-                    continue
-                again = out / f"eta{eta:g}_delay{delay}" / folder
-                run(["--probs", str(main / folder / "probs"), *monitor, "--monitor_eta",
-                     str(eta), "--monitor_delay", str(delay), "--output_dir", str(again)],
-                    again / "results.json")  # fmt: skip
-                found[shift][(eta, delay)] = summary(again, onset)
+        varied = [(eta, args.delay[0]) for eta in args.eta[1:]]
+        varied += [(args.eta[0], delay) for delay in args.delay[1:]]
+        for eta, delay in varied:
+            again = out / f"eta{eta:g}_delay{delay}" / folder
+            run(["--probs", str(main / folder / "probs"), *monitor, "--monitor_eta", str(eta),
+                 "--monitor_delay", str(delay), "--output_dir", str(again)],
+                again / "results.json")  # fmt: skip
+            found[shift][(eta, delay)] = summary(again, onset)
     return found
 
 
