@@ -100,9 +100,9 @@ def _frame(seed: int, size=(24, 40)):
 
 def test_frame_record_counts_equal_every_pixels_under_matrices_of_the_box():
     monitor = Monitor(REQUIRE, mu_max=20.0)
-    hull, classes = monitor.hull(), [11, 2, 13]
+    space, classes = monitor.space(), [11, 2, 13]
     probs, labels, roi = _frame(0)
-    frame = record_frame(probs, labels, roi, hull, classes)
+    frame = record_frame(probs, labels, roi, space, classes)
     assert 0 < frame.kept_pixels < (labels != IGNORE_INDEX).sum()
     for mu in ([0.0, 0.0, 0.0], [20.0, 0.0, 3.0], [0.5, 20.0, 20.0], [7.0, 1.0, 0.01]):
         matrix = monitor.matrix(np.log1p(mu))

@@ -64,54 +64,18 @@ def could_decide(probs: torch.Tensor, cls: int, hull: Hull) -> torch.Tensor:
         (P,) bool: False only where some class k costs less than c under every matrix of the
         hull, beyond rounding.
     """
-    return decidable(probs, [cls], hull)[0][0]
-
-
-def decidable(
-    probs: torch.Tensor, classes: Sequence[int], hull: Hull
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """For each class c of ``classes``: where some matrix of ``hull`` may decide c
-    (:func:`could_decide`), and where every matrix of it decides c (c costs less than every
-    other class under each, beyond rounding: the same bound with the gaps' signs turned).
-
-    Args:
-        probs: (N, P) probabilities of P pixels.
-        classes: C class indices.
-        hull: a set holding every candidate's class rows (M matrices in all).
-
-    Returns:
-        (C, P) bool ``may``, (C, P) bool ``always``.
-
-    >>> from costseg.costs import symmetric_cost
-    >>> from costseg.rules.design_spaces import LagrangianSpace, lagrangian_directions
-    >>> hull = LagrangianSpace(symmetric_cost(2), lagrangian_directions([(1, "recall")], 2),
-    ...                        high=1.0).hull()
-    >>> probs = torch.tensor([[0.9, 0.6, 0.2], [0.1, 0.4, 0.8]])
-    >>> [m.tolist() for m in decidable(probs, [1], hull)]   # μ ≤ 1 doubles p_1 at most
-    [[[False, True, True]], [[False, False, True]]]
-    """
     vertices, generators = hull.vertices, hull.generators
     m, n, v = len(vertices) + len(generators), vertices.shape[-1], len(vertices)
     rows = torch.cat([vertices, generators]).reshape(m * n, n)
     both = torch.cat([rows, rows.abs()]).to(probs.device, torch.float32)
-    index = torch.as_tensor(list(classes), dtype=torch.long, device=probs.device)
-    may, always = [], []
+    out = []
     for start in range(0, probs.shape[1], CHUNK):
         costs, sizes = (both @ probs[:, start : start + CHUNK].float()).view(2, m, n, -1)
-        own = costs[:, index, None]  # (M, C, 1, P): E_c of each matrix
-        error = MARGIN * (n + m) * (sizes[:, index, None] + sizes[:, None])
-        for sign, out in ((1, may), (-1, always)):
-            gap = sign * (own - costs[:, None])  # ±(E_c − E_k): (M, C, N, P)
-            low = (gap[:v] - error[:v]).amin(0) + (gap[v:].clamp(max=0) - error[v:]).sum(0)
-            if sign == 1:
-                out.append(~(low > 0).any(1))  # no k beats c under every matrix of the hull
-            else:
-                low[torch.arange(len(index)), index] = torch.inf  # c against itself
-                out.append((low > 0).all(1))  # c beats every k under every matrix
-    if not may:
-        empty = torch.zeros(len(index), 0, dtype=torch.bool, device=probs.device)
-        return empty, empty.clone()
-    return torch.cat(may, 1), torch.cat(always, 1)
+        error = MARGIN * (n + m) * (sizes[:, cls : cls + 1] + sizes)
+        gap = costs[:, cls : cls + 1] - costs  # E_c − E_k of each matrix: (M, N, P)
+        low = (gap[:v] - error[:v]).amin(0) + (gap[v:].clamp(max=0) - error[v:]).sum(0)
+        out.append(~(low > 0).any(0))  # no k beats c under every matrix of the hull
+    return torch.cat(out) if out else torch.zeros(0, dtype=torch.bool, device=probs.device)
 
 
 def constraint_pixels(

@@ -32,7 +32,6 @@ from costseg.metrics.names import PIXEL_RATES
 from costseg.metrics.requirements import Requirements
 from costseg.rules import parse_rules
 from costseg.rules.design_spaces import (
-    Hull,
     LagrangianSpace,
     lagrangian_cost,
     lagrangian_directions,
@@ -125,9 +124,9 @@ class Monitor:
         mu = self.mu if theta is None else to_mu(theta, self.scale)
         return lagrangian_cost(self.base, self.directions, torch.as_tensor(mu))
 
-    def hull(self) -> Hull:
+    def space(self) -> LagrangianSpace:
         """Every matrix the monitor can reach (μ_i in [0, μ_max])."""
-        return LagrangianSpace(self.base, self.directions, high=self.mu_max).hull()
+        return LagrangianSpace(self.base, self.directions, high=self.mu_max)
 
     def losses(
         self,

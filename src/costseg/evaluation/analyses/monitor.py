@@ -31,7 +31,7 @@ class Monitored(Analysis):
         s = self.settings
         self.monitor = Monitor(s.requirements, s.eta, base=s.base, start=s.start, scale=s.scale,
                                mu_max=s.mu_max)  # fmt: skip
-        self.hull = self.monitor.hull()
+        self.space = self.monitor.space()
         self.classes = [t.cls for t in self.monitor.requirements.constraints]
         self.records: list = []  # (position, (stem, FrameRecord)) of this process's images
 
@@ -41,7 +41,7 @@ class Monitored(Analysis):
         with torch.inference_mode():
             for b, position in enumerate(seen.positions):
                 frame = record_frame(seen.probs[b], labels[b], None if roi is None else roi[b],
-                                     self.hull, self.classes)  # fmt: skip
+                                     self.space, self.classes)  # fmt: skip
                 self.records.append((position, (seen.batch.stems[b], frame)))
 
     def gather(self) -> None:
