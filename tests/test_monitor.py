@@ -87,12 +87,12 @@ def test_a_stream_without_shift_keeps_theta_near_its_start_and_a_shift_moves_it(
         assert (drift > 0.5 * eta * 0.4 * 200) if moved else drift <= eta * 4 * math.sqrt(400)
 
 
-def _frame(seed: int, size=(24, 40)):
+def _frame(seed: int, size=(24, 40), sharpness: float = 2.0):
     """A frame whose probabilities favour its labels, the RoIs in bands."""
     gen = torch.Generator().manual_seed(seed)
     labels = torch.randint(0, 19, size, generator=gen)
     labels[torch.rand(size, generator=gen) < 0.1] = IGNORE_INDEX
-    logits = torch.randn(19, *size, generator=gen) * 2
+    logits = torch.randn(19, *size, generator=gen) * sharpness
     logits.scatter_add_(0, labels.clamp(max=18)[None], torch.full((1, *size), 2.5))
     roi = torch.arange(size[0])[:, None].expand(size) * 5 // size[0]
     return logits.softmax(0), labels, roi
@@ -101,16 +101,18 @@ def _frame(seed: int, size=(24, 40)):
 def test_frame_record_counts_equal_every_pixels_under_matrices_of_the_box():
     monitor = Monitor(REQUIRE, mu_max=20.0)
     space, classes = monitor.space(), [11, 2, 13]
-    probs, labels, roi = _frame(0)
-    frame = record_frame(probs, labels, roi, space, classes)
-    assert 0 < frame.kept_pixels < (labels != IGNORE_INDEX).sum()
-    for mu in ([0.0, 0.0, 0.0], [20.0, 0.0, 3.0], [0.5, 20.0, 20.0], [7.0, 1.0, 0.01]):
-        matrix = monitor.matrix(np.log1p(mu))
-        whole = decide_counts(probs[None], matrix, labels[None], roi)
-        counts = frame.counts(matrix)
-        assert torch.equal(counts.confusion, whole.confusion) and torch.equal(
-            counts.agree, whole.agree
-        ), mu
+    rng = np.random.default_rng(0)
+    corners = [[0.0, 0.0, 0.0], [20.0, 20.0, 20.0], [20.0, 0.0, 3.0], [0.5, 20.0, 20.0]]
+    for seed, sharpness in ((0, 2.0), (1, 6.0), (2, 0.5)):
+        probs, labels, roi = _frame(seed, sharpness=sharpness)
+        frame = record_frame(probs, labels, roi, space, classes)
+        assert frame.kept_pixels < (labels != IGNORE_INDEX).sum()
+        for mu in [*corners, *(20 * rng.random((6, 3)) ** 3).tolist()]:
+            matrix = monitor.matrix(np.log1p(mu))
+            whole = decide_counts(probs[None], matrix, labels[None], roi)
+            counts = frame.counts(matrix)
+            assert torch.equal(counts.confusion, whole.confusion), (seed, mu)
+            assert torch.equal(counts.agree, whole.agree), (seed, mu)
 
 
 def test_a_designed_start_is_read_back_from_its_cost_file(tmp_path):
