@@ -94,6 +94,8 @@ class Monitor:
         scale: Scale = "log",
         mu_max: float = 100.0,
     ) -> None:
+        if scale not in ("log", "mu"):
+            raise ValueError(f"the monitor's scale is log or mu, got {scale!r}")
         self.requirements = monitored_requirements(require)
         self.base = base_matrix(base)
         pairs = [(t.cls, t.metric) for t in self.requirements.constraints]
