@@ -97,7 +97,8 @@ def summary(folder: Path, onset: int) -> dict:
         out["requirements"][text] = {
             "alpha": r["alpha"], "fixed": r["fixed_risk"], "monitored": r["monitored_risk"],
             "bound": r["bound"], "after_onset": after, "windows": r["windows_above_alpha"],
-            "mu_end": r["mu_end"], "capped_steps": r["capped_steps"],
+            "mu_start": r["mu_start"], "mu_end": r["mu_end"],
+            "capped_steps": r["capped_steps"],
         }  # fmt: skip
     return out
 
@@ -133,8 +134,8 @@ def table(name: str, start: Path | None, found: dict, onset: int, frames: int) -
     lines = [
         "| shift | η | delay | requirement | α | fixed risk | monitored risk | bound | fixed "
         "after onset | monitored after onset | windows above α, fixed | windows above α, "
-        "monitored | agreement fixed | agreement monitored |",
-        "|---" * 14 + "|",
+        "monitored | μ start → end | agreement fixed | agreement monitored |",
+        "|---" * 15 + "|",
     ]
     for shift, runs in found.items():
         for (eta, delay), s in runs.items():
@@ -145,6 +146,7 @@ def table(name: str, start: Path | None, found: dict, onset: int, frames: int) -
                 cells += [_cell(r["bound"]), _cell(r["after_onset"]["fixed"])]
                 cells += [_cell(r["after_onset"]["monitored"])]
                 cells += [_percent(r["windows"]["fixed"]), _percent(r["windows"]["monitored"])]
+                cells += [f"{r['mu_start']:.3g} → {r['mu_end']:.3g}"]
                 agree = s["agreement"]
                 cells += [_cell(agree["fixed"]), _cell(agree["monitored"])] if first else ["", ""]
                 lines.append("| " + " | ".join(cells) + " |")
