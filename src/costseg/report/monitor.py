@@ -213,7 +213,9 @@ class StreamOutcome(Result):
 
     def _figures(self, results: EvalResults):
         trace = self.trace
-        title = f"monitored value system, {figure_subject(results.source, [])}"
+        since = "" if self.onset is None else f" from frame {self.onset + 1}"
+        shifts = [f"{s}{since}" for s in results.shifts]
+        title = f"monitored value system, {figure_subject(results.source, shifts)}"
         return job(
             monitor_figures,
             running_mean(trace.losses),

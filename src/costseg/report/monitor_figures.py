@@ -34,7 +34,7 @@ def monitor_figures(
     """
     frames = np.arange(1, len(running) + 1)
     k = len(texts)
-    fig = Figure(figsize=(6, 2.6 * k), dpi=100, layout="constrained")
+    fig = Figure(figsize=(6.4, 0.6 + 2.4 * k), dpi=100, layout="constrained")
     axes = fig.subplots(k, 1, squeeze=False)[:, 0]
     for i, ax in enumerate(axes):
         ax.plot(frames, fixed_running[:, i], color="tab:gray", label="fixed matrix")
@@ -42,15 +42,15 @@ def monitor_figures(
         ax.plot(frames, bounds[:, i], color="tab:blue", ls=":", lw=1, label="long-run bound")
         ax.axhline(alphas[i], color="tab:red", ls="--", lw=1, label=f"α = {alphas[i]:.3g}")
         _onset(ax, onset)
-        ax.set_ylim(0, 1)
+        ax.set_ylim(-0.02, 1.02)
         ax.set_ylabel("running risk")
         ax.set_title(texts[i], fontsize=9)
     axes[-1].set_xlabel("frame")
     axes[0].legend(fontsize=7, loc="upper right")
-    fig.suptitle(f"running risk, {title}", fontsize=9)
+    fig.suptitle(f"running risk (fixed matrix and monitored)\n{title}", fontsize=9)
     yield "monitor_risk", fig
 
-    fig = Figure(figsize=(6, 3), dpi=100, layout="constrained")
+    fig = Figure(figsize=(6.4, 3.2), dpi=100, layout="constrained")
     ax = fig.add_subplot()
     for i, text in enumerate(texts):
         ax.step(frames, theta[:, i], where="post", label=text)
@@ -58,7 +58,7 @@ def monitor_figures(
     ax.set_xlabel("frame")
     ax.set_ylabel("θ = log(1 + μ)" if scale == "log" else "θ = μ")
     ax.legend(fontsize=7)
-    fig.suptitle(f"multipliers, {title}", fontsize=9)
+    fig.suptitle(f"multipliers θ per requirement\n{title}", fontsize=9)
     yield "monitor_theta", fig
 
 
