@@ -82,6 +82,10 @@ class Monitor:
             read back from the matrix), or (K,) multipliers μ.
         scale: θ is ``mu`` itself or ``log`` (log(1 + μ)).
         mu_max: the cap of every μ (the box a stream's records serve).
+
+    Attributes:
+        fixed: (N, N) the start's matrix, the one a fixed value system would keep (a start
+            file's own matrix, else ``C(μ_start)``).
     """
 
     def __init__(
@@ -110,6 +114,8 @@ class Monitor:
             to_theta(mu, scale),
             theta_max=float(to_theta(np.array(self.mu_max), scale)),
         )
+        given = isinstance(start, (str, Path))
+        self.fixed = load_cost(start).to(torch.float64) if given else self.matrix()
 
     @property
     def theta(self) -> np.ndarray:

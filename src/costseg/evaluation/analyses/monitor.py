@@ -50,7 +50,7 @@ class Monitored(Analysis):
     def result(self) -> StreamOutcome:
         s, monitor = self.settings, self.monitor
         stems, frames = zip(*self.records, strict=True) if self.records else ((), ())
-        fixed = monitor.matrix()
+        fixed = monitor.fixed
         fixed_counts = [frame_counts(monitor, f, fixed) for f in frames]
         monitored: list[FrameCounts] = []
 
