@@ -123,6 +123,7 @@ def test_a_designed_start_is_read_back_from_its_cost_file(tmp_path):
     save_cost(tmp_path / "designed.yaml", designed, "designed")
     monitor = Monitor(REQUIRE, start=tmp_path / "designed.yaml")
     np.testing.assert_allclose(monitor.mu, mu, rtol=0, atol=1e-12)
+    assert torch.equal(monitor.fixed, designed)  # the file's own matrix is the fixed one
 
 
 def test_evaluation_gives_the_theta_of_the_class_driven_frame_by_frame(tiny_run, tmp_path):
