@@ -1,13 +1,36 @@
-"""Shared fixtures: a small Cityscapes-layout tree written into ``tmp_path``."""
+"""Shared fixtures: a small Cityscapes-layout tree written into ``tmp_path``; the test session's
+one tiny training and its evaluations with every output, each made once for all the xdist
+workers (:func:`made_once`); figures recorded, not drawn, unless a test is marked ``figures``."""
 
 from __future__ import annotations
 
+import contextlib
+import io
+import json
+import os
+import shutil
+import subprocess
+import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pytest
 import torch
+from filelock import FileLock
 from PIL import Image
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Under xdist, each worker's torch (and numba) threads share the CPUs with the others' (one
+    thread each on two cores): more threads than cores spin against each other."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    if workers > 1:
+        threads = max(1, len(os.sched_getaffinity(0)) // workers)
+        torch.set_num_threads(threads)
+        os.environ.setdefault("NUMBA_NUM_THREADS", str(threads))
+
 
 CITYSCAPES_SIZE = (32, 64)
 """(H, W) of every generated Cityscapes image."""
@@ -97,14 +120,59 @@ TINY_TRAIN = [
 """Arguments of `python train.py` for a model that trains in seconds (tests only)."""
 
 
-@pytest.fixture(scope="session")
-def tiny_run(tmp_path_factory: pytest.TempPathFactory):
-    """A tiny model trained through `train_main` (2 steps); returns (module, trainer, runs dir)."""
+def made_once(
+    tmp_path_factory: pytest.TempPathFactory, name: str, make: Callable[[Path], None]
+) -> Path:
+    """The folder ``name`` shared by every process of this test session (beside the xdist
+    workers' own temporary folders), filled by ``make(folder)`` once: the first worker to ask
+    makes it while the others wait on a file lock, then every worker reads it. A ``make`` that
+    failed leaves nothing the next one trusts."""
+    base = tmp_path_factory.getbasetemp()
+    folder = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / name
+    made = folder.with_name(f"{name}.made")
+    with FileLock(folder.with_name(f"{name}.lock")):
+        if not made.exists():
+            shutil.rmtree(folder, ignore_errors=True)
+            folder.mkdir()
+            make(folder)
+            made.touch()
+    return folder
+
+
+class TrainerRecord(NamedTuple):
+    """What the tests read of the tiny run's trainer."""
+
+    log_dir: str
+    logged_metrics: dict[str, torch.Tensor]
+    callback_metrics: dict[str, torch.Tensor]
+
+
+class TinyRun(NamedTuple):
+    """The tiny training of :data:`TINY_TRAIN`: the trained module as it was in memory (saved
+    whole, not through its checkpoint), its trainer's record and the runs folder."""
+
+    module: torch.nn.Module
+    trainer: TrainerRecord
+    runs: Path
+
+
+def _train_tiny(folder: Path) -> None:
     from costseg.cli import train_main
 
-    runs = tmp_path_factory.mktemp("runs")
+    runs = folder / "runs"
     module, trainer = train_main([*TINY_TRAIN, f"--trainer.logger.init_args.save_dir={runs}"])
-    return module, trainer, runs
+    record = TrainerRecord(
+        trainer.log_dir, dict(trainer.logged_metrics), dict(trainer.callback_metrics)
+    )
+    torch.save({"module": module, "trainer": record._asdict()}, folder / "trained.pt")
+
+
+@pytest.fixture(scope="session")
+def tiny_run(tmp_path_factory: pytest.TempPathFactory) -> TinyRun:
+    """A tiny model trained through `train_main` (2 steps), once per test session."""
+    folder = made_once(tmp_path_factory, "tiny_run", _train_tiny)
+    trained = torch.load(folder / "trained.pt", map_location="cpu", weights_only=False)
+    return TinyRun(trained["module"], TrainerRecord(**trained["trainer"]), folder / "runs")
 
 
 @pytest.fixture(scope="session")
@@ -125,40 +193,103 @@ def vainf(tmp_path_factory) -> tuple[torch.nn.Module, Path]:
 
 EVERY_OUTPUT = [
     ["--cost", "robotistic", "ml", "--calibrate", "temperature", "--temperature_sweep",
-     "--sweep", "0.5", "--alpha_sweep", "0.5", "--defer_sweep", "0.2", "0.6", "0.2",
-     "--meta", "--meta_split", "train", "--meta_images", "6", "--fuse", "ml", "--fuse_tau", "0",
-     "1", "--save-segments", "--save-predictions", "--save-probs", "--explorer", "--conformal",
-     "0.3"],
-    ["--cost", "robotistic", "--anomalies", "--shift", "fog:2"],
+     "--sweep", "0.5", "--target", "person:roi0:recall>=0.05", "--maximize",
+     "person:roi0:precision", "--guarantee", "0.5", "--design", "lagrangian", "--design_budget",
+     "9", "--require", "person:roi0:recall>=0.05", "road:roi0:precision>=0.05",
+     "--design_delta", "0.5", "--meta", "--meta_split", "train", "--meta_images", "6", "--fuse",
+     "ml", "--save-segments", "--save-predictions", "--save-probs", "--explorer", "--conformal",
+     "0.3", "--anomalies", "--calibration_split", "train", "--batch_size", "1",
+     "--monitor_require", "person:roi0:recall>=0.5", "road:roi0:precision>=0.9",
+     "--monitor_delay", "1"],
+    ["--cost", "robotistic", "--anomalies", "--shift", "fog:2", "--alpha_sweep", "0.5",
+     "--defer_sweep", "0.2", "0.6", "0.2", "--meta", "--meta_split", "train", "--meta_images",
+     "6", "--fuse", "ml", "--fuse_tau", "0", "1"],
 ]  # fmt: skip
-"""Options of the evaluations of ``every_output``: together, every figure and most files."""
+"""Options of the evaluations of ``every_output``: the first runs every analysis of the table,
+together they write every file and draw every figure."""
+
+
+def every_output_arguments(ckpt: Path, out: Path, case: int) -> list[str]:
+    """The arguments of the evaluation ``EVERY_OUTPUT[case]`` (of the person class, two
+    examples) into ``out``."""
+    common = ["--ckpt_path", str(ckpt), "--output_dir", str(out), "--classes", "person"]
+    return [*common, *EVERY_OUTPUT[case], "--num_examples", "2", "--no-progress"]
 
 
 @pytest.fixture(scope="session")
-def every_output(tiny_run, tmp_path_factory) -> list[Path]:
-    """The folders of tiny evaluations with the options of ``EVERY_OUTPUT`` (of the person class,
-    one example), their figures drawn in this process by ``figure_text.InProcessDrawing``, which
-    keeps the figures' titles and clipped texts; the terminal's output in each ``stdout.txt``."""
-    import contextlib
-    import io
-
-    from figure_text import InProcessDrawing
-
+def every_output(tiny_run: TinyRun, tmp_path_factory) -> list[Path]:
+    """The folders of the evaluations of ``EVERY_OUTPUT``, made once per test session on one
+    thread (as torchrun runs each process: the network's float sums are then the same), their
+    figures drawn in that process by ``figure_text.InProcessDrawing``. Beside each folder: the
+    terminal's output (``stdout.txt``); beside all: every figure's titles and clipped texts
+    (``figures.json``)."""
     from costseg.checkpoints import find_checkpoint
     from costseg.cli import evaluate_main
 
-    ckpt = str(find_checkpoint(None, runs_dir=tiny_run[2]))
-    folders = []
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr("costseg.report.early_figures.Drawing", InProcessDrawing)
-        for i, args in enumerate(EVERY_OUTPUT):
-            out = tmp_path_factory.mktemp(f"every_output_{i}") / "evaluation"
-            common = ["--ckpt_path", ckpt, "--output_dir", str(out), "--classes", "person"]
-            with contextlib.redirect_stdout(io.StringIO()) as printed:
-                evaluate_main([*common, *args, "--num_examples", "1", "--no-progress"])
-            (out / "stdout.txt").write_text(printed.getvalue())
-            folders.append(out)
-    return folders
+    def make(folder: Path) -> None:
+        from figure_text import InProcessDrawing
+
+        ckpt = find_checkpoint(None, runs_dir=tiny_run.runs)
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            with pytest.MonkeyPatch.context() as patch:
+                patch.setattr("costseg.report.early_figures.Drawing", InProcessDrawing)
+                for case in range(len(EVERY_OUTPUT)):
+                    arguments = every_output_arguments(
+                        ckpt, folder / str(case) / "evaluation", case
+                    )
+                    with contextlib.redirect_stdout(io.StringIO()) as printed:
+                        evaluate_main(arguments)
+                    (folder / str(case) / "stdout.txt").write_text(printed.getvalue())
+        finally:
+            torch.set_num_threads(threads)
+        drawn = {"titles": InProcessDrawing.titles, "clipped": InProcessDrawing.clipped}
+        (folder / "figures.json").write_text(json.dumps(drawn))
+
+    folder = made_once(tmp_path_factory, "every_output", make)
+    return [folder / str(case) / "evaluation" for case in range(len(EVERY_OUTPUT))]
+
+
+@pytest.fixture(scope="session")
+def every_figure(every_output: list[Path]) -> dict:
+    """The figures of ``every_output``: ``titles`` (tag → the figure's titles) and ``clipped``
+    (``"<tag>: <text>"`` of every text cut off at the saved size)."""
+    return json.loads((every_output[0].parents[1] / "figures.json").read_text())
+
+
+IMPORT_STEPS = {
+    "the model": "import costseg.models, costseg.networks.costseg",
+    "an evaluation": "import costseg.cli, costseg.evaluation.run, costseg.report.evaluation, "
+    "costseg.networks",
+    "a checkpoint loaded": "from costseg.networks import load_network; load_network({network!r})",
+}
+"""What a fresh interpreter runs, step after step (lightest first), in :func:`imported`."""
+
+
+@pytest.fixture(scope="session")
+def imported(tiny_run: TinyRun, tmp_path_factory) -> dict[str, set[str]]:
+    """Step of :data:`IMPORT_STEPS` → the top-level packages in ``sys.modules`` once it ran
+    (after the steps before it), in one fresh interpreter per test session; the checkpoint it
+    loads is the tiny run's."""
+    from costseg.checkpoints import find_checkpoint
+
+    def make(folder: Path) -> None:
+        network = f"costseg:{find_checkpoint(None, runs_dir=tiny_run.runs)}"
+        code = ["import json, sys", "found = {}"]
+        for step, line in IMPORT_STEPS.items():
+            code.append(line.format(network=network))
+            code.append(f"found[{step!r}] = sorted({{m.split('.')[0] for m in sys.modules}})")
+        code.append("print(json.dumps(found))")
+        done = subprocess.run(
+            [sys.executable, "-c", "\n".join(code)], capture_output=True, text=True, check=True
+        )
+        (folder / "imported.json").write_text(done.stdout)
+
+    found = json.loads(
+        (made_once(tmp_path_factory, "imported", make) / "imported.json").read_text()
+    )
+    return {step: set(packages) for step, packages in found.items()}
 
 
 @pytest.fixture(autouse=True)

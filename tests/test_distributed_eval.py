@@ -9,10 +9,10 @@ import sys
 from pathlib import Path
 
 import pytest
-import torch
+from conftest import EVERY_OUTPUT, every_output_arguments
 
 from costseg.checkpoints import find_checkpoint
-from costseg.cli import evaluate_main, evaluate_parser
+from costseg.cli import evaluate_parser
 from costseg.evaluation.analyses import ANALYSES, wanted
 from costseg.options import EvalOptions
 
@@ -20,48 +20,22 @@ pytestmark = pytest.mark.e2e  # torchrun with two processes against one
 
 ROOT = Path(__file__).resolve().parents[1]
 
-EVERY_ANALYSIS = {
-    "every": ["--cost", "robotistic", "ml", "--calibrate", "temperature", "--meta",
-              "--save-segments", "--save-probs", "--save-predictions", "--anomalies",
-              "--conformal", "0.3", "--explorer", "--design", "lagrangian", "--design_budget",
-              "9", "--require", "person:roi0:recall>=0.05", "road:roi0:precision>=0.05",
-              "--design_delta", "0.5", "--sweep", "0.5", "--target", "person:roi0:recall>=0.05",
-              "--maximize", "person:roi0:precision", "--guarantee", "0.5", "--monitor_require",
-              "person:roi0:recall>=0.5", "road:roi0:precision>=0.9", "--monitor_delay", "1"],
-}  # fmt: skip
-"""One evaluation that runs every analysis of the table (a design and the sweep's certified
-choice together)."""
-
 VARYING = {"output_dir", "source", "timing"}
 """results.json keys that name the run's own folder or time."""
 
 
-def _arguments(ckpt: Path, out: Path, options: list[str]) -> list[str]:
-    rest = ["--num_examples", "2", "--batch_size", "1", "--calibration_split", "train"]
-    return ["--ckpt_path", str(ckpt), "--output_dir", str(out), "--no-progress", *options, *rest]
-
-
 def test_the_evaluation_runs_every_analysis():
-    ran = set()
-    for options in EVERY_ANALYSIS.values():
-        opts = EvalOptions(**vars(evaluate_parser().parse_args(options)))
-        ran |= {e.module for e, _ in wanted(opts)}
-    assert ran == {e.module for e in ANALYSES}
+    opts = EvalOptions(**vars(evaluate_parser().parse_args(EVERY_OUTPUT[0])))
+    assert {e.module for e, _ in wanted(opts)} == {e.module for e in ANALYSES}
 
 
-@pytest.mark.figures
-@pytest.mark.parametrize("case", sorted(EVERY_ANALYSIS))
-def test_two_processes_equal_one(case, tiny_run, tmp_path):
-    ckpt = find_checkpoint(None, runs_dir=tiny_run[2])
-    one, two = tmp_path / "one", tmp_path / "two"
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # as torchrun sets: the network's own float sums are then the same
-    try:
-        evaluate_main(_arguments(ckpt, one, EVERY_ANALYSIS[case]))
-    finally:
-        torch.set_num_threads(threads)
+def test_two_processes_equal_one(every_output, tiny_run, tmp_path):
+    """The session's evaluation of every analysis (one process, one thread, as torchrun runs
+    each process) against the same under torchrun."""
+    ckpt = find_checkpoint(None, runs_dir=tiny_run.runs)
+    one, two = every_output[0], tmp_path / "two"
     torchrun = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2"]
-    command = [*torchrun, str(ROOT / "evaluate.py"), *_arguments(ckpt, two, EVERY_ANALYSIS[case])]
+    command = [*torchrun, str(ROOT / "evaluate.py"), *every_output_arguments(ckpt, two, 0)]
     done = subprocess.run(command, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
     single, double = (json.loads((d / "results.json").read_text()) for d in (one, two))
@@ -116,7 +90,7 @@ def test_validation_metrics_with_two_ddp_processes_equal_one(tiny_run):
 
     from costseg.data.datamodule import StreetScenesDataModule
 
-    module = tiny_run[0]
+    module = tiny_run.module
     data = StreetScenesDataModule(
         batch_size=1, num_workers=0, size=(64, 128), train_length=8, val_length=4
     )

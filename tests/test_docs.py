@@ -139,8 +139,6 @@ def test_usage_names_every_file_and_csv_column_of_real_runs(every_output):
     for folder in every_output:
         for path in sorted(p for p in folder.rglob("*") if p.is_file()):
             name = path.relative_to(folder).as_posix()
-            if name == "stdout.txt":  # the test's own copy of the terminal
-                continue
             assert any(p.fullmatch(name) for p in files), f"{name} is not in usage.md"
             if path.suffix == ".csv":
                 with path.open() as f:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from figure_text import InProcessDrawing, clipped_texts
+from figure_text import clipped_texts
 
 from costseg.classes import CLASS_NAMES, ROI_NAMES
 from costseg.report.figures import heatmap_grid_figures, plot_heatmap_grid
@@ -17,17 +17,17 @@ from costseg.report.priors import plot_priors, plot_roi_map
 
 
 @pytest.fixture(scope="module")
-def drawn(every_output) -> dict[str, str]:
+def drawn(every_figure) -> dict[str, str]:
     """tag → the titles of every figure the evaluations of ``every_output`` drew."""
-    return InProcessDrawing.titles
+    return every_figure["titles"]
 
 
-def test_no_text_of_any_figure_is_clipped(drawn):
+def test_no_text_of_any_figure_is_clipped(drawn, every_figure):
     kinds = {tag.split("_")[0].split("/")[0] for tag in drawn}
     every = {"masks", "fp", "fn", "missed", "cost", "roi", "reliability", "temperature",
              "ternary", "edges", "alpha", "risk", "meta", "fusion", "anomaly"}  # fmt: skip
     assert every <= kinds, every - kinds
-    assert not InProcessDrawing.clipped, "\n".join(InProcessDrawing.clipped)
+    assert not every_figure["clipped"], "\n".join(every_figure["clipped"])
 
 
 def test_every_figure_says_what_it_shows(drawn):

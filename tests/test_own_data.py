@@ -45,6 +45,17 @@ def network(tiny_run) -> str:
     return f"costseg:{find_checkpoint(None, runs_dir=tiny_run[2])}"
 
 
+@pytest.fixture(scope="module")
+def counted(tmp_path_factory) -> tuple[Path, Path]:
+    """A tree with train and val labels of ``LABEL_SIZE`` and the priors scripts/count_priors.py
+    counts on its train labels, once for the module."""
+    root = _tree(tmp_path_factory.mktemp("own") / "cs", LABEL_SIZE)
+    priors, labels = root.parent / "p.pt", root / "gtFine" / "train"
+    script = ROOT / "scripts" / "count_priors.py"
+    subprocess.run([sys.executable, script, str(labels), "--output", str(priors)], check=True)
+    return root, priors
+
+
 def _results(out: Path) -> dict:
     return json.loads((out / "results.json").read_text())
 
@@ -118,23 +129,19 @@ def test_geometric_roi_map_without_training_labels(network, tmp_path):
 
 
 def test_priors_from_a_file_equal_the_counted_ones_and_a_toy_checkpoint_lends_none(
-    network, tmp_path, capsys
+    network, counted, tmp_path, capsys
 ):
     """scripts/count_priors.py on the train labels writes the priors the evaluation counts
     itself; the toy checkpoint's own priors are not used for Cityscapes data; ml decides the
     same with either."""
-    root = _tree(tmp_path / "cs", LABEL_SIZE)
-    counted, from_file, priors = tmp_path / "counted", tmp_path / "file", tmp_path / "p.pt"
+    (root, priors), own, from_file = counted, tmp_path / "counted", tmp_path / "file"
     common = [*ARGS, "--network", network, "--data_root", str(root), "--cost", "ml"]
-    evaluate_main([*common, "--output_dir", str(counted)])
+    evaluate_main([*common, "--output_dir", str(own)])
     assert "counted on other data: not used" in capsys.readouterr().out
-    script = ROOT / "scripts" / "count_priors.py"
-    labels = root / "gtFine" / "train"
-    subprocess.run([sys.executable, script, str(labels), "--output", str(priors)], check=True)
     cached = next((tmp_path / "priors").glob("train_*.pt"))
     torch.testing.assert_close(_priors(priors), _priors(cached), rtol=0, atol=0)
     evaluate_main([*common, "--priors", str(priors), "--output_dir", str(from_file)])
-    first, second = _results(counted), _results(from_file)
+    first, second = _results(own), _results(from_file)
     assert first["source"]["priors"]["data"]["init_args"]["root"] == str(root.resolve())
     assert second["source"]["priors"]["file"] == str(priors.resolve())
     assert first["confusion_matrix"] == second["confusion_matrix"]
@@ -155,16 +162,12 @@ def test_saved_probabilities_of_the_procedural_scenes_need_no_data_root(network,
         assert first[key] == second[key], key
 
 
-def test_python_api_equals_the_command_line(network, tmp_path):
+def test_python_api_equals_the_command_line(network, counted, tmp_path):
     """costseg.evaluate(module, dataset) gives the rows of evaluate.py on the same network,
     data and priors."""
     import costseg
 
-    root = _tree(tmp_path / "cs", LABEL_SIZE, train=False)
-    priors, cli, api = tmp_path / "p.pt", tmp_path / "cli", tmp_path / "api"
-    labels = root / "gtFine" / "val"
-    subprocess.run([sys.executable, ROOT / "scripts" / "count_priors.py", str(labels),
-                    "--output", str(priors)], check=True)  # fmt: skip
+    (root, priors), cli, api = counted, tmp_path / "cli", tmp_path / "api"
     rules = ["robotistic", "ml"]
     evaluate_main([*ARGS, "--cost", *rules, "--network", network, "--data_root", str(root),
                    "--priors", str(priors), "--output_dir", str(cli)])  # fmt: skip
@@ -192,17 +195,14 @@ def test_the_python_example_of_usage_md_runs(tmp_path):
     assert not (tmp_path / "eval" / "my_network" / "INCOMPLETE").exists()
 
 
-def test_python_predict_equals_predict_py_with_the_same_priors(network, tmp_path):
+def test_python_predict_equals_predict_py_with_the_same_priors(network, counted, tmp_path):
     """costseg.predict(module, inputs, priors=tensor) writes the label maps of predict.py with
     --priors FILE."""
     import costseg
     from costseg.cli import predict_main
 
-    images = _tree(tmp_path / "cs", LABEL_SIZE, train=False) / "leftImg8bit" / "val"
-    priors_file = tmp_path / "p.pt"
-    subprocess.run([sys.executable, ROOT / "scripts" / "count_priors.py",
-                    str(tmp_path / "cs" / "gtFine" / "val"), "--output", str(priors_file)],
-                   check=True)  # fmt: skip
+    root, priors_file = counted
+    images = root / "leftImg8bit" / "val"
     cli, api = tmp_path / "cli", tmp_path / "api"
     rules = ["robotistic", "ml"]
     predict_main(["--input", str(images), "--network", network, "--cost", *rules, "--priors",

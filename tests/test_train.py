@@ -182,7 +182,7 @@ def test_priors_are_counted_once_per_dataset_whatever_the_save_dir(tmp_path, cap
     from costseg.data.datamodule import StreetScenesDataModule
     from costseg.data.priors import count_pixel_priors, read_priors_file
 
-    one_step = [*TINY_TRAIN, "--trainer.max_steps=1", "--trainer.val_check_interval=1"]
+    one_step = [*TINY_TRAIN, "--trainer.max_steps=1", "--trainer.limit_val_batches=0"]
     runs = {}
     for name, extra in (("a", []), ("b", ["--data.init_args.batch_size=4"]),
                         ("c", ["--data.init_args.prior_images=3"])):  # fmt: skip
