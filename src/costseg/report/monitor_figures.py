@@ -47,7 +47,7 @@ def monitor_figures(
         ax.set_title(texts[i], fontsize=9)
     axes[-1].set_xlabel("frame")
     axes[0].legend(fontsize=7, loc="upper right")
-    fig.suptitle(f"running risk (fixed matrix and monitored)\n{title}", fontsize=9)
+    fig.suptitle(f"running risk (fixed matrix and monitored)\n{title}", fontsize=8)
     yield "monitor_risk", fig
 
     fig = Figure(figsize=(6.4, 3.2), dpi=100, layout="constrained")
@@ -58,7 +58,7 @@ def monitor_figures(
     ax.set_xlabel("frame")
     ax.set_ylabel("θ = log(1 + μ)" if scale == "log" else "θ = μ")
     ax.legend(fontsize=7)
-    fig.suptitle(f"multipliers θ per requirement\n{title}", fontsize=9)
+    fig.suptitle(f"multipliers θ per requirement\n{title}", fontsize=8)
     yield "monitor_theta", fig
 
 
