@@ -93,7 +93,7 @@ class StreamOutcome(Result):
                 "fixed_risk": _mean(theirs),
                 "monitored_risk": _mean(mine),
                 "monitored_risk_labelled": _mean(mine[trace.labelled]),
-                "bound": float(trace.final_bound[i]),
+                "bound": _mean(trace.final_bound[i : i + 1]),  # None: no frame defined
                 "frames_defined": int((~np.isnan(mine)).sum()),
                 "theta_start": float(trace.theta[0, i]),
                 "theta_end": float(trace.theta[-1, i]),
