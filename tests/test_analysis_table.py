@@ -20,6 +20,7 @@ EVERYTHING = EvalOptions(
     target=["person:roi1:recall>=0.9"], maximize="person:roi1:precision", guarantee=0.2,
     design="lagrangian", require=["person:roi1:recall>=0.8", "car:roi1:recall>=0.7"],
     design_delta=0.1, save_probs=True, anomalies=True, conformal=0.2, explorer=True,
+    monitor_require=["person:roi1:recall>=0.8"],
 )  # fmt: skip
 
 

@@ -46,6 +46,7 @@ def _target(text):
     return ["--sweep", "0.5", "--target", text, "--maximize", "person:roi1:precision"]
 
 
+MONITOR = ["--monitor_require", "person:roi1:recall>=0.8"]
 DESIGN = ["--require", "person:roi1:recall>=0.9", "--design_delta", "0.1", "--design", "lagrangian"]
 TESTS = Path(__file__).parent  # a folder that holds no record of scored images
 
@@ -206,6 +207,38 @@ EVALUATE_CASES = {
         [*DESIGN[:-1], "triangle", "--design_base", "egoistic"],
         ["--design_base goes with"],
     ),
+    "monitor step of zero": ([*MONITOR, "--monitor_eta", "0"], ["--monitor_eta", "> 0"]),
+    "monitor option without a monitor": (
+        ["--monitor_delay", "2"],
+        ["--monitor_delay goes with --monitor_require"],
+    ),
+    "monitor delay beyond the stream": (
+        [*MONITOR, "--monitor_delay", "3", "--limit", "3"],
+        ["--monitor_delay 3", "3 reported images", "no label would arrive"],
+    ),
+    "monitor of a rate no multiplier steers": (
+        ["--monitor_require", "person:roi1:dice>=0.5"],
+        ["--monitor_require person:roi1:dice>=0.5", "recall or precision"],
+    ),
+    "monitor requirement twice": (
+        [*MONITOR, "person:roi1:recall>=0.9"],
+        ["--monitor_require gives the rate of person:roi1:recall>=0.8 twice"],
+    ),
+    "monitor share above one": ([*MONITOR, "--monitor_labelled", "1.5"], ["--monitor_labelled"]),
+    "monitor start missing": (
+        [*MONITOR, "--monitor_start", "no/such.yaml"],
+        ["--monitor_start: no such file no/such.yaml"],
+    ),
+    "monitor start outside the space": (
+        [*MONITOR, "--monitor_start", str(COSTS_DIR / "altruistic.yaml")],
+        ["altruistic.yaml", "is not C₀ + Σ μ_i A_i"],
+    ),
+    "monitor base of priors": ([*MONITOR, "--monitor_base", "ml"], ["--monitor_base ml", "C₀"]),
+    "shift onset beyond the stream": (
+        ["--shift", "fog:1", "--shift_onset", "3", "--limit", "3"],
+        ["--shift_onset 3", "no image would be shifted"],
+    ),
+    "shift onset without a shift": (["--shift_onset", "3"], ["--shift_onset goes with --shift"]),
 }
 
 

@@ -29,6 +29,14 @@ def test_severity_zero_is_the_image_itself_bit_for_bit():
             assert torch.equal(shifted[i][0], SCENES[i][0]), name
 
 
+def test_an_onset_leaves_the_images_before_it_clean_and_shifts_the_rest_as_without_one():
+    everywhere = ShiftedDataset(SCENES, Shift("fog", 3), seed=4)
+    later = ShiftedDataset(SCENES, Shift("fog", 3), seed=4, onset=2)
+    for i in range(2):
+        assert torch.equal(later[i][0], SCENES[i][0])
+    assert torch.equal(later[2][0], everywhere[2][0]) and not torch.equal(later[2][0], SCENES[2][0])
+
+
 @pytest.mark.parametrize("name", sorted(CORRUPTIONS))
 def test_each_corruption_changes_pixels_not_labels_the_same_way_for_a_seed(name):
     image = scene()

@@ -11,10 +11,15 @@ CONFIGS = files("costseg") / "configs"
 
 
 def __getattr__(name: str):
-    """``costseg.evaluate`` and ``costseg.predict``: :mod:`costseg.api`'s, imported on first use
-    (they import torch)."""
+    """``costseg.evaluate`` and ``costseg.predict``: :mod:`costseg.api`'s; ``costseg.Monitor``:
+    :mod:`costseg.metrics.monitor`'s (docs/definitions.md §22); each imported on first use (they
+    import torch)."""
     if name in ("evaluate", "predict"):
         from costseg import api
 
         return getattr(api, name)
+    if name == "Monitor":
+        from costseg.metrics.monitor import Monitor
+
+        return Monitor
     raise AttributeError(f"module 'costseg' has no attribute {name!r}")

@@ -39,6 +39,7 @@ PROTOCOL = "inference protocol (docs/definitions.md §13)"
 SEGMENTS = "segments: meta classification and fusion (docs/definitions.md §15)"
 CONFORMAL = "conformal prediction sets (docs/definitions.md §18)"
 DESIGN = "designing the value system from requirements (docs/definitions.md §20)"
+MONITOR = "watching the value system at run time (docs/definitions.md §22)"
 RULES = ["robotistic", "altruistic", "egoistic"]
 
 
@@ -219,6 +220,13 @@ class EvalOptions(SourceOptions):
         "docs/definitions.md §17): one evaluation per shift; calibration images stay clean",
         nargs="+",
         metavar="NAME:SEVERITY",
+    )
+    shift_onset: int | None = option(
+        help="the first N reported images stay clean and --shift starts at image N + 1: a "
+        "stream whose conditions change mid-way (--monitor_require)",
+        type=whole_number(1),
+        metavar="N",
+        needs="shift",
     )
     save_predictions: bool = option(
         False, "write Cityscapes label-id PNGs per image and rule", flag="--save-predictions"
@@ -432,6 +440,47 @@ class EvalOptions(SourceOptions):
         group=DESIGN,
         needs="design",
     )
+
+    monitor_require: list[str] | None = option(
+        help="keep these requirements on the reported images as a stream of frames (in their "
+        "order), e.g. 'person:roi1:recall>=0.8': one multiplier each, moved by each frame's "
+        "loss when its labels arrive; the syntax of --require (recall or precision)",
+        nargs="+",
+        metavar="CONSTRAINT",
+        group=MONITOR,
+    )
+    monitor_eta: float = option(
+        0.5, "the step η of every --monitor_require multiplier", type=positive_number,
+        group=MONITOR, needs="monitor_require",
+    )  # fmt: skip
+    monitor_scale: Literal["log", "mu"] = option(
+        "log", "the scale θ of the multipliers: log (log(1 + μ)) or mu (μ itself)",
+        group=MONITOR, needs="monitor_require",
+    )  # fmt: skip
+    monitor_delay: int = option(
+        0, "frames until a frame's labels arrive (0: before the next frame)",
+        type=whole_number(0), group=MONITOR, needs="monitor_require",
+    )  # fmt: skip
+    monitor_labelled: float = option(
+        1.0, "share of the frames whose labels arrive at all (drawn with --seed)", type=share,
+        group=MONITOR, needs="monitor_require",
+    )  # fmt: skip
+    monitor_start: str | None = option(
+        help="a cost file of the Lagrangian space, e.g. a --design lagrangian's "
+        "designed_cost.yaml: the multipliers start at its μ and it is the fixed matrix compared "
+        "(default μ = 0: C0)",
+        metavar="FILE",
+        group=MONITOR,
+        needs="monitor_require",
+    )
+    monitor_base: str = option(
+        "robotistic", "the matrix C0 of the monitor's C(μ) = C0 + Σ μ_i A_i: a name or a .yaml",
+        group=MONITOR, needs="monitor_require",
+    )  # fmt: skip
+    monitor_max: float = option(
+        100.0, "the cap μ_max of every multiplier (each frame's record serves μ in [0, μ_max])",
+        type=positive_number, group=MONITOR, needs="monitor_require",
+    )  # fmt: skip
 
 
 def check_values(opts: Any) -> None:

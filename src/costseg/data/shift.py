@@ -214,11 +214,12 @@ def shift_image(image: np.ndarray, shift: Shift, seed: int) -> np.ndarray:
 
 class ShiftedDataset(Dataset):
     """``dataset`` (items ``(image (3, H, W) uint8, label, ...)``) with every image seen through
-    ``shift``; labels, instance ids (``with_instances``), anomaly masks (``with_anomalies``) and
+    ``shift`` from index ``onset`` on (those before it as they are: a stream whose conditions
+    change); labels, instance ids (``with_instances``), anomaly masks (``with_anomalies``) and
     every other attribute those of ``dataset``."""
 
-    def __init__(self, dataset: Dataset, shift: Shift, seed: int = 0) -> None:
-        self.dataset, self.shift, self.seed = dataset, shift, seed
+    def __init__(self, dataset: Dataset, shift: Shift, seed: int = 0, onset: int = 0) -> None:
+        self.dataset, self.shift, self.seed, self.onset = dataset, shift, seed, onset
 
     def __len__(self) -> int:
         return len(self.dataset)  # type: ignore[arg-type]
@@ -238,6 +239,8 @@ class ShiftedDataset(Dataset):
         return self._shifted(index, self.dataset.with_anomalies(index))
 
     def _shifted(self, index: int, item: tuple) -> tuple:
+        if index < self.onset:
+            return item
         image, *rest = item
         array = image.permute(1, 2, 0).numpy()
         shifted = shift_image(array, self.shift, image_seed(self.seed, self.shift, index))

@@ -25,7 +25,11 @@ from costseg.networks.sources import resolve_device
 from costseg.options import EvalOptions, candidate_flags, changed, check_needs, check_values
 from costseg.report.outputs import check_free
 from costseg.rules import RuleGroup, named_group, parse_rules, plain_rules, vertex_matrices
-from costseg.rules.design_spaces import aggregate_template, constraint_kind
+from costseg.rules.design_spaces import (
+    aggregate_template,
+    constraint_kind,
+    lagrangian_directions,
+)
 
 
 def check_options(opts: EvalOptions) -> None:
@@ -55,6 +59,7 @@ def check_options(opts: EvalOptions) -> None:
         raise ValueError("--save-probs writes a network's probabilities; with --probs they exist")
     _check_meta(opts)
     check_design(opts)
+    check_monitor(opts)
     _check_calibration(opts)
     if opts.output_dir is not None:
         check_free(opts.output_dir, opts.overwrite)
@@ -164,6 +169,60 @@ def check_design(opts: EvalOptions) -> None:
         aggregate_template(opts.design_base or "altruistic")
     elif opts.design_base is not None:
         raise ValueError("--design_base goes with --design lagrangian, regional or aggregate")
+
+
+def check_monitor(opts: EvalOptions) -> None:
+    """``--monitor_require``: its requirements (recall or precision of one class, each once),
+    C₀, the start's multipliers within the cap, and (with ``--limit``) a stream that the delay
+    and ``--shift_onset`` fit in (docs/definitions.md §22)."""
+    from costseg.metrics.monitor import base_matrix, monitored_requirements, start_multipliers
+
+    if opts.shift_onset is not None and opts.limit is not None:
+        check_stream(opts.shift_onset, 0, opts.limit)
+    if not opts.monitor_require:
+        return
+    req = monitored_requirements(opts.monitor_require)
+    same = [t[:3] for t in req.constraints]
+    if len(set(same)) < len(same):
+        text = req.texts[next(i for i, t in enumerate(same) if same.count(t) > 1)]
+        raise ValueError(f"--monitor_require gives the rate of {text} twice: keep one level")
+    try:
+        base = base_matrix(opts.monitor_base)
+    except ValueError as err:
+        raise ValueError(f"--monitor_base {err}") from None
+    if opts.monitor_start is not None:
+        if not Path(opts.monitor_start).is_file():
+            raise ValueError(f"--monitor_start: no such file {opts.monitor_start}")
+        pairs = [(t.cls, t.metric) for t in req.constraints]
+        mu = start_multipliers(opts.monitor_start, base, lagrangian_directions(pairs, len(base)))
+        if (mu > opts.monitor_max).any():
+            raise ValueError(
+                f"--monitor_start {opts.monitor_start}: its multipliers {mu.round(4).tolist()} "
+                f"exceed --monitor_max {opts.monitor_max:g}"
+            )
+    if opts.limit is not None:
+        check_stream(opts.shift_onset, opts.monitor_delay, opts.limit)
+
+
+def check_stream(onset: int | None, delay: int, frames: int) -> None:
+    """A stream of ``frames`` reported images long enough for ``--shift_onset`` (a frame
+    clean before the shift, one shifted after it) and ``--monitor_delay`` (a label that arrives
+    before the end).
+
+    >>> check_stream(5, 0, 5)
+    Traceback (most recent call last):
+    ValueError: --shift_onset 5: the stream has 5 reported images, so no image would be shifted
+    """
+    if onset is not None and onset >= frames:
+        raise ValueError(
+            f"--shift_onset {onset}: the stream has {frames} reported images, so no image "
+            "would be shifted"
+        )
+    if delay >= frames:
+        raise ValueError(
+            f"--monitor_delay {delay}: the stream has {frames} reported images, so no label "
+            "would arrive before its end"
+        )
 
 
 def _check_meta(opts: EvalOptions) -> None:

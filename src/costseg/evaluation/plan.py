@@ -37,6 +37,7 @@ from costseg.evaluation.checks import (
     check_groups,
     check_instance_targets,
     check_options,
+    check_stream,
 )
 from costseg.evaluation.priors import evaluation_priors
 from costseg.evaluation.processes import on_rank0, rank0_prints, share, world_size
@@ -95,6 +96,7 @@ class EvalPlan:
     shifts: list[Shift]  # --shift: with several, evaluation/shifts.py runs one evaluation each
     data: dict | None  # the images' data configuration (None: a dataset given in Python)
     seed: int  # of the shifts' random corruptions
+    shift_onset: int  # the index in ``dataset`` of the first image a shift changes
     num_examples: int  # the first reported images, whose examples are kept
     round_probs: bool  # the reported images' probabilities rounded to float16, as saved
     progress: bool  # progress lines
@@ -144,6 +146,10 @@ def plan(
     if count == 0:
         raise ValueError(f"the {opts.split} split holds no images: nothing to evaluate")
     reported, calibration = _split_calibration(opts, images, count)
+    if opts.shift_onset is not None or opts.monitor_require:
+        check_stream(
+            opts.shift_onset, opts.monitor_delay if opts.monitor_require else 0, len(reported)
+        )
     meta_images = None
     if opts.meta or opts.fuse:
         meta_images = calibration
@@ -179,10 +185,11 @@ def plan(
     check_instance_targets(opts, measured, note)
     class_ids, named = class_indices(opts.classes), named_metrics(opts)
     reported_images = dataset
+    onset = reported[0] + (opts.shift_onset or 0)  # the first shifted image's index
     if len(shifts) == 1:
         from costseg.data.shift import ShiftedDataset
 
-        reported_images = ShiftedDataset(dataset, shifts[0], opts.seed)
+        reported_images = ShiftedDataset(dataset, shifts[0], opts.seed, onset)
     return EvalPlan(
         analyses=tuple(wanted(opts)),
         record=dataclasses.asdict(opts),
@@ -207,6 +214,7 @@ def plan(
         shifts=shifts,
         data=images.config,
         seed=opts.seed,
+        shift_onset=onset,
         num_examples=opts.num_examples,
         round_probs=opts.save_probs,
         progress=opts.progress,

@@ -77,6 +77,23 @@ class DesignSettings:
 
 
 @dataclass(frozen=True)
+class MonitorSettings:
+    """``--monitor_require``: requirements kept on the reported images as a stream
+    (docs/definitions.md §22)."""
+
+    requirements: tuple[str, ...]
+    eta: float
+    scale: Literal["log", "mu"]
+    delay: int  # frames until a frame's labels arrive
+    labelled: float  # the share of frames whose labels arrive
+    start: str | None  # a cost file whose μ the multipliers start at (None: μ = 0)
+    base: str  # C₀
+    mu_max: float
+    seed: int  # of the labelled frames
+    shift_onset: int  # the first shifted frame's position among the reported images (0: all)
+
+
+@dataclass(frozen=True)
 class SavedSettings:
     """``--save-probs`` / ``--save-predictions``."""
 
@@ -166,6 +183,23 @@ def design_settings(opts: EvalOptions) -> DesignSettings | None:
         vertex_scaling=opts.vertex_scaling,
         held_out=held_out,
         roi=opts.roi,
+    )
+
+
+def monitor_settings(opts: EvalOptions) -> MonitorSettings | None:
+    if not opts.monitor_require:
+        return None
+    return MonitorSettings(
+        requirements=tuple(opts.monitor_require),
+        eta=opts.monitor_eta,
+        scale=opts.monitor_scale,
+        delay=opts.monitor_delay,
+        labelled=opts.monitor_labelled,
+        start=opts.monitor_start,
+        base=opts.monitor_base,
+        mu_max=opts.monitor_max,
+        seed=opts.seed,
+        shift_onset=opts.shift_onset or 0,
     )
 
 

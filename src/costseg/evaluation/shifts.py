@@ -57,4 +57,4 @@ def _seen_through(planned: EvalPlan, shift: Shift | None):
     """The reported images seen through ``shift`` (None: as they are)."""
     if shift is None:
         return planned.dataset
-    return ShiftedDataset(planned.dataset, shift, planned.seed)
+    return ShiftedDataset(planned.dataset, shift, planned.seed, planned.shift_onset)

@@ -181,6 +181,45 @@ def lagrangian_cost(base: torch.Tensor, directions: torch.Tensor, mu: torch.Tens
     return cost.reshape(*mu.shape[:-1], *base.shape)
 
 
+def lagrangian_multipliers(
+    cost: torch.Tensor, base: torch.Tensor, directions: torch.Tensor, tolerance: float = 1e-6
+) -> torch.Tensor:
+    """The multipliers μ with ``lagrangian_cost(base, directions, μ) = cost`` (the inverse of
+    :func:`lagrangian_cost`): each μ_i read where A_i alone moves the matrix (the median of
+    those entries), else by least squares; (K,) float64.
+
+    Raises:
+        ValueError: ``cost`` is not ``C₀ + Σ_i μ_i A_i`` with every μ_i ≥ 0 (within
+            ``tolerance`` times its largest entry), or shapes that do not fit.
+
+    >>> from costseg.costs import symmetric_cost
+    >>> A = lagrangian_directions([(1, "recall"), (0, "precision")], 3)
+    >>> C = lagrangian_cost(symmetric_cost(3), A, [2.0, 0.5])
+    >>> lagrangian_multipliers(C, symmetric_cost(3), A).tolist()
+    [2.0, 0.5]
+    """
+    cost = torch.as_tensor(cost, dtype=torch.float64)
+    base = torch.as_tensor(base, dtype=torch.float64)
+    directions = torch.as_tensor(directions, dtype=torch.float64)
+    if cost.shape != base.shape or directions.shape[1:] != base.shape:
+        raise ValueError(
+            f"a matrix {tuple(cost.shape)} is not of the space of C₀ {tuple(base.shape)} and "
+            f"directions {tuple(directions.shape)}"
+        )
+    system = directions.reshape(len(directions), -1).T  # (N², K)
+    moved = (cost - base).reshape(-1)
+    mu = torch.linalg.lstsq(system, moved[:, None]).solution[:, 0]
+    alone = (system != 0) & ((system != 0).sum(1, keepdim=True) == 1)
+    for i in range(len(mu)):
+        if alone[:, i].any():
+            mu[i] = (moved[alone[:, i]] / system[alone[:, i], i]).median()
+    scale = tolerance * max(1.0, cost.abs().max().item())
+    rebuilt = base + (mu[:, None, None] * directions).sum(0)
+    if (rebuilt - cost).abs().max() > scale or (mu < -scale).any():
+        raise ValueError("the matrix is not C₀ + Σ μ_i A_i, every μ_i >= 0, for these constraints")
+    return mu.clamp(min=0)
+
+
 def multiplier_grid(
     dimensions: int, size: int = 6, low: float = 1e-2, high: float = 1e2
 ) -> torch.Tensor:

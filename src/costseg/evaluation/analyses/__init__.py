@@ -33,6 +33,7 @@ from costseg.evaluation.settings import (
     design_settings,
     example_settings,
     explorer_settings,
+    monitor_settings,
     saved_settings,
     scaling_settings,
     segment_settings,
@@ -104,6 +105,7 @@ ANALYSES: tuple[Entry, ...] = (
         after=("scaling",),
         figures=("conformal",),
     ),
+    Entry("monitor", monitor_settings, absent=("monitor",), figures=("monitor_figures",)),
     Entry("examples", example_settings, figures=("uncertainty",)),
     Entry("explorer", explorer_settings),
 )

@@ -1,0 +1,195 @@
+"""The run-time monitor (docs/definitions.md §22): the controller against the papers' update in
+plain Python, its long-run bound on adversarial sequences, a stationary stream against a shifted
+one, exact frame records, the evaluation's θ sequence against the public class driven frame by
+frame, and the exported graph fed the monitor's matrices."""
+
+from __future__ import annotations
+
+import csv
+import math
+import random
+
+import numpy as np
+import pytest
+import torch
+
+from costseg.calibration.monitor import Controller, labelled_frames, run_stream
+from costseg.calibration.stream_records import record_frame
+from costseg.classes import IGNORE_INDEX
+from costseg.decision import decide_counts
+from costseg.metrics.monitor import Monitor
+
+REQUIRE = ["person:roi1:recall>=0.8", "building:roi3:precision>=0.8", "car:roi1:recall>=0.7"]
+
+
+def _papers_loop(losses, alphas, eta, theta, delay, labelled, cap=math.inf):
+    """θ_{t+1} = max(0, θ_t + η (L_t − α)) (capped), frame t's step taken before frame
+    t + delay + 1, in plain Python: the θ each frame was decided with, and the last."""
+    theta, out = list(theta), []
+    for t in range(len(losses) + delay + 1):
+        arrived = t - 1 - delay
+        if 0 <= arrived < len(losses) and labelled[arrived]:
+            for i, loss in enumerate(losses[arrived]):
+                if not math.isnan(loss):
+                    theta[i] = min(cap, max(0.0, theta[i] + eta[i] * (loss - alphas[i])))
+        if t < len(losses):
+            out.append(list(theta))
+    return out, theta
+
+
+@pytest.mark.parametrize("delay,share,cap", [(0, 1.0, math.inf), (3, 0.6, 0.8)])
+def test_controller_is_the_papers_update(delay, share, cap):
+    rng = random.Random(1)
+    losses = [[rng.choice([math.nan, rng.random(), 1.0, 0.0]) for _ in range(2)] for _ in range(60)]
+    alphas, eta = [0.2, 0.5], [0.3, 0.05]
+    labelled = labelled_frames(60, share, seed=4)
+    ctl = Controller(alphas, eta, np.array([0.1, 0.0]), theta_max=cap)
+    trace = run_stream(lambda t, _: np.array(losses[t]), 60, ctl, delay, labelled)
+    before, last = _papers_loop(losses, alphas, eta, [0.1, 0.0], delay, labelled.tolist(), cap)
+    np.testing.assert_allclose(trace.theta[:-1], before, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(trace.theta[-1], last, rtol=0, atol=1e-12)
+    assert (trace.capped > 0).any() == (cap < math.inf)
+
+
+@pytest.mark.parametrize("cap", [math.inf, 0.5])
+def test_long_run_bound_holds_on_an_adversarial_sequence(cap):
+    """Losses chosen against θ (1 while θ is small, 0 once it is large, noise near the edge):
+    at every frame the mean so far stays under the bound, and θ ends at most θ_safe + η."""
+    alpha, eta, safe = 0.1, 0.2, 0.7
+    rng = np.random.default_rng(0)
+
+    def adversary(t: int, theta: np.ndarray) -> np.ndarray:
+        if theta[0] >= safe:  # θ_safe: every loss <= α from here
+            return np.array([0.0 if t % 2 else alpha])
+        return np.array([1.0 if rng.random() < 0.9 else math.nan])
+
+    ctl = Controller([alpha], [eta], theta_max=cap)
+    trace = run_stream(adversary, 300, ctl)
+    means = np.nancumsum(trace.losses[:, 0]) / np.cumsum(~np.isnan(trace.losses[:, 0]))
+    assert (means <= trace.bounds[:, 0] + 1e-12).all()
+    assert means[-1] <= trace.final_bound[0] + 1e-12
+    if cap == math.inf:
+        assert trace.theta[:, 0].max() <= safe + eta + 1e-12
+        assert trace.final_bound[0] - alpha <= (safe + eta) / (eta * 250)
+    else:  # θ never reaches θ_safe: the cap's cut keeps the bound true (and loose)
+        assert trace.cut[0] > 0 and trace.final_bound[0] >= means[-1] - 1e-12
+
+
+def test_a_stream_without_shift_keeps_theta_near_its_start_and_a_shift_moves_it():
+    alpha, eta, start = 0.2, 0.05, 1.0
+    rng = np.random.default_rng(2)
+    calm = (rng.random(400) < alpha).astype(float)  # losses of mean α whatever θ
+    shifted = np.where(np.arange(400) < 200, calm, (rng.random(400) < 0.6).astype(float))
+    for losses, moved in ((calm, False), (shifted, True)):
+        ctl = Controller([alpha], [eta], np.array([start]))
+        trace = run_stream(lambda t, _, losses=losses: losses[t : t + 1], 400, ctl)
+        drift = abs(trace.theta[-1, 0] - start)
+        assert (drift > 0.5 * eta * 0.4 * 200) if moved else drift <= eta * 4 * math.sqrt(400)
+
+
+def _frame(seed: int, size=(24, 40), sharpness: float = 2.0):
+    """A frame whose probabilities favour its labels, the RoIs in bands."""
+    gen = torch.Generator().manual_seed(seed)
+    labels = torch.randint(0, 19, size, generator=gen)
+    labels[torch.rand(size, generator=gen) < 0.1] = IGNORE_INDEX
+    logits = torch.randn(19, *size, generator=gen) * sharpness
+    logits.scatter_add_(0, labels.clamp(max=18)[None], torch.full((1, *size), 2.5))
+    roi = torch.arange(size[0])[:, None].expand(size) * 5 // size[0]
+    return logits.softmax(0), labels, roi
+
+
+def test_frame_record_counts_equal_every_pixels_under_matrices_of_the_box():
+    monitor = Monitor(REQUIRE, mu_max=20.0)
+    space, classes = monitor.space(), [11, 2, 13]
+    rng = np.random.default_rng(0)
+    corners = [[0.0, 0.0, 0.0], [20.0, 20.0, 20.0], [20.0, 0.0, 3.0], [0.5, 20.0, 20.0]]
+    for seed, sharpness in ((0, 2.0), (1, 6.0), (2, 0.5)):
+        probs, labels, roi = _frame(seed, sharpness=sharpness)
+        frame = record_frame(probs, labels, roi, space, classes)
+        assert frame.kept_pixels < (labels != IGNORE_INDEX).sum()
+        for mu in [*corners, *(20 * rng.random((6, 3)) ** 3).tolist()]:
+            matrix = monitor.matrix(np.log1p(mu))
+            whole = decide_counts(probs[None], matrix, labels[None], roi)
+            counts = frame.counts(matrix)
+            assert torch.equal(counts.confusion, whole.confusion), (seed, mu)
+            assert torch.equal(counts.agree, whole.agree), (seed, mu)
+
+
+def test_a_designed_start_is_read_back_from_its_cost_file(tmp_path):
+    from costseg.costs import save_cost
+
+    mu = [2.5, 0.0, 0.75]
+    designed = Monitor(REQUIRE, start=mu).matrix()
+    save_cost(tmp_path / "designed.yaml", designed, "designed")
+    monitor = Monitor(REQUIRE, start=tmp_path / "designed.yaml")
+    np.testing.assert_allclose(monitor.mu, mu, rtol=0, atol=1e-12)
+    assert torch.equal(monitor.fixed, designed)  # the file's own matrix is the fixed one
+
+
+def test_evaluation_gives_the_theta_of_the_class_driven_frame_by_frame(tiny_run, tmp_path):
+    """costseg.evaluate's monitor.csv (records gathered, walked once) against Monitor.update fed
+    each frame's saved probabilities, labels and RoIs in order, with the delay and the labelled
+    frames of the evaluation; the fixed matrix's losses too."""
+    import costseg
+    from costseg.checkpoints import find_checkpoint
+    from costseg.data.priors import geometric_roi_map
+    from costseg.data.toy import StreetScenes
+    from costseg.networks.probs_files import load_probs
+
+    ckpt = find_checkpoint(None, runs_dir=tiny_run[2])
+    dataset = StreetScenes("val", length=5, size=(64, 128))
+    out = tmp_path / "eval"
+    options = dict(monitor_delay=1, monitor_labelled=0.75, monitor_eta=0.7, seed=3)
+    costseg.evaluate(f"costseg:{ckpt}", dataset, ["robotistic"], roi="geometric",
+                     output_dir=str(out), monitor_require=REQUIRE[:2], save_probs=True,
+                     batch_size=2, num_examples=0, progress=False, **options)  # fmt: skip
+    rows = list(csv.DictReader((out / "monitor.csv").open()))
+    monitor = Monitor(REQUIRE[:2], eta=0.7)
+    fixed = monitor.matrix()
+    labelled = labelled_frames(5, 0.75, seed=3)
+    pending = []
+    for t, row in enumerate(rows):
+        _, labels, *_ = dataset[t]
+        probs = load_probs(out / "probs" / f"{row['image']}.npz")
+        roi = geometric_roi_map(tuple(labels.shape))
+        for i, text in enumerate(REQUIRE[:2]):
+            assert float(row[f"theta {text}"]) == pytest.approx(monitor.theta[i], abs=1e-12)
+        fixed_losses = monitor.losses(probs, labels, roi, fixed)
+        np.testing.assert_allclose([float(row[f"fixed loss {t}"]) for t in REQUIRE[:2]],
+                                   fixed_losses, rtol=0, atol=1e-12)  # fmt: skip
+        pending.append((probs, labels, roi, monitor.matrix(), labelled[t]))
+        if len(pending) > 1:  # a delay of one frame
+            *frame, matrix, arrives = pending.pop(0)
+            if arrives:
+                monitor.update(*frame, matrix=matrix)
+
+
+def test_the_exported_graph_fed_the_monitors_matrices_decides_as_decide():
+    pytest.importorskip("onnxruntime")
+    from torch import nn
+
+    from costseg.export.graph import DecisionGraph
+    from costseg.export.job import trace_graph
+    from costseg.export.parity import parity
+    from costseg.export.runtime import run_graph
+    from costseg.networks.base import ImageNetwork
+    from costseg.networks.onnx import onnx_session
+
+    torch.manual_seed(0)
+    net = nn.Sequential(nn.Conv2d(3, 16, 3, padding=1), nn.Tanh(), nn.Conv2d(16, 19, 1))
+    with torch.no_grad():
+        net[2].weight.mul_(8)
+    model = trace_graph(DecisionGraph(ImageNetwork(net), probabilities=True))
+    session = onnx_session(model.SerializeToString(), threads=1)
+    monitor = Monitor(["person:roi0:recall>=0.8"], eta=1.0)
+    truth = torch.full((32, 48), 11)  # every pixel a person: the recall requirement pushes
+    images = torch.randint(0, 256, (4, 1, 3, 32, 48), generator=torch.Generator().manual_seed(1),
+                           dtype=torch.uint8)  # fmt: skip
+    for image in images:
+        matrix = monitor.matrix()
+        labels, _, probs = run_graph(session, image, matrix, probabilities=True)
+        assert parity(probs, probs, labels, matrix).outside == 0
+        from_labels = monitor.decided_losses(labels[0], truth)
+        np.testing.assert_allclose(from_labels, monitor.losses(probs[0], truth, None, matrix))
+        monitor.update(from_labels)
+    assert monitor.mu[0] > 1  # the matrices changed frame by frame
