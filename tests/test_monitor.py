@@ -193,3 +193,93 @@ def test_the_exported_graph_fed_the_monitors_matrices_decides_as_decide():
         np.testing.assert_allclose(from_labels, monitor.losses(probs[0], truth, None, matrix))
         monitor.update(from_labels)
     assert monitor.mu[0] > 1  # the matrices changed frame by frame
+
+
+REGIONAL = ["person:roi1:recall>=0.9", "building:roi3:precision>=0.9", "car:roi0:recall>=0.8"]
+
+
+def _walk(monitor: Monitor, frames, delay: int = 0):
+    """The evaluation's walk (evaluation/analyses/monitor.py): each frame's exact record
+    counted at the θ the controller reached, the labels arriving ``delay`` frames later."""
+    from costseg.evaluation.analyses.monitor import frame_counts
+
+    classes = [t.cls for t in monitor.requirements.constraints]
+    records = [record_frame(p, y, r, monitor.space(), classes) for p, y, r in frames]
+
+    def losses(t, theta):
+        return frame_counts(monitor, records[t], monitor.matrix(theta)).losses
+
+    return run_stream(losses, len(frames), monitor.controller, delay)
+
+
+def test_regional_monitor_losses_equal_deciding_each_region_by_hand():
+    """Constraint i moves only RoI r_i's matrix (RoI 0 every one): each frame decided at the
+    controller's μ with decide_reference region by region, the losses counted by hand."""
+    from costseg.costs import symmetric_cost
+    from costseg.decision import decide_reference
+    from costseg.rules.design_spaces import lagrangian_directions
+
+    monitor = Monitor(REGIONAL, eta=2.0, mu_max=20.0, scale="mu", space="regional")
+    frames = [_frame(seed, sharpness=3.0) for seed in range(6)]
+    trace = _walk(monitor, frames, delay=1)
+    assert (trace.theta[-1] > 0).all() and not np.isnan(trace.losses).all(0).any()
+    req = monitor.requirements.constraints
+    directions = lagrangian_directions([(t.cls, t.metric) for t in req], 19)
+    for t, (probs, labels, roi) in enumerate(frames):
+        decided = torch.empty_like(labels)
+        for r in range(5):  # C_r(μ) = C₀ + Σ_{i : r_i = r or r_i = 0} μ_i A_i
+            matrix = symmetric_cost(19).double()
+            for i, c in enumerate(req):
+                if c.roi in (r, 0):
+                    matrix = matrix + trace.theta[t, i] * directions[i]
+            decided[roi == r] = decide_reference(probs[None], matrix)[0][roi == r]
+        expected = []
+        for c in req:
+            region = (labels != IGNORE_INDEX) & ((roi == c.roi) if c.roi else True)
+            hits = (region & (decided == c.cls) & (labels == c.cls)).sum().item()
+            whole = region & ((labels if c.metric == "recall" else decided) == c.cls)
+            expected.append(1 - hits / whole.sum().item() if whole.any() else math.nan)
+        np.testing.assert_allclose(trace.losses[t], expected, rtol=0, atol=1e-12)
+    assert monitor.matrix().shape == (5, 19, 19)
+
+
+def test_a_regional_monitor_on_roi0_only_is_the_whole_image_one():
+    require = ["person:roi0:recall>=0.9", "building:roi0:precision>=0.9"]
+    frames = [_frame(seed, sharpness=3.0) for seed in range(5)]
+    whole = Monitor(require, eta=1.0, mu_max=20.0)
+    regional = Monitor(require, eta=1.0, mu_max=20.0, space="regional")
+    a, b = _walk(whole, frames), _walk(regional, frames)
+    assert (a.theta[-1] > 0).all()
+    np.testing.assert_array_equal(a.theta, b.theta)
+    np.testing.assert_array_equal(a.losses, b.losses)
+    assert all(torch.equal(m, whole.matrix()) for m in regional.matrix())
+
+
+def test_a_regional_designed_start_is_read_back_and_refused_by_a_whole_monitor(tmp_path):
+    from costseg.costs import save_cost
+
+    mu = [2.5, 0.0, 0.75]
+    designed = Monitor(REGIONAL, start=mu, space="regional").matrix()
+    save_cost(tmp_path / "designed.yaml", designed, "designed")
+    monitor = Monitor(REGIONAL, start=tmp_path / "designed.yaml", space="regional")
+    np.testing.assert_allclose(monitor.mu, mu, rtol=0, atol=1e-12)
+    assert torch.equal(monitor.fixed, designed)
+    with pytest.raises(ValueError, match="needs --monitor_space regional"):
+        Monitor(REGIONAL, start=tmp_path / "designed.yaml")
+
+
+def test_a_regional_monitor_without_a_roi_map_is_refused_in_one_line(cityscapes_root, capsys):
+    import shutil
+
+    from costseg.cli import evaluate_main
+
+    shutil.rmtree(cityscapes_root / "gtFine" / "train")
+    with pytest.raises(SystemExit) as exit_info:
+        evaluate_main(["--data_root", str(cityscapes_root), "--monitor_require", REGIONAL[0],
+                       "--monitor_space", "regional"])  # fmt: skip
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--monitor_space regional gives each RoI its own matrix" in err[0]
+    probs, labels, _ = _frame(0)
+    with pytest.raises(ValueError, match="RoI map"):
+        Monitor(REGIONAL, space="regional").losses(probs, labels)
