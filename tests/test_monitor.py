@@ -126,10 +126,11 @@ def test_a_designed_start_is_read_back_from_its_cost_file(tmp_path):
     assert torch.equal(monitor.fixed, designed)  # the file's own matrix is the fixed one
 
 
-def test_evaluation_gives_the_theta_of_the_class_driven_frame_by_frame(tiny_run, tmp_path):
+@pytest.mark.parametrize("space", ["whole", "regional"])
+def test_evaluation_gives_the_theta_of_the_class_driven_frame_by_frame(space, tiny_run, tmp_path):
     """costseg.evaluate's monitor.csv (records gathered, walked once) against Monitor.update fed
     each frame's saved probabilities, labels and RoIs in order, with the delay and the labelled
-    frames of the evaluation; the fixed matrix's losses too."""
+    frames of the evaluation; the fixed matrix's losses too. In both spaces."""
     import costseg
     from costseg.checkpoints import find_checkpoint
     from costseg.data.priors import geometric_roi_map
@@ -139,12 +140,13 @@ def test_evaluation_gives_the_theta_of_the_class_driven_frame_by_frame(tiny_run,
     ckpt = find_checkpoint(None, runs_dir=tiny_run[2])
     dataset = StreetScenes("val", length=5, size=(64, 128))
     out = tmp_path / "eval"
-    options = dict(monitor_delay=1, monitor_labelled=0.75, monitor_eta=0.7, seed=3)
+    options = dict(monitor_delay=1, monitor_labelled=0.75, monitor_eta=0.7, seed=3,
+                   monitor_space=space)  # fmt: skip
     costseg.evaluate(f"costseg:{ckpt}", dataset, ["robotistic"], roi="geometric",
                      output_dir=str(out), monitor_require=REQUIRE[:2], save_probs=True,
                      batch_size=2, num_examples=0, progress=False, **options)  # fmt: skip
     rows = list(csv.DictReader((out / "monitor.csv").open()))
-    monitor = Monitor(REQUIRE[:2], eta=0.7)
+    monitor = Monitor(REQUIRE[:2], eta=0.7, space=space)
     fixed = monitor.matrix()
     labelled = labelled_frames(5, 0.75, seed=3)
     pending = []
