@@ -1,7 +1,8 @@
 """The run-time monitor of a value system (docs/definitions.md §22): requirements of §20 kept on a
 stream of frames by the controller of :mod:`costseg.calibration.monitor`, each frame decided with
-§20's Lagrangian matrix at the current multipliers. ``costseg.Monitor`` is the class a
-deployment loop drives; ``evaluate.py --monitor_require`` walks the reported images with it.
+§20's Lagrangian matrix at the current multipliers (or §21's stack by region,
+``space="regional"``). ``costseg.Monitor`` is the class a deployment loop drives;
+``evaluate.py --monitor_require`` walks the reported images with it.
 
 >>> import torch
 >>> monitor = Monitor(["person:roi0:recall>=0.9"], eta=0.5, scale="mu")
