@@ -214,14 +214,25 @@ def _walk(monitor: Monitor, frames, delay: int = 0):
     return run_stream(losses, len(frames), monitor.controller, delay)
 
 
-def test_regional_monitor_losses_equal_deciding_each_region_by_hand():
+def _regional_base():
+    """A regional C₀: altruistic on the street, egoistic on the sidewalk, robotistic elsewhere."""
+    from costseg.costs import load_cost, regional_cost
+
+    regions = {"street": load_cost("altruistic"), "sidewalk": load_cost("egoistic")}
+    return regional_cost(load_cost("robotistic"), regions).double()
+
+
+@pytest.mark.parametrize("regional_base", [False, True])
+def test_regional_monitor_losses_equal_deciding_each_region_by_hand(regional_base):
     """Constraint i moves only RoI r_i's matrix (RoI 0 every one): each frame decided at the
     controller's μ with decide_reference region by region, the losses counted by hand."""
     from costseg.costs import symmetric_cost
     from costseg.decision import decide_reference
     from costseg.rules.design_spaces import lagrangian_directions
 
-    monitor = Monitor(REGIONAL, eta=2.0, mu_max=20.0, scale="mu", space="regional")
+    bases = _regional_base() if regional_base else symmetric_cost(19).double().expand(5, 19, 19)
+    monitor = Monitor(REGIONAL, eta=2.0, mu_max=20.0, scale="mu", space="regional",
+                      base=bases if regional_base else "robotistic")  # fmt: skip
     frames = [_frame(seed, sharpness=3.0) for seed in range(6)]
     trace = _walk(monitor, frames, delay=1)
     assert (trace.theta[-1] > 0).all() and not np.isnan(trace.losses).all(0).any()
@@ -230,7 +241,7 @@ def test_regional_monitor_losses_equal_deciding_each_region_by_hand():
     for t, (probs, labels, roi) in enumerate(frames):
         decided = torch.empty_like(labels)
         for r in range(5):  # C_r(μ) = C₀ + Σ_{i : r_i = r or r_i = 0} μ_i A_i
-            matrix = symmetric_cost(19).double()
+            matrix = bases[r].clone()
             for i, c in enumerate(req):
                 if c.roi in (r, 0):
                     matrix = matrix + trace.theta[t, i] * directions[i]
@@ -260,14 +271,18 @@ def test_a_regional_monitor_on_roi0_only_is_the_whole_image_one():
 def test_a_regional_designed_start_is_read_back_and_refused_by_a_whole_monitor(tmp_path):
     from costseg.costs import save_cost
 
-    mu = [2.5, 0.0, 0.75]
-    designed = Monitor(REGIONAL, start=mu, space="regional").matrix()
+    mu, base = [2.5, 0.0, 0.75], _regional_base()
+    designed = Monitor(REGIONAL, start=mu, base=base, space="regional").matrix()
     save_cost(tmp_path / "designed.yaml", designed, "designed")
-    monitor = Monitor(REGIONAL, start=tmp_path / "designed.yaml", space="regional")
+    monitor = Monitor(REGIONAL, start=tmp_path / "designed.yaml", base=base, space="regional")
     np.testing.assert_allclose(monitor.mu, mu, rtol=0, atol=1e-12)
     assert torch.equal(monitor.fixed, designed)
     with pytest.raises(ValueError, match="needs --monitor_space regional"):
         Monitor(REGIONAL, start=tmp_path / "designed.yaml")
+    with pytest.raises(ValueError, match=r"C₀ must be \(19, 19\), got \(5, 19, 19\)"):
+        Monitor(REGIONAL, base=base)
+    with pytest.raises(ValueError, match="not C₀"):  # the stack of another C₀
+        Monitor(REGIONAL, start=tmp_path / "designed.yaml", space="regional")
 
 
 def test_a_regional_monitor_without_a_roi_map_is_refused_in_one_line(cityscapes_root, capsys):

@@ -193,7 +193,7 @@ def check_monitor(opts: EvalOptions) -> None:
         text = req.texts[next(i for i, t in enumerate(same) if same.count(t) > 1)]
         raise ValueError(f"--monitor_require gives the rate of {text} twice: keep one level")
     try:
-        base = base_matrix(opts.monitor_base)
+        base = base_matrix(opts.monitor_base, regional=opts.monitor_space == "regional")
     except ValueError as err:
         raise ValueError(f"--monitor_base {err}") from None
     if opts.monitor_start is not None:

@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from costseg.calibration.monitor import Controller, Scale, to_mu, to_theta
-from costseg.classes import CLASS_NAMES, IGNORE_INDEX
+from costseg.classes import CLASS_NAMES, IGNORE_INDEX, NUM_ROIS
 from costseg.costs import cost_or_symmetric, load_cost
 from costseg.decision import decide_counts
 from costseg.metrics.functional.roi import roi_confusion
@@ -60,19 +60,25 @@ def monitored_requirements(texts: Sequence[str], flag: str = "--monitor_require"
     return req
 
 
-def base_matrix(name: str | Path | torch.Tensor = "robotistic") -> torch.Tensor:
-    """C₀: a preset, a cost file or a matrix; (N, N) float64. ValueError for ``ml`` (priors)
-    or a defer row."""
+def base_matrix(
+    name: str | Path | torch.Tensor = "robotistic", regional: bool = False
+) -> torch.Tensor:
+    """C₀: a preset, a cost file or a matrix; (N, N) float64, or with ``regional`` a regional
+    file's (R + 1, N, N) stack too. ValueError for ``ml`` (priors), a defer row, or a regional
+    C₀ of a whole-image monitor."""
+    n = len(CLASS_NAMES)
     if isinstance(name, torch.Tensor):
         base = name.to(torch.float64)
     else:
         rule = parse_rules([str(name)])[0]
-        if rule.priors_alpha or rule.defers or rule.regional:
-            raise ValueError(f"{name}: C₀ of the monitor is one cost matrix without a defer row")
-        base = cost_or_symmetric(rule.cost, len(CLASS_NAMES)).to(torch.float64)
-    if base.shape != (len(CLASS_NAMES), len(CLASS_NAMES)):
-        n = len(CLASS_NAMES)
-        raise ValueError(f"C₀ must be ({n}, {n}), got {tuple(base.shape)}")
+        if rule.priors_alpha or rule.defers or (rule.regional and not regional):
+            why = " (a regional one with --monitor_space regional)" if rule.regional else ""
+            raise ValueError(f"{name}: C₀ of the monitor is one cost matrix without a defer "
+                             f"row{why}")  # fmt: skip
+        base = cost_or_symmetric(rule.cost, n).to(torch.float64)
+    shapes = [(n, n), *([(NUM_ROIS + 1, n, n)] if regional else [])]
+    if tuple(base.shape) not in shapes:
+        raise ValueError(f"C₀ must be {' or '.join(map(str, shapes))}, got {tuple(base.shape)}")
     return base
 
 
@@ -82,7 +88,8 @@ class Monitor:
     Args:
         require: the constraints, e.g. ``["person:roi1:recall>=0.8"]`` (recall or precision).
         eta: the step η (one, or one per constraint).
-        base: C₀ (a preset name, a cost file, or an (N, N) matrix).
+        base: C₀ (a preset name, a cost file, or an (N, N) matrix; for a regional monitor a
+            regional file or stack too: each RoI's own C₀).
         start: where θ starts: None (μ = 0), a cost file of the space (a designed one: its μ is
             read back from the matrix), or (K,) multipliers μ.
         scale: θ is ``mu`` itself or ``log`` (log(1 + μ)).
@@ -112,7 +119,7 @@ class Monitor:
         if space not in ("whole", "regional"):
             raise ValueError(f"the monitor's space is whole or regional, got {space!r}")
         self.requirements = monitored_requirements(require)
-        self.base = base_matrix(base)
+        self.base = base_matrix(base, regional=space == "regional")
         pairs = [(t.cls, t.metric) for t in self.requirements.constraints]
         self.directions = lagrangian_directions(pairs, len(CLASS_NAMES))
         self.regions = tuple(t.roi for t in self.requirements.constraints)
