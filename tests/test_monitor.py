@@ -8,6 +8,7 @@ from __future__ import annotations
 import csv
 import math
 import random
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -197,6 +198,7 @@ def test_the_exported_graph_fed_the_monitors_matrices_decides_as_decide():
     assert monitor.mu[0] > 1  # the matrices changed frame by frame
 
 
+COSTS = Path(__file__).parents[1] / "configs" / "costs"
 REGIONAL = ["person:roi1:recall>=0.9", "building:roi3:precision>=0.9", "car:roi0:recall>=0.8"]
 
 
@@ -283,6 +285,9 @@ def test_a_regional_designed_start_is_read_back_and_refused_by_a_whole_monitor(t
         Monitor(REGIONAL, base=base)
     with pytest.raises(ValueError, match="not C₀"):  # the stack of another C₀
         Monitor(REGIONAL, start=tmp_path / "designed.yaml", space="regional")
+    street = Monitor(["person:roi1:recall>=0.9"], start=COSTS / "street_person.yaml",
+                     space="regional")  # fmt: skip
+    assert street.mu == pytest.approx([9.0])  # missing a person on the street costs 1 + 9
 
 
 def test_a_regional_monitor_without_a_roi_map_is_refused_in_one_line(cityscapes_root, capsys):
