@@ -167,7 +167,10 @@ def test_evaluation_gives_the_theta_of_the_class_driven_frame_by_frame(space, ti
                 monitor.update(*frame, matrix=matrix)
 
 
-def test_the_exported_graph_fed_the_monitors_matrices_decides_as_decide():
+@pytest.mark.parametrize("space", ["whole", "regional"])
+def test_the_exported_graph_fed_the_monitors_matrices_decides_as_decide(space):
+    """The graph's ``cost`` input is the monitor's matrix, or for a regional monitor its stack
+    beside the RoI map (the graph of ``scripts/export.py --regional``)."""
     pytest.importorskip("onnxruntime")
     from torch import nn
 
@@ -182,20 +185,27 @@ def test_the_exported_graph_fed_the_monitors_matrices_decides_as_decide():
     net = nn.Sequential(nn.Conv2d(3, 16, 3, padding=1), nn.Tanh(), nn.Conv2d(16, 19, 1))
     with torch.no_grad():
         net[2].weight.mul_(8)
-    model = trace_graph(DecisionGraph(ImageNetwork(net), probabilities=True))
-    session = onnx_session(model.SerializeToString(), threads=1)
-    monitor = Monitor(["person:roi0:recall>=0.8"], eta=1.0)
+    regional = space == "regional"
+    graph = DecisionGraph(ImageNetwork(net), probabilities=True, regional=regional)
+    session = onnx_session(trace_graph(graph).SerializeToString(), threads=1)
+    monitor = Monitor([f"person:roi{int(regional)}:recall>=0.8"], eta=1.0, space=space)
     truth = torch.full((32, 48), 11)  # every pixel a person: the recall requirement pushes
+    roi = (torch.arange(32)[:, None] * 5 // 32).expand(32, 48).to(torch.uint8)  # bands 0 … 4
     images = torch.randint(0, 256, (4, 1, 3, 32, 48), generator=torch.Generator().manual_seed(1),
                            dtype=torch.uint8)  # fmt: skip
     for image in images:
         matrix = monitor.matrix()
-        labels, _, probs = run_graph(session, image, matrix, probabilities=True)
-        assert parity(probs, probs, labels, matrix).outside == 0
-        from_labels = monitor.decided_losses(labels[0], truth)
-        np.testing.assert_allclose(from_labels, monitor.losses(probs[0], truth, None, matrix))
+        given = {"roi": roi} if regional else {}
+        labels, _, probs = run_graph(session, image, matrix, probabilities=True, **given)
+        assert parity(probs, probs, labels, matrix, **given).outside == 0
+        from_labels = monitor.decided_losses(labels[0], truth, roi)
+        np.testing.assert_allclose(from_labels, monitor.losses(probs[0], truth, roi, matrix))
         monitor.update(from_labels)
     assert monitor.mu[0] > 1  # the matrices changed frame by frame
+    if regional:  # ... only the street's
+        stack = monitor.matrix()
+        assert not torch.equal(stack[1], stack[0])
+        assert all(torch.equal(stack[r], stack[0]) for r in (2, 3, 4))
 
 
 COSTS = Path(__file__).parents[1] / "configs" / "costs"
