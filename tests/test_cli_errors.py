@@ -47,6 +47,7 @@ def _target(text):
 
 
 MONITOR = ["--monitor_require", "person:roi1:recall>=0.8"]
+REGIONAL_MONITOR = ["--monitor_require", "car:roi1:recall>=0.8", "--monitor_space", "regional"]
 DESIGN = ["--require", "person:roi1:recall>=0.9", "--design_delta", "0.1", "--design", "lagrangian"]
 TESTS = Path(__file__).parent  # a folder that holds no record of scored images
 
@@ -234,6 +235,14 @@ EVALUATE_CASES = {
         ["altruistic.yaml", "is not C₀ + Σ μ_i A_i"],
     ),
     "monitor base of priors": ([*MONITOR, "--monitor_base", "ml"], ["--monitor_base ml", "C₀"]),
+    "monitor regional base without the regional space": (
+        [*MONITOR, "--monitor_base", str(COSTS_DIR / "street_person.yaml")],
+        ["street_person.yaml", "with --monitor_space regional"],
+    ),
+    "monitor regional start outside the regional space": (
+        [*REGIONAL_MONITOR, "--monitor_start", str(COSTS_DIR / "street_person.yaml")],
+        ["street_person.yaml", "is not C₀"],
+    ),
     "shift onset beyond the stream": (
         ["--shift", "fog:1", "--shift_onset", "3", "--limit", "3"],
         ["--shift_onset 3", "no image would be shifted"],

@@ -466,8 +466,9 @@ class EvalOptions(SourceOptions):
         group=MONITOR, needs="monitor_require",
     )  # fmt: skip
     monitor_start: str | None = option(
-        help="a cost file of the Lagrangian space, e.g. a --design lagrangian's "
-        "designed_cost.yaml: the multipliers start at its μ and it is the fixed matrix compared "
+        help="a cost file of the monitor's space, e.g. a --design lagrangian's (with "
+        "--monitor_space regional, a --design regional's) designed_cost.yaml: the multipliers "
+        "start at its μ and it is the fixed matrix compared "
         "(default μ = 0: C0)",
         metavar="FILE",
         group=MONITOR,
@@ -476,6 +477,11 @@ class EvalOptions(SourceOptions):
     monitor_base: str = option(
         "robotistic", "the matrix C0 of the monitor's C(μ) = C0 + Σ μ_i A_i: a name or a .yaml",
         group=MONITOR, needs="monitor_require",
+    )  # fmt: skip
+    monitor_space: Literal["whole", "regional"] = option(
+        "whole", "the monitor's matrices: whole (C0 + Σ μ_i A_i on every pixel) or regional "
+        "(each requirement's μ moves only its RoI's matrix, roi0 every one: a stack decided with "
+        "the RoI map)", group=MONITOR, needs="monitor_require",
     )  # fmt: skip
     monitor_max: float = option(
         100.0, "the cap μ_max of every multiplier (each frame's record serves μ in [0, μ_max])",

@@ -10,7 +10,8 @@ arrive::
                                                                           no step)
 
 θ is the multiplier μ itself (scale ``mu``) or ``log(1 + μ)`` (scale ``log``); the matrix is
-``C(μ) = C₀ + Σ_i μ_i A_i`` (:func:`~costseg.rules.design_spaces.lagrangian_cost`). Summing the
+``C(μ) = C₀ + Σ_i μ_i A_i`` (:func:`~costseg.rules.design_spaces.lagrangian_cost`; by region,
+:class:`~costseg.rules.design_spaces.RegionalLagrangianSpace`). Summing the
 steps gives, for any sequence of losses, over the n frames with a defined loss whose labels
 arrived::
 

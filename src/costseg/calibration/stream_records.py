@@ -10,7 +10,10 @@ moves by the same μ-terms, so the best of them (least ``E⁰``) is the only one
 each expected cost is affine in μ, so its least gap over the box is the gap at μ = 0 plus
 ``μ_max`` times each negative slope. Computed in float64, a pixel counts as settled only by a
 margin far above the rounding. Those pixels are counted once, under C₀; the others are kept
-with their probabilities, labels and RoIs.
+with their probabilities, labels and RoIs. In §21's regional space a pixel of RoI r is decided by
+``C_r``, which only the constraints on r and on RoI 0 move: it is settled within
+:meth:`~costseg.rules.design_spaces.RegionalLagrangianSpace.region` r's box (as
+:mod:`~costseg.calibration.search_pixels` bounds it by its own RoI's hull).
 So a record's counts under a matrix of the space equal those of every pixel
 (:func:`~costseg.decision.count_decisions` on the whole frame).
 
@@ -36,7 +39,7 @@ import torch
 from costseg.calibration.search_pixels import CHUNK
 from costseg.classes import IGNORE_INDEX, NUM_ROIS
 from costseg.decision import DecisionCounts, decide_counts
-from costseg.rules.design_spaces import LagrangianSpace
+from costseg.rules.design_spaces import LagrangianSpace, RegionalLagrangianSpace
 
 
 @dataclass(frozen=True)
@@ -92,18 +95,29 @@ def record_frame(
         probs: (N, H, W) probabilities; labels: (H, W) train ids (``IGNORE_INDEX``: counted
             nowhere); roi: None or (H, W) RoI ids.
         space: every matrix the record must serve: C₀ (``base``) plus Σ μ_i A_i, μ_i in
-            ``[0, space.high]``.
+            ``[0, space.high]`` (a regional space: each RoI's own, roi then required).
         classes: the constrained classes (those whose μ-terms differ from the rest).
         num_rois: R.
     """
     labelled = labels != IGNORE_INDEX
     where = labelled.nonzero(as_tuple=True)
     pixels = probs[:, where[0], where[1]].float()  # (N, P) the labelled pixels
-    changing = ~settled(pixels, space, classes)
+    if isinstance(space, RegionalLagrangianSpace):
+        if roi is None:
+            raise ValueError("a regional space decides each pixel with its RoI's matrix: "
+                             "give the frame's RoI map")  # fmt: skip
+        ids = roi.expand_as(labels)[where]
+        changing = torch.zeros(len(ids), dtype=torch.bool, device=ids.device)
+        for r in ids.unique().tolist():  # each RoI's pixels within its own matrix's box
+            own = ids == r
+            changing[own] = ~settled(pixels[:, own], space.region(r), classes)
+        base = space.bases()
+    else:
+        changing = ~settled(pixels, space, classes)
+        base = torch.as_tensor(space.base, dtype=torch.float64)
     kept = torch.zeros_like(labelled)
     kept[where[0][changing], where[1][changing]] = True
     settled_labels = labels.masked_fill(kept, IGNORE_INDEX)
-    base = space.base.to(torch.float64)
     counts = decide_counts(probs[None].float(), base, settled_labels[None], roi, num_rois=num_rois)
     return FrameRecord(
         DecisionCounts(counts.confusion.cpu(), counts.agree.cpu()),

@@ -28,7 +28,6 @@ from costseg.rules import RuleGroup, named_group, parse_rules, plain_rules, vert
 from costseg.rules.design_spaces import (
     aggregate_template,
     constraint_kind,
-    lagrangian_directions,
 )
 
 
@@ -94,9 +93,11 @@ def _check_priors(opts: EvalOptions, groups: list[RuleGroup]) -> None:
     if opts.data_root is None or (Path(opts.data_root) / "gtFine" / "train").is_dir():
         return
     if opts.roi != "geometric" or any(g.needs_priors for g in groups):
-        why = "--design regional gives each RoI its own matrix and needs a RoI map: "
-        line = no_priors(opts.data_root, geometric=opts.roi != "geometric")
-        raise ValueError((why if opts.design == "regional" else "") + line)
+        monitor = opts.monitor_require and opts.monitor_space == "regional"
+        regional = "--design regional" if opts.design == "regional" else (
+            "--monitor_space regional" if monitor else None)  # fmt: skip
+        why = f"{regional} gives each RoI its own matrix and needs a RoI map: " if regional else ""
+        raise ValueError(why + no_priors(opts.data_root, geometric=opts.roi != "geometric"))
 
 
 def check_selection(opts, groups: list[RuleGroup]) -> None:
@@ -175,7 +176,12 @@ def check_monitor(opts: EvalOptions) -> None:
     """``--monitor_require``: its requirements (recall or precision of one class, each once),
     C₀, the start's multipliers within the cap, and (with ``--limit``) a stream that the delay
     and ``--shift_onset`` fit in (docs/definitions.md §22)."""
-    from costseg.metrics.monitor import base_matrix, monitored_requirements, start_multipliers
+    from costseg.metrics.monitor import (
+        Monitor,
+        base_matrix,
+        monitored_requirements,
+        start_multipliers,
+    )
 
     if opts.shift_onset is not None and opts.limit is not None:
         check_stream(opts.shift_onset, 0, opts.limit)
@@ -187,14 +193,15 @@ def check_monitor(opts: EvalOptions) -> None:
         text = req.texts[next(i for i, t in enumerate(same) if same.count(t) > 1)]
         raise ValueError(f"--monitor_require gives the rate of {text} twice: keep one level")
     try:
-        base = base_matrix(opts.monitor_base)
+        base = base_matrix(opts.monitor_base, regional=opts.monitor_space == "regional")
     except ValueError as err:
         raise ValueError(f"--monitor_base {err}") from None
     if opts.monitor_start is not None:
         if not Path(opts.monitor_start).is_file():
             raise ValueError(f"--monitor_start: no such file {opts.monitor_start}")
-        pairs = [(t.cls, t.metric) for t in req.constraints]
-        mu = start_multipliers(opts.monitor_start, base, lagrangian_directions(pairs, len(base)))
+        space = Monitor(opts.monitor_require, base=base, mu_max=opts.monitor_max,
+                        space=opts.monitor_space).space()  # fmt: skip
+        mu = start_multipliers(opts.monitor_start, space)
         if (mu > opts.monitor_max).any():
             raise ValueError(
                 f"--monitor_start {opts.monitor_start}: its multipliers {mu.round(4).tolist()} "

@@ -89,6 +89,7 @@ class MonitorSettings:
     start: str | None  # a cost file whose μ the multipliers start at (None: μ = 0)
     base: str  # C₀
     mu_max: float
+    space: Literal["whole", "regional"]  # whole-image matrices or a stack by RoI
     seed: int  # of the labelled frames
     shift_onset: int  # the first shifted frame's position among the reported images (0: all)
 
@@ -198,6 +199,7 @@ def monitor_settings(opts: EvalOptions) -> MonitorSettings | None:
         start=opts.monitor_start,
         base=opts.monitor_base,
         mu_max=opts.monitor_max,
+        space=opts.monitor_space,
         seed=opts.seed,
         shift_onset=opts.shift_onset or 0,
     )

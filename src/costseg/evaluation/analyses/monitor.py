@@ -30,7 +30,7 @@ class Monitored(Analysis):
     def start(self) -> None:
         s = self.settings
         self.monitor = Monitor(s.requirements, s.eta, base=s.base, start=s.start, scale=s.scale,
-                               mu_max=s.mu_max)  # fmt: skip
+                               mu_max=s.mu_max, space=s.space)  # fmt: skip
         self.space = self.monitor.space()
         self.classes = [t.cls for t in self.monitor.requirements.constraints]
         self.records: list = []  # (position, (stem, FrameRecord)) of this process's images
