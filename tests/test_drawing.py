@@ -141,7 +141,7 @@ def busy_threads(stop: threading.Event) -> list[threading.Thread]:
 
 @pytest.mark.figures
 def test_the_example_figures_never_hang_behind_busy_threads(tmp_path, monkeypatch):
-    """20 times, each under a deadline: the evaluation's mask figures at 256 × 512 (float16
+    """10 times, each under a deadline: the evaluation's mask figures at 256 × 512 (float16
     uncertainty maps above torch's grain size) started while torch's pool and other threads run."""
     from costseg.report.early_figures import EarlyFigures
     from costseg.report.results import Example
@@ -160,9 +160,9 @@ def test_the_example_figures_never_hang_behind_busy_threads(tmp_path, monkeypatc
     stop = threading.Event()
     running = busy_threads(stop)
     try:
-        for attempt in range(20):
+        for attempt in range(10):
             out = tmp_path / str(attempt)
-            with deadline(20, f"attempt {attempt + 1} of 20"):
+            with deadline(20, f"attempt {attempt + 1} of 10"):
                 early = EarlyFigures(out, [group], None, num_examples=1)
                 early.after_batch([example], [group])
                 drawn = early.drawing.finish()
