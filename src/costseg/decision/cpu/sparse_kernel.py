@@ -182,21 +182,27 @@ def decide_runs(q, programs, certificates, ids, cuts, labels, start, stop):
         rows = max(rows, program[4])
     buffers = scratch(rows)
     gathered, decided = _opened(q.shape[0]), np.empty(BLOCK, np.int64)
+    head = np.empty(VECTOR, np.int64)
     s, previous, c = start, -1, np.searchsorted(cuts, start, side="right")
+    program, certificate = programs[0], certificates[0]
     while s < stop:
         d, wide, change = ids[s], s - s % VECTOR, cuts[c] if c < len(cuts) else stop
         end = min(change, wide + BLOCK, stop)
         c += end == change
         last = min(wide + (end - wide + LOOP - 1) // LOOP * LOOP, q.shape[1])
-        program, certificate = programs[d], certificates[d]
-        if d != previous:  # its +inf row (its last), which another's sums may have taken
-            buffers[0][program[4] - 1] = np.inf
-            previous = d
+        if d != previous:  # (a typed list's item costs a reference count per array)
+            program, certificate, previous = programs[d], certificates[d], d
+            buffers[0][program[4] - 1] = np.inf  # its +inf row, maybe another's sums before
+        inside = last <= stop  # in place: the pixels after the run are this thread's next runs'
+        out = labels[wide:last] if inside else decided[: last - wide]
+        head[: s - wide] = labels[wide:s]  # the run before's, put back after
         if last - wide == BLOCK:  # a whole block: the version whose loops have a known length
-            decide_block(q, wide, program, certificate, buffers, decided)
+            decide_block(q, wide, program, certificate, buffers, out)
         else:
-            decide_block(q, wide, program, certificate, buffers, decided, last - wide)
-        labels[s:end] = decided[s - wide : end - wide]
+            decide_block(q, wide, program, certificate, buffers, out, last - wide)
+        labels[wide:s] = head[: s - wide]
+        if not inside:
+            labels[s:end] = decided[s - wide : end - wide]
         gathered = _gather(q, s, end - s, buffers[4][s - wide :], gathered)
         s = end
     opened, values, count = gathered
