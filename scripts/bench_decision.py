@@ -9,7 +9,9 @@ On (1, 19, H, W) float32 probabilities (softmax of smooth random logits, the rec
 :data:`DEFER` times its mean off-diagonal cost, docs/definitions.md §14), ``decide`` of a regional
 value system (docs/definitions.md §21: :func:`regional_stack`'s five matrices on the uint8
 geometric RoI map, ids 1 to 4, each pixel of RoI r decided with matrix r; also the egoistic
-matrix times 1 … 5, whose regional pass must give egoistic's labels) and ``decide_mixtures``
+matrix times 1 … 5, whose regional pass must give egoistic's labels; on the CPU also the fused
+count pass of a search, ``count_decisions`` on pixels prepared once with :func:`labelled`, of the
+five matrices against egoistic alone) and ``decide_mixtures``
 over the 66-point barycentric grid (robotistic / altruistic / egoistic vertices, unscaled), on the
 CPU also without numba's kernels. Each timing is the best of several repeats after a warm-up; every
 ratio compares timings of the same run. The target ratios are also given as the median over
@@ -111,6 +113,14 @@ def probabilities(shape: tuple[int, int, int, int], device: str) -> torch.Tensor
     return logits.softmax(1).to(device)
 
 
+def labelled(probs: torch.Tensor) -> torch.Tensor:
+    """A plausible label map: the argmax of ``probs``, void (255) on the bottom tenth of each
+    image (Cityscapes' ego vehicle)."""
+    labels = probs.argmax(1)
+    labels[:, labels.shape[1] - labels.shape[1] // 10 :] = 255
+    return labels
+
+
 def bench(device: str, shape: tuple[int, int, int, int], repeats: int) -> None:
     """Print the timings and ratios on one device."""
     probs = probabilities(shape, device)
@@ -137,6 +147,13 @@ def bench(device: str, shape: tuple[int, int, int, int], repeats: int) -> None:
     paired_defer = paired_ratio(run_defer, run_decide, rounds, sync)
     paired_regional = paired_ratio(run_regional, run_decide, rounds, sync)
     paired_scaled = paired_ratio(run_scaled, run_decide, rounds, sync)
+    if device == "cpu":  # the fused count pass (a search's), regional against one matrix
+        prepared = prepare_counts(probs, labelled(probs), roi)
+        count_regional = lambda: count_decisions(prepared, stack)  # noqa: E731
+        count_one = lambda: count_decisions(prepared, VERTICES[2])  # noqa: E731
+        t_count_regional = best_time(count_regional, repeats, sync)
+        t_count_one = best_time(count_one, repeats, sync)
+        paired_count = paired_ratio(count_regional, count_one, rounds, sync)
     fine = barycentric_grid(0.05)
     t_fine = best_time(lambda: decide_mixtures(probs, VERTICES, fine), 1, sync)
     t_ops = t_decide_ops = None
@@ -166,6 +183,14 @@ def bench(device: str, shape: tuple[int, int, int, int], repeats: int) -> None:
     print(f"  regional / one matrix          {t_regional / t_decide:8.2f}   (goal <= 1.2)")
     print(f"  same, {paired}: {paired_regional:.2f}")
     print(f"  same, egoistic times 1 … 5 (the regional pass alone), {paired}: {paired_scaled:.2f}")
+    if device == "cpu":
+        print(
+            f"  fused count pass: one matrix {1e3 * t_count_one:.1f} ms, RoI map, 5 matrices "
+            f"{1e3 * t_count_regional:.1f} ms"
+        )
+        ratio = t_count_regional / t_count_one
+        print(f"  regional / one matrix (fused count pass) {ratio:6.2f}   (goal <= 1.2)")
+        print(f"  same, {paired}: {paired_count:.2f}")
     print(f"  decide_mixtures / decide       {t_mix / t_decide:8.2f}   (target <= 10)")
     print(f"  same, {paired}: {paired_mix:.2f}")
     if device == "cuda":

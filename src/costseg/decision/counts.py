@@ -286,7 +286,8 @@ def _compiled(inputs: CountInputs, cost: torch.Tensor) -> DecisionCounts:
         rows = np.full(len(opened), -1, np.int64)
         if rule.reference64 is not None:  # q is p: the compiled reference
             values = np.concatenate([piece[3] for piece in pieces])
-            in_pieces(reference_pixels, (values, *rule.reference64, rows), len(opened))
+            which = np.zeros(len(opened), np.uint8)  # one matrix
+            in_pieces(reference_pixels, (values, *rule.reference64, which, rows), len(opened))
         rest = np.flatnonzero(rows < 0)  # NaN costs, or q is not p: the float64 settling
         if len(rest):
             exact = fast.exact_q(0, torch.from_numpy(opened[rest]).to(inputs.probs.device))

@@ -41,7 +41,7 @@ def count_blocks(q, program, certificate, cell, argmax, start, stop):
     rows, width = last + 1 - first, m + 1
     lanes = np.zeros((LANES, (rows + 1) * width), np.int32)  # a last row for the uncounted
     spare = rows * width
-    buffers = scratch(program)
+    buffers = scratch(program[4])
     flags, labels, index = buffers[4], np.empty(BLOCK, np.int64), np.empty(BLOCK, np.int64)
     opened, count = np.empty(1024, np.int64), 0
     values = np.empty((1024, n), np.float32)

@@ -66,8 +66,8 @@ def decide(probs: torch.Tensor, cost: torch.Tensor, priors) -> torch.Tensor:
 def decide_regional(probs: torch.Tensor, stack: torch.Tensor, priors, roi: torch.Tensor):
     """(B, H, W) rows of a regional value system's argmins: (K, M, N) float64 stack, (B', H, W)
     RoI ids (inputs checked by ``decide``). Each chunk's runs of pixels of one distinct matrix
-    go to that matrix's kernel (:class:`.sparse_rule.RegionalRule`); the pixels each leaves
-    open, to its ``CertifiedCosts.settle``."""
+    are decided by that matrix's kernel (:class:`.sparse_rule.RegionalRule`); the pixels left
+    open, by its ``CertifiedCosts.settle``."""
     from costseg.decision.cpu.sparse_rule import RegionalRule, SparseRule  # numba: where used
 
     matrices, index = distinct(stack)
@@ -80,16 +80,18 @@ def decide_regional(probs: torch.Tensor, stack: torch.Tensor, priors, roi: torch
     out = empty_labels(b, h * w, dtype=torch.long, device=probs.device)
     ids = matrix_ids(roi.cpu(), index).numpy()
     for i in range(b):
-        redo, q64 = [[] for _ in rules], [[] for _ in rules]
+        redo, q64 = [], []
         for s, q in fasts[0].chunks(i, step):
             image_ids = ids[i if len(ids) > 1 else 0, s : s + q.shape[1]]
-            for d, left in enumerate(regional.chunk(q, image_ids, out[i, s : s + q.shape[1]])):
-                redo[d].append(left + s)
-                q64[d].append(fasts[0].exact_q(i, left + s))  # while the chunk is in cache
+            left = regional.chunk(q, image_ids, out[i, s : s + q.shape[1]]) + s
+            redo.append(left)
+            q64.append(fasts[0].exact_q(i, left))  # while the chunk is in cache
+        pixels, q64 = torch.cat(redo), torch.cat(q64)
+        which = torch.from_numpy(ids[i if len(ids) > 1 else 0][pixels.numpy()])
         for d, fast in enumerate(fasts):
-            pixels = torch.cat(redo[d])
-            if len(pixels):
-                out[i, pixels] = fast.settle(torch.cat(q64[d]), shifted[d])
+            mine = which == d
+            if mine.any():
+                out[i, pixels[mine]] = fast.settle(q64[mine], shifted[d])
     return out.view(b, h, w)
 
 

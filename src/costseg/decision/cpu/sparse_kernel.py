@@ -14,6 +14,8 @@ from costseg.decision.cpu.block_steps import keep
 from costseg.decision.cpu.row_groups import PASS, TOTAL
 
 BLOCK = 1024  # pixels decided together: (N x BLOCK) float32 probabilities stay in cache
+VECTOR = 16  # float32 lanes of an AVX-512 vector (a cache line): where a run's loads start
+LOOP = 64  # pixels of one iteration of the vectorised loops (4 vectors): a run's size rounds up
 
 
 # fastmath "contract" only: multiply-adds fused (one rounding less), NaN and inf kept.
@@ -85,20 +87,22 @@ def _best_two(q, s, size, work, rows, best, second, arg):
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False, error_model="numpy")
-def reference_pixels(q, shifted_t, priors, labels, start, stop):
+def reference_pixels(q, shifted_t, priors, which, labels, start, stop):
     """``reference.reference_labels``, compiled, for pixels ``start:stop`` of (R, N) float32 q
-    (exactly p): ``p / π`` in float64, then each product and sum rounded once (no fastmath:
-    called from Python, as numba compiles a callee with its caller's flags), ascending k; the
-    first minimum. -1 where a cost is NaN (left to torch's reference). ``shifted_t``: (N, M) the
-    transposed shifted matrix (M candidates: a defer row last)."""
-    n, m = shifted_t.shape
+    (exactly p), pixel r with matrix ``which[r]``: ``p / π`` in float64, then each product and
+    sum rounded once (no fastmath: called from Python, as numba compiles a callee with its
+    caller's flags), ascending k; the first minimum. -1 where a cost is NaN (left to torch's
+    reference). ``shifted_t``: (D, N, M) the transposed shifted matrices (M candidates: a defer
+    row last)."""
+    n, m = shifted_t.shape[1:]
     costs = np.empty(m, np.float64)
     for r in range(start, stop):
+        matrix = shifted_t[which[r]]
         costs[:] = 0.0
         for k in range(n):
             x = np.float64(q[r, k]) / priors[k]
             for j in range(m):
-                costs[j] = costs[j] + shifted_t[k, j] * x
+                costs[j] = costs[j] + matrix[k, j] * x
         best = 0
         for j in range(m):
             if costs[j] < costs[best]:
@@ -107,10 +111,9 @@ def reference_pixels(q, shifted_t, priors, labels, start, stop):
 
 
 @numba.njit(**JIT)
-def scratch(program):
-    """The buffers of :func:`decide_block` for a program: ``work`` (its rows of
+def scratch(rows):
+    """The buffers of :func:`decide_block` for a program of ``rows`` rows: ``work`` (its rows of
     sums, zeros first, +inf last), best, second (float32), arg, flags (int32), each of a block."""
-    rows = program[4]
     work = np.zeros((rows, BLOCK), np.float32)
     work[rows - 1] = np.inf
     best, second = np.empty(BLOCK, np.float32), np.empty(BLOCK, np.float32)
@@ -154,7 +157,7 @@ def decide_blocks(q, program, certificate, labels, start, stop):
             ``Σ_k q_k`` for the reference's rounding.
         labels: (P,) int64 output.
     """
-    buffers, gathered = scratch(program), _opened(q.shape[0])
+    buffers, gathered = scratch(program[4]), _opened(q.shape[0])
     for s in range(start, stop, BLOCK):
         gathered = _decide_gather(q, s, BLOCK, program, certificate, buffers, labels, gathered)
     opened, values, count = gathered
@@ -162,22 +165,46 @@ def decide_blocks(q, program, certificate, labels, start, stop):
 
 
 @numba.njit(**JIT)
-def decide_runs(q, programs, certificates, starts, sizes, which, labels, first, last):
-    """Runs ``first:last`` of pixels of (N, P) float32 q, in the order given: run t is the pixels
-    ``starts[t] : starts[t] + sizes[t]`` (``sizes[t]`` <= BLOCK), decided with matrix
-    ``which[t]``, whose program and certificate are ``programs[which[t]]`` and
-    ``certificates[which[t]]`` (typed lists: a regional value system's distinct matrices,
-    docs/definitions.md §21); returns the pixels left open and their (R, N) q, as
-    :func:`decide_blocks` does (argument meanings there). Runs in the image's order read q as
-    one stream, whichever matrix decides them."""
-    buffers = [scratch(programs[0])]
-    for d in range(1, len(programs)):
-        buffers.append(scratch(programs[d]))
-    gathered = _opened(q.shape[0])
-    for t in range(first, last):
-        d, s, size = which[t], starts[t], sizes[t]
-        program, certificate = programs[d], certificates[d]
-        gathered = _decide_gather(q, s, size, program, certificate, buffers[d], labels, gathered)
+def decide_runs(q, programs, certificates, ids, cuts, labels, start, stop):
+    """Pixels ``start:stop`` (from a multiple of ``BLOCK``) of (N, P) float32 q, each decided with
+    matrix ``ids[pixel]`` (a regional value system's distinct matrices, docs/definitions.md §21),
+    whose program and certificate are ``programs[id]`` and ``certificates[id]`` (typed lists);
+    ``cuts``: the pixels whose id differs from the one before, ascending. Returns the pixels
+    left open and their (R, N) q, as :func:`decide_blocks` does (argument meanings there).
+
+    The pixels go by runs of one id, each within a block from its start rounded down to a
+    multiple of ``VECTOR`` (aligned loads) and decided over a multiple of ``LOOP`` pixels (no
+    scalar remainder in the loops): the few pixels beyond the run are decided with its matrix
+    and dropped. The runs read q as one stream, whichever matrix decides them, and share one
+    scratch (the largest program's rows)."""
+    rows = 0
+    for program in programs:
+        rows = max(rows, program[4])
+    buffers = scratch(rows)
+    gathered, decided = _opened(q.shape[0]), np.empty(BLOCK, np.int64)
+    head = np.empty(VECTOR, np.int64)
+    s, previous, c = start, -1, np.searchsorted(cuts, start, side="right")
+    program, certificate = programs[0], certificates[0]
+    while s < stop:
+        d, wide, change = ids[s], s - s % VECTOR, cuts[c] if c < len(cuts) else stop
+        end = min(change, wide + BLOCK, stop)
+        c += end == change
+        last = min(wide + (end - wide + LOOP - 1) // LOOP * LOOP, q.shape[1])
+        if d != previous:  # (a typed list's item costs a reference count per array)
+            program, certificate, previous = programs[d], certificates[d], d
+            buffers[0][program[4] - 1] = np.inf  # its +inf row, maybe another's sums before
+        inside = last <= stop  # in place: the pixels after the run are this thread's next runs'
+        out = labels[wide:last] if inside else decided[: last - wide]
+        head[: s - wide] = labels[wide:s]  # the run before's, put back after
+        if last - wide == BLOCK:  # a whole block: the version whose loops have a known length
+            decide_block(q, wide, program, certificate, buffers, out)
+        else:
+            decide_block(q, wide, program, certificate, buffers, out, last - wide)
+        labels[wide:s] = head[: s - wide]
+        if not inside:
+            labels[s:end] = decided[s - wide : end - wide]
+        gathered = _gather(q, s, end - s, buffers[4][s - wide :], gathered)
+        s = end
     opened, values, count = gathered
     return opened[:count].copy(), values[:count].copy()
 
@@ -192,12 +219,19 @@ def _opened(n):
 def _decide_gather(q, s, size, program, certificate, buffers, labels, gathered):
     """Pixels ``s : s + size`` decided into ``labels[s : s + size]`` (:func:`decide_block`), those
     left open appended to ``gathered`` (:func:`_opened`) with their q, while in cache."""
-    opened, values, count = gathered
     if size == BLOCK:  # the default: a compiled version whose loops have a known length
         decide_block(q, s, program, certificate, buffers, labels[s : s + BLOCK])
     else:
         decide_block(q, s, program, certificate, buffers, labels[s : s + size], size)
-    flags, unsure = buffers[4], 0
+    return _gather(q, s, size, buffers[4], gathered)
+
+
+@numba.njit(**JIT)
+def _gather(q, s, size, flags, gathered):
+    """The pixels ``s : s + size`` whose ``flags`` (size,) are 1 (left open) appended to
+    ``gathered`` (:func:`_opened`) with their q; ``flags`` is overwritten."""
+    opened, values, count = gathered
+    unsure = 0
     for i in range(size):  # the pixels left open, gathered (flags[unsure] is free: unsure <= i)
         opened_at = flags[i]
         flags[unsure] = i

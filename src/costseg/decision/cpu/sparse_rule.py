@@ -64,14 +64,13 @@ class SparseRule:
         folded = fast.priors is not None and fast.priors.ndim == 1  # global priors: in E
         priors = fast.priors.cpu().double() if folded else torch.ones(n, dtype=torch.float64)
         matrices = (cost[0], total, priors)
-        self.program, self.certificate = _prepared(
-            *(x.numpy().tobytes() for x in matrices), fast.eps, m
-        )
+        self.key = (*(x.numpy().tobytes() for x in matrices), fast.eps, m)  # of _prepared
+        self.program, self.certificate = _prepared(*self.key)
         # Open pixels: the reference here where q is exactly p (no pixel-wise priors; float32
         # and narrower types), else CertifiedCosts.settle.
         self.reference64 = None
         if fast.pixel_priors is None and fast.probs.dtype != torch.float64:
-            self.reference64 = shifted[0].cpu().t().contiguous().numpy(), priors.numpy()
+            self.reference64 = shifted.cpu().transpose(1, 2).contiguous().numpy(), priors.numpy()
         self.step = fast.probs.shape[2] if fast.read_as_is else CHUNK
 
     def chunk(self, q: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
@@ -97,16 +96,8 @@ class SparseRule:
         """The pixels the kernel left ``opened`` (their q: ``values``) decided into ``out`` by
         the compiled reference where q is exactly p (on the threads, or this one); returns the
         pixels left to ``CertifiedCosts.settle``."""
-        if self.reference64 is not None and len(opened):  # the reference, on these q
-            decided = np.empty(len(opened), np.int64)
-            args = (values, *self.reference64, decided)
-            if threads:
-                in_pieces(reference_pixels, args, len(opened))
-            else:
-                reference_pixels(*args, 0, len(opened))
-            out[opened] = decided
-            opened = opened[decided < 0]
-        return torch.from_numpy(opened)
+        which = np.zeros(len(opened), np.uint8)
+        return reference(self.reference64, opened, values, which, out, threads)
 
 
 class RegionalRule:
@@ -115,40 +106,53 @@ class RegionalRule:
     (:func:`.sparse_kernel.decide_runs`), in place."""
 
     def __init__(self, rules: list[SparseRule]) -> None:
-        self.rules = rules
-        self.programs, self.certificates = List(), List()
-        for rule in rules:
-            self.programs.append(rule.program)
-            self.certificates.append(rule.certificate)
+        self.programs, self.certificates = _typed_lists(tuple(rule.key for rule in rules))
+        self.reference64 = None  # every rule's or none: the same probabilities and priors
+        if rules[0].reference64 is not None:
+            shifted = np.concatenate([rule.reference64[0] for rule in rules])
+            self.reference64 = shifted, rules[0].reference64[1]
 
-    def chunk(self, q: torch.Tensor, ids: np.ndarray, labels: torch.Tensor) -> list[torch.Tensor]:
+    def chunk(self, q: torch.Tensor, ids: np.ndarray, labels: torch.Tensor) -> torch.Tensor:
         """(N, P) float32 q and (P,) uint8 each pixel's matrix → (P,) int64 labels written into
-        ``labels``; returns, per matrix, the pixels left to its ``CertifiedCosts.settle``."""
-        out, runs = labels.numpy(), runs_of(ids)
-        args = (q.contiguous().numpy(), self.programs, self.certificates, *runs, out)
-        pieces = in_pieces(decide_runs, args, len(runs[0]), work=runs[1])  # pieces of equal pixels
+        ``labels``; returns the pixels left to their matrix's ``CertifiedCosts.settle``."""
+        out = labels.numpy()
+        cuts = np.flatnonzero(ids[1:] != ids[:-1]) + 1  # where the runs of one id start
+        args = (q.contiguous().numpy(), self.programs, self.certificates, ids, cuts, out)
+        pieces = in_pieces(decide_runs, args, len(ids), BLOCK)
         opened = np.concatenate([part[0] for part in pieces])
         values = np.concatenate([part[1] for part in pieces])
-        matrix, left = ids[opened], []
-        for d, rule in enumerate(self.rules):
-            mine = matrix == d  # a few pixels: the reference on this thread
-            left.append(rule.reference(opened[mine], values[mine], out, mine.sum() > BLOCK))
-        return left
+        return reference(self.reference64, opened, values, ids[opened], out, len(opened) > BLOCK)
 
 
-def runs_of(ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The runs of equal values of (P,) ``ids`` (a regional value system's matrix of each pixel),
-    cut to at most ``BLOCK`` pixels: (T,) int64 starts and sizes, (T,) the value of each run.
+def reference(
+    reference64, opened: np.ndarray, values: np.ndarray, which, out: np.ndarray, threads: bool
+) -> torch.Tensor:
+    """The pixels ``opened`` (their q: ``values``, their matrix: ``which``) decided into ``out``
+    by the compiled reference where q is exactly p (``reference64``: the (D, N, M) transposed
+    shifted matrices and the priors; None: not so), on the threads or this one; returns the
+    pixels left to ``CertifiedCosts.settle``."""
+    if reference64 is not None and len(opened):
+        decided = np.empty(len(opened), np.int64)
+        args = (values, *reference64, which, decided)
+        if threads:
+            in_pieces(reference_pixels, args, len(opened))
+        else:
+            reference_pixels(*args, 0, len(opened))
+        out[opened] = decided
+        opened = opened[decided < 0]
+    return torch.from_numpy(opened)
 
-    >>> [a.tolist() for a in runs_of(np.array([0] * 3 + [2] * (BLOCK + 1), np.uint8))]
-    [[0, 3, 1027], [3, 1024, 1], [0, 2, 2]]
-    """
-    bounds = np.concatenate([[0], np.flatnonzero(ids[1:] != ids[:-1]) + 1, [len(ids)]])
-    pieces = -(-np.diff(bounds) // BLOCK)
-    within = np.arange(pieces.sum()) - np.repeat(np.cumsum(pieces) - pieces, pieces)
-    starts = (np.repeat(bounds[:-1], pieces) + BLOCK * within).astype(np.int64)
-    sizes = np.minimum(BLOCK, np.repeat(bounds[1:], pieces) - starts).astype(np.int64)
-    return starts, sizes, ids[starts]
+
+@lru_cache(maxsize=32)
+def _typed_lists(keys: tuple) -> tuple[List, List]:
+    """The programs and certificates of the matrices of :func:`_prepared`'s ``keys`` as numba's
+    typed lists, cached (building them takes about 0.5 ms)."""
+    programs, certificates = List(), List()
+    for key in keys:
+        program, certificate = _prepared(*key)
+        programs.append(program)
+        certificates.append(certificate)
+    return programs, certificates
 
 
 @lru_cache(maxsize=32)
