@@ -37,7 +37,7 @@ from costseg.decision import (
     subsample,
 )
 from costseg.evaluation.analyses import Analysis, Context, Provided, Seen
-from costseg.evaluation.processes import summed
+from costseg.evaluation.processes import in_image_order
 from costseg.evaluation.settings import DesignSettings
 from costseg.metrics.per_image import per_image_counts, per_image_loss
 from costseg.metrics.requirements import Requirements
@@ -74,9 +74,7 @@ class Design(Analysis):
         groups = self.context.groups
         self.measured = [i for i, g in enumerate(groups) if g.is_named]
         self.measured += [i for i, g in enumerate(groups) if g.family == DESIGNED_FAMILY]
-        rules = sum(len(groups[i].names) for i in self.measured)
-        k = len(self.outcome.requirements.alphas)
-        self.sums = torch.zeros(rules, k, 3, dtype=torch.float64)  # Σ loss, images, above α
+        self.losses: list = []  # (position, (rules, K) per-image losses) of this process
 
     def process(self, seen: Seen) -> None:
         req, rows = self.outcome.requirements, []
@@ -98,28 +96,30 @@ class Design(Analysis):
                 for t in req.constraints
             ]
             rows.append(torch.stack(losses, -1))  # (B, rules, K)
-        losses = torch.cat(rows, 1)
-        defined = ~losses.isnan()
-        above = defined & (losses > torch.tensor(req.alphas, dtype=torch.float64))
-        self.sums += torch.stack(
-            [losses.nan_to_num(0).sum(0), defined.sum(0), above.sum(0)], -1
-        ).double()
+        losses = torch.cat(rows, 1).double().numpy()
+        self.losses += list(zip(seen.positions, losses, strict=True))
 
     def gather(self) -> None:
-        self.sums = summed(self.sums)
+        self.losses = in_image_order(self.losses)  # summed in one order, however many processes
 
     def result(self) -> DesignOutcome:
         names = [n for i in self.measured for n in self.context.groups[i].names]
+        req = self.outcome.requirements
+        losses = (
+            np.stack(self.losses) if self.losses else np.empty((0, len(names), len(req.alphas)))
+        )
+        risks, images = defined_risks(losses)  # (rules, K)
+        above = (losses > np.array(req.alphas)).sum(0)  # NaN compares False
         self.outcome.per_image = {
             text: {
                 name: {
-                    "risk": s[0] / s[1] if s[1] else None,
-                    "images": int(s[1]),
-                    "above_alpha": int(s[2]),
+                    "risk": None if images[r, i] == 0 else float(risks[r, i]),
+                    "images": int(images[r, i]),
+                    "above_alpha": int(above[r, i]),
                 }
-                for name, s in zip(names, self.sums[:, i].tolist(), strict=True)
+                for r, name in enumerate(names)
             }
-            for i, text in enumerate(self.outcome.requirements.texts)
+            for i, text in enumerate(req.texts)
         }
         return self.outcome
 
