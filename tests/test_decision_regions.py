@@ -98,6 +98,24 @@ def test_runs_longer_than_a_block_and_a_map_of_one_region(path):
     assert torch.equal(decide(probs, stack, roi=one, path=path), decide_reference(probs, stack[2]))
 
 
+@pytest.mark.parametrize("path", CPU_PATHS)
+def test_runs_of_every_length_across_the_threads_pieces(path):
+    """Runs of 1 to 2000 pixels, starting anywhere against vectors, loops, blocks and the
+    pieces the threads take (four per thread: boundaries every few blocks here)."""
+    gen = torch.Generator().manual_seed(9)
+    lengths = torch.cat([torch.randint(1, 70, (400,), generator=gen),
+                         torch.randint(70, 2000, (30,), generator=gen)])  # fmt: skip
+    lengths = lengths[torch.randperm(len(lengths), generator=gen)]  # 40,228 pixels
+    ids = torch.randint(0, 5, (len(lengths),), generator=gen).repeat_interleave(lengths)
+    height, width = 19, 2048
+    roi = ids[: height * width].reshape(1, height, width).to(torch.uint8)
+    probs = smooth((1, N, height, width), seed=10)
+    stack = stack_of_five(defer=True)
+    assert torch.equal(
+        decide(probs, stack, roi=roi, path=path), loop_over_rois(probs, stack, None, roi)
+    )
+
+
 @pytest.mark.parametrize("path", ["reference", *CPU_PATHS])
 def test_a_stack_of_equal_matrices_gives_the_plain_matrix_labels(path):
     probs = hard_probs()
