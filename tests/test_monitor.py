@@ -6,6 +6,7 @@ frame, and the exported graph fed the monitor's matrices."""
 from __future__ import annotations
 
 import csv
+import json
 import math
 import random
 from pathlib import Path
@@ -147,6 +148,7 @@ def test_evaluation_gives_the_theta_of_the_class_driven_frame_by_frame(space, ti
                      output_dir=str(out), monitor_require=REQUIRE[:2], save_probs=True,
                      batch_size=2, num_examples=0, progress=False, **options)  # fmt: skip
     rows = list(csv.DictReader((out / "monitor.csv").open()))
+    assert json.loads((out / "results.json").read_text())["monitor"]["space"] == space
     monitor = Monitor(REQUIRE[:2], eta=0.7, space=space)
     fixed = monitor.matrix()
     labelled = labelled_frames(5, 0.75, seed=3)

@@ -40,7 +40,7 @@ class StreamOutcome(Result):
     Attributes:
         texts, alphas: the requirements and their levels; ``eta``, ``scale``, ``delay``,
             ``share`` (of frames labelled), ``start`` (a cost file or None: μ = 0), ``base``
-            (C₀), ``mu_max``: the monitor's settings.
+            (C₀), ``mu_max``, ``space`` (``whole`` or ``regional``): the monitor's settings.
         stems: the frames' names, in order; ``trace``: θ and the losses frame by frame;
             ``mu``: (T + 1, K) the multipliers of ``trace.theta``.
         fixed, monitored: per frame, the fixed (start) matrix's counts and the monitor's.
@@ -57,6 +57,7 @@ class StreamOutcome(Result):
     start: str | None
     base: str
     mu_max: float
+    space: str
     stems: list[str]
     trace: StreamTrace
     mu: np.ndarray
@@ -120,6 +121,7 @@ class StreamOutcome(Result):
             "start": self.start or "C0 (μ = 0)",
             "base": self.base,
             "mu_max": self.mu_max,
+            "space": self.space,
             "frames": len(self.stems),
             "labelled_frames": int(trace.labelled.sum()),
             "shift_onset_frame": None if self.onset is None else self.onset + 1,
@@ -202,7 +204,7 @@ class StreamOutcome(Result):
             "",
             f"## Monitored value system (definitions §22): {record['frames']} frames in order, "
             f"η = {self.eta:g} on the {self.scale} scale, labels {self.delay} frame(s) late for "
-            f"{record['labelled_frames']} of them; start {record['start']}"
+            f"{record['labelled_frames']} of them; {self.space} matrices; start {record['start']}"
             + ("" if onset is None else f"; shift from frame {onset}"),
             self.guarantee(),
             markdown_table(rows, percent=()),

@@ -71,6 +71,7 @@ class Monitored(Analysis):
             start=s.start,
             base=s.base,
             mu_max=s.mu_max,
+            space=s.space,
             stems=list(stems),
             trace=trace,
             mu=to_mu(trace.theta, s.scale),
