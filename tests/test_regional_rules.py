@@ -119,7 +119,9 @@ def test_predict_decides_with_the_roi_map_it_writes(ckpt, tmp_path):
 
 
 def test_the_api_without_a_roi_map_refuses_before_the_first_image(network, tmp_path):
-    with pytest.raises(ValueError, match=r"no pixel-wise priors .* or --roi geometric") as err:
+    with pytest.raises(
+        ValueError, match=r'the given dataset: pass priors= .* or roi="geometric"'
+    ) as err:
         costseg.evaluate(network, StreetScenes("val", length=2, size=(64, 128)), [STREET],
                          output_dir=str(tmp_path / "none"), progress=False)  # fmt: skip
     assert "\n" not in str(err.value)

@@ -13,8 +13,15 @@ from costseg.classes import CLASS_NAMES
 from costseg.data.from_config import same_data
 
 
-def no_priors(data: str, geometric: bool = True) -> str:
-    """The one line that refuses a run whose data has no priors to offer."""
+def no_priors(data: str | None, geometric: bool = True) -> str:
+    """The one line that refuses a run whose data has no priors to offer (``data`` None: a
+    dataset given in Python, whose keywords it names)."""
+    if data is None:
+        return (
+            "no pixel-wise priors for the given dataset: pass priors= (a (19, H, W) tensor, or a "
+            "run's priors.pt)"
+            + (' or roi="geometric" (then no ml, no alpha_sweep)' if geometric else "")
+        )
     return (
         f"no pixel-wise priors for {data}: no train split to count them from (gtFine/train); "
         "pass --priors FILE (a run's priors.pt, or scripts/count_priors.py's from a label folder)"
@@ -64,8 +71,7 @@ def _counted_priors(
         if geometric:
             print("no training labels: no pixel-wise priors; RoIs from the geometric map")
             return None, "none: no training labels"
-        name = "the given dataset" if data is None else data_settings(data).root
-        raise ValueError(no_priors(name)) from None
+        raise ValueError(no_priors(None if data is None else data_settings(data).root)) from None
     read = getattr(train, "read_label", None) or (lambda i: train[i][1])
     found = training_priors(
         lambda: (read(i) for i in range(len(train))),
