@@ -16,7 +16,7 @@ import pytest
 import torch
 
 from costseg.calibration.monitor import Controller, labelled_frames, run_stream
-from costseg.calibration.stream_records import record_frame
+from costseg.calibration.stream_records import FrameRecord, record_frame
 from costseg.classes import IGNORE_INDEX
 from costseg.decision import decide_counts
 from costseg.metrics.monitor import Monitor
@@ -100,14 +100,16 @@ def _frame(seed: int, size=(24, 40), sharpness: float = 2.0):
     return logits.softmax(0), labels, roi
 
 
-def test_frame_record_counts_equal_every_pixels_under_matrices_of_the_box():
+def test_frame_record_counts_equal_every_pixels_under_matrices_of_the_box(tmp_path):
+    """Also after the record's round trip through its file (the evaluation's)."""
     monitor = Monitor(REQUIRE, mu_max=20.0)
     space, classes = monitor.space(), [11, 2, 13]
     rng = np.random.default_rng(0)
     corners = [[0.0, 0.0, 0.0], [20.0, 20.0, 20.0], [20.0, 0.0, 3.0], [0.5, 20.0, 20.0]]
     for seed, sharpness in ((0, 2.0), (1, 6.0), (2, 0.5)):
         probs, labels, roi = _frame(seed, sharpness=sharpness)
-        frame = record_frame(probs, labels, roi, space, classes)
+        record_frame(probs, labels, roi, space, classes).save(tmp_path / f"{seed}.pt")
+        frame = FrameRecord.load(tmp_path / f"{seed}.pt")
         assert frame.kept_pixels < (labels != IGNORE_INDEX).sum()
         for mu in [*corners, *(20 * rng.random((6, 3)) ** 3).tolist()]:
             matrix = monitor.matrix(np.log1p(mu))
@@ -149,6 +151,7 @@ def test_evaluation_gives_the_theta_of_the_class_driven_frame_by_frame(space, ti
                      batch_size=2, num_examples=0, progress=False, **options)  # fmt: skip
     rows = list(csv.DictReader((out / "monitor.csv").open()))
     assert json.loads((out / "results.json").read_text())["monitor"]["space"] == space
+    assert not (out / "monitor_records").exists()  # the records, one file a frame, walked
     monitor = Monitor(REQUIRE[:2], eta=0.7, space=space)
     fixed = monitor.matrix()
     labelled = labelled_frames(5, 0.75, seed=3)

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import torch
 
@@ -67,6 +68,18 @@ class FrameRecord:
         """The record's size in bytes."""
         parts = [*self.settled, self.probs, self.labels, *([] if self.roi is None else [self.roi])]
         return sum(p.numel() * p.element_size() for p in parts)
+
+    def save(self, path: Path) -> None:
+        """Write the record to ``path`` (a file of tensors: :meth:`load` reads it back)."""
+        torch.save({"confusion": self.settled.confusion, "agree": self.settled.agree,
+                    "probs": self.probs, "labels": self.labels, "roi": self.roi}, path)  # fmt: skip
+
+    @classmethod
+    def load(cls, path: Path) -> FrameRecord:
+        """The record :meth:`save` wrote to ``path``."""
+        parts = torch.load(path, weights_only=True)
+        settled = DecisionCounts(parts["confusion"], parts["agree"])
+        return cls(settled, parts["probs"], parts["labels"], parts["roi"])
 
     def counts(self, matrix: torch.Tensor) -> DecisionCounts:
         """The frame's decision counts under ``matrix`` (of the space the record was made for)."""

@@ -76,6 +76,12 @@ def in_image_order(records: list[tuple[int, T]]) -> list[T]:
     return [record for _, record in sorted(records, key=lambda r: r[0])]
 
 
+def barrier() -> None:
+    """Wait until every process comes here (one process: return)."""
+    if distributed():
+        dist.barrier()
+
+
 def summed(tensor: torch.Tensor) -> torch.Tensor:
     """``tensor`` summed over every process (a new tensor; an integer sum is exact)."""
     total = tensor.clone()

@@ -4,13 +4,16 @@ their order (docs/definitions.md §22).
 θ_t depends on the frames before t, and under ``torchrun`` a process sees every
 ``world_size``-th image. So each image leaves an exact record while it passes
 (:func:`~costseg.calibration.stream_records.record_frame`: the pixels every matrix the monitor
-can reach decides alike, counted once; the others kept), the records come together in the images'
-order, and the stream is walked once at the end (:func:`~costseg.calibration.monitor.run_stream`):
+can reach decides alike, counted once; the others kept), written to a file of the run while the
+image passes; the records' names come together in the images' order, and the stream is walked
+once at the end, one record read at a time (:func:`~costseg.calibration.monitor.run_stream`):
 the same θ sequence in one process, several, or the Python API. The fixed matrix (the start's)
 is counted on the same records.
 """
 
 from __future__ import annotations
+
+import shutil
 
 import numpy as np
 import torch
@@ -18,10 +21,14 @@ import torch
 from costseg.calibration.monitor import labelled_frames, run_stream, to_mu
 from costseg.calibration.stream_records import FrameRecord, record_frame
 from costseg.evaluation.analyses import Analysis, Seen
-from costseg.evaluation.processes import in_image_order
+from costseg.evaluation.processes import barrier, in_image_order, rank
 from costseg.evaluation.settings import MonitorSettings
 from costseg.metrics.monitor import Monitor
 from costseg.report.monitor import FrameCounts, StreamOutcome
+
+RECORDS = "monitor_records"
+"""The folder of the run that holds each frame's record while the images pass (one file a
+frame, so that a long stream at full resolution does not stay in memory); removed once walked."""
 
 
 class Monitored(Analysis):
@@ -33,7 +40,9 @@ class Monitored(Analysis):
                                mu_max=s.mu_max, space=s.space)  # fmt: skip
         self.space = self.monitor.space()
         self.classes = [t.cls for t in self.monitor.requirements.constraints]
-        self.records: list = []  # (position, (stem, FrameRecord)) of this process's images
+        self.folder = self.context.plan.output_dir / RECORDS
+        self.folder.mkdir(exist_ok=True)
+        self.records: list = []  # (position, (stem, file, bytes, kept pixels)) of this process's
 
     def process(self, seen: Seen) -> None:
         labels = seen.batch.labels
@@ -42,24 +51,31 @@ class Monitored(Analysis):
             for b, position in enumerate(seen.positions):
                 frame = record_frame(seen.probs[b], labels[b], None if roi is None else roi[b],
                                      self.space, self.classes)  # fmt: skip
-                self.records.append((position, (seen.batch.stems[b], frame)))
+                file = self.folder / f"{position:06d}.pt"
+                frame.save(file)
+                self.records.append(
+                    (position, (seen.batch.stems[b], file, frame.nbytes, frame.kept_pixels))
+                )
 
     def gather(self) -> None:
         self.records = in_image_order(self.records)
 
     def result(self) -> StreamOutcome:
         s, monitor = self.settings, self.monitor
-        stems, frames = zip(*self.records, strict=True) if self.records else ((), ())
-        fixed = monitor.fixed
-        fixed_counts = [frame_counts(monitor, f, fixed) for f in frames]
-        monitored: list[FrameCounts] = []
+        stems, files, nbytes, kept = zip(*self.records, strict=True) if self.records else [()] * 4
+        fixed, fixed_counts, monitored = monitor.fixed, [], []
 
         def losses(t: int, theta: np.ndarray) -> np.ndarray:
-            monitored.append(frame_counts(monitor, frames[t], monitor.matrix(theta)))
+            frame = FrameRecord.load(files[t])  # one frame in memory at a time
+            fixed_counts.append(frame_counts(monitor, frame, fixed))
+            monitored.append(frame_counts(monitor, frame, monitor.matrix(theta)))
             return monitored[-1].losses
 
-        labelled = labelled_frames(len(frames), s.labelled, s.seed)
-        trace = run_stream(losses, len(frames), monitor.controller, s.delay, labelled)
+        labelled = labelled_frames(len(files), s.labelled, s.seed)
+        trace = run_stream(losses, len(files), monitor.controller, s.delay, labelled)
+        barrier()  # every process has walked the records
+        if rank() == 0:
+            shutil.rmtree(self.folder)
         shifted = bool(self.context.plan.shifts)
         return StreamOutcome(
             texts=s.requirements,
@@ -78,8 +94,8 @@ class Monitored(Analysis):
             fixed=fixed_counts,
             monitored=monitored,
             onset=s.shift_onset if shifted and s.shift_onset else None,
-            record_bytes=np.array([f.nbytes for f in frames]),
-            kept_pixels=np.array([f.kept_pixels for f in frames]),
+            record_bytes=np.array(nbytes),
+            kept_pixels=np.array(kept),
         )
 
 
