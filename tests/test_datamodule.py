@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import os
 from pathlib import Path
 
@@ -98,6 +99,8 @@ def test_loader_settings(monkeypatch, workers: int) -> None:
         return
     assert os.getpid() not in readers | readers_val and len(readers_val) == workers
     assert _epoch(loader)[0] == readers_val  # the same processes: persistent workers
+    del shuffled, loader
+    gc.collect()  # their workers stop here, not whenever a later test collects them
 
 
 def test_bad_arguments() -> None:
