@@ -25,19 +25,17 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from study_design import probabilities  # the study's images, read the same way
 
 from costseg.calibration.guarantee import defined_risks
-from costseg.classes import CLASS_NAMES
 from costseg.cli import parse_options, user_errors
-from costseg.data.from_config import build_dataset
-from costseg.data.prior_maps import PriorMaps
 from costseg.decision import count_decisions, prepare_counts, subsample
 from costseg.evaluation.analyses.design import SearchImages, pixel_seeds, spaces
 from costseg.evaluation.settings import design_settings
 from costseg.metrics.requirements import Requirements
 from costseg.networks.ensemble import open_sources
 from costseg.networks.protocols import Protocol
-from costseg.networks.sources import batches, resolve_device
+from costseg.networks.sources import resolve_device
 from costseg.options import EvalOptions, option, same_option, whole_number
 from costseg.values import share
 
@@ -63,15 +61,8 @@ def main(args: Sequence[str] | None = None) -> None:
     args = parse_options(SearchBenchOptions, args, "bench_search.py", __doc__.splitlines()[0])
     device = resolve_device("cpu")
     source = open_sources(args.ckpt_path, None, None, device, Protocol(), None, 0)
-    dataset = build_dataset(source.data_config, "val", args.root)
-    count = min(args.images, len(dataset))
-    priors = PriorMaps(source.priors, CLASS_NAMES, device)
-    seen = []
-    with torch.inference_mode():
-        for batch in batches(source, dataset, range(count), args.batch_size, device, 0, "images"):
-            _, roi = priors.at(tuple(batch.labels.shape[-2:]))
-            probs = source.probabilities_of(batch.scores).float()
-            seen.append((probs, batch.labels, roi.expand_as(batch.labels).contiguous()))
+    seen = probabilities(source, source.data_config, "val", range(args.images), device,
+                         args.batch_size, args.root)  # fmt: skip
     req = Requirements.parse(args.require)
     options = EvalOptions(design="lagrangian", require=args.require,
                           design_pixels=args.pixel_share, seed=args.seed)  # fmt: skip
@@ -83,11 +74,7 @@ def main(args: Sequence[str] | None = None) -> None:
                  for _ in range(args.candidates - 1)]  # fmt: skip
 
     def exact():
-        found, first = SearchImages(), 0
-        for probs, labels, roi in seen:
-            seeds = pixel_seeds(args.seed, list(range(first, first + len(labels))))
-            found.add_pixels(probs, labels, roi, args.pixel_share, req, [space.hull()], seeds)
-            first += len(labels)
+        found = SearchImages.of_images(seen, args.pixel_share, req, [space.hull()], args.seed)
         kept = sum(int((p.inputs.cell >= 0).sum()) for p in found.parts)
         score = found.scorer(req, lambda losses: None)
         return kept, lambda m: score(m)[0]
@@ -118,8 +105,9 @@ def main(args: Sequence[str] | None = None) -> None:
     ways = {"exact": exact, f"a {args.pixel_share:.0%} sample": prepared(args.pixel_share),
             "every pixel": prepared(1.0)}  # fmt: skip
     height, width = seen[0][1].shape[-2:]
-    print(f"{count} images of {height} x {width}, {len(matrices)} candidates of the Lagrangian "
-          f"space of {' '.join(args.require)}, {torch.get_num_threads()} threads:")  # fmt: skip
+    print(f"{args.images} images of {height} x {width}, {len(matrices)} candidates of the "
+          f"Lagrangian space of {' '.join(args.require)}, "
+          f"{torch.get_num_threads()} threads:")  # fmt: skip
     per_candidate = {}
     for name, make in ways.items():
         start = time.perf_counter()

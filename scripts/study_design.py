@@ -42,7 +42,7 @@ from costseg.cli import parse_options, user_errors
 from costseg.data.from_config import build_dataset
 from costseg.data.prior_maps import PriorMaps
 from costseg.decision import count_decisions, prepare_counts
-from costseg.evaluation.analyses.design import SearchImages, continuous, pixel_seeds, spaces
+from costseg.evaluation.analyses.design import SearchImages, continuous, spaces
 from costseg.evaluation.settings import DesignSettings, design_settings
 from costseg.metrics.requirements import Requirements
 from costseg.networks.ensemble import open_sources
@@ -112,16 +112,18 @@ class StudyOptions:
     batch_size: int = same_option(EvalOptions, "batch_size", 8)
 
 
-def probabilities(source, config, split: str, images: range | None, device, batch_size: int):
-    """Every image's (probs, labels, roi) of ``split`` (or its ``images``), as a list of batches
-    on the CPU."""
+def probabilities(
+    source, config, split: str, images: range | None, device, batch_size: int, root=None
+):
+    """Every image's (probs, labels, roi) of ``split`` (or its ``images``; of the Cityscapes
+    tree ``root`` instead of the configured data), as a list of batches on the CPU."""
     if images is not None and f"{split}_length" in config["init_args"]:  # the toy scenes
         config = {**config, "init_args": {**config["init_args"], f"{split}_length": images.stop}}
-    dataset = build_dataset(config, split)
+    dataset = build_dataset(config, split, root)
     indices = list(range(len(dataset)) if images is None else images)
     if indices and indices[-1] >= len(dataset):
-        raise ValueError(f"the {split} split holds {len(dataset)} images, fewer than "
-                         f"--search_from + --search_images = {indices[-1] + 1}")  # fmt: skip
+        raise ValueError(f"the {split} split holds {len(dataset)} images, not the "
+                         f"{indices[-1] + 1} asked for")  # fmt: skip
     priors = PriorMaps(source.priors, CLASS_NAMES, device)
     out = []
     with torch.inference_mode():
@@ -162,11 +164,7 @@ def candidates(settings: DesignSettings, req: Requirements, seen: list, seed: in
     searched = continuous(space, settings) or settings.space == "aggregate"
     if not searched:
         return torch.stack([space.matrix(p) for p in space.grid()])
-    found, first = SearchImages(), 0
-    for probs, labels, roi in seen:
-        seeds = pixel_seeds(seed, list(range(first, first + len(labels))))
-        found.add_pixels(probs, labels, roi, settings.pixels, req, [space.hull()], seeds)
-        first += len(labels)
+    found = SearchImages.of_images(seen, settings.pixels, req, [space.hull()], seed)
     score = found.scorer(req, lambda losses: None)
     return search(space, score, req.alphas, settings.budget, seed, req.maximize,
                   continuous=searched, delta=settings.delta).matrices  # fmt: skip

@@ -300,6 +300,24 @@ class SearchImages:
                 first += size
         return found
 
+    @classmethod
+    def of_images(
+        cls,
+        images: list[tuple],
+        share: float,
+        req: Requirements,
+        hulls: list[Hull | RegionalHull | None],
+        seed: int,
+    ) -> SearchImages:
+        """D1 of batches ``(probs, labels, roi)`` given outright (their images the held-out
+        positions 0, 1, …), prepared as :meth:`of` prepares the held-out images."""
+        found, first = cls(), 0
+        for probs, labels, roi in images:
+            seeds = pixel_seeds(seed, list(range(first, first + len(labels))))
+            found.add_pixels(probs, labels, roi, share, req, hulls, seeds)
+            first += len(labels)
+        return found
+
     def add(
         self, seen: Seen, keep: list[int], share: float, req: Requirements, hulls, seeds
     ) -> None:
